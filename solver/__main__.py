@@ -1,0 +1,85 @@
+"""Command line of the solver: ``python -m solver --help``.
+
+Subcommands
+-----------
+dk Q1 Q2 Q3        all six direct-kinematics solutions of one joint vector (rad)
+ik X Y PHI         the motor angles in each of the 8 postures
+example            the paper's Fig. 11 experiment: a pose, its joints, all DK solutions back
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+
+from . import DEFAULT_RULE, ORDERING_RULES, Manipulator, dk_all, ik, posture_of, singularity_measures
+
+#: The home pose (FMU start values): the centroid of the motor triangle, phi = 0.
+HOME_POSE = (0.5, float(np.sqrt(3.0) / 6.0), 0.0)
+#: A pose of posture 1 whose joint vector has six real DK solutions (Fig. 11 style example).
+EXAMPLE_POSE = (0.8, 0.0, float(np.deg2rad(15.0)))
+
+
+def _fmt(z: complex) -> str:
+    if z.imag == 0.0:
+        return f"{z.real:+.9f}"
+    return f"{z.real:+.6f}{z.imag:+.6f}j"
+
+
+def print_solutions(model: Manipulator, q, rule: str, out=sys.stdout) -> None:
+    sol = dk_all(model, q, rule=rule)
+    print(f"q = ({q[0]:+.9f}, {q[1]:+.9f}, {q[2]:+.9f}) rad; rule {rule!r}: "
+          f"{int(sol.n_real)} real, {6 - int(sol.n_real)} complex", file=out)
+    print(f"{'#':>2}  {'kind':7} {'x [m]':>24} {'y [m]':>24} {'phi [rad]':>24}  posture  type1", file=out)
+    for k in range(6):
+        X = sol.poses[k]
+        kind = "real" if sol.real[k] else "complex"
+        extra = ""
+        if sol.real[k]:
+            Xr = X.real
+            extra = (f"  {int(posture_of(model, Xr, q)):7d}  "
+                     f"{float(singularity_measures(model, Xr, q).type1):.3g}")
+        print(f"{k + 1:>2}  {kind:7} {_fmt(X[0]):>24} {_fmt(X[1]):>24} {_fmt(X[2]):>24}{extra}", file=out)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m solver", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--rule", default=DEFAULT_RULE, choices=sorted(ORDERING_RULES),
+                        help="ordering rule that numbers the DK solutions")
+    sub = parser.add_subparsers(dest="cmd")
+    p = sub.add_parser("dk", help="all DK solutions of a joint vector")
+    p.add_argument("q", nargs=3, type=float, metavar="Q")
+    p = sub.add_parser("ik", help="IK of a pose in all 8 postures")
+    p.add_argument("X", nargs=3, type=float, metavar="X")
+    p = sub.add_parser("example", help="the paper's Fig. 11 experiment")
+    p.add_argument("--pose", nargs=3, type=float, default=EXAMPLE_POSE, metavar=("X", "Y", "PHI"))
+    p.add_argument("--posture", type=int, default=1)
+    args = parser.parse_args(argv)
+    model = Manipulator.paper()
+    try:
+        if args.cmd == "dk":
+            print_solutions(model, np.array(args.q), args.rule)
+        elif args.cmd == "ik":
+            X = np.array(args.X)
+            for j in range(1, 9):
+                q = ik(model, X, j)
+                print(f"posture {j}: q = {np.array2string(q, precision=9)} rad")
+        else:
+            X = np.array(getattr(args, "pose", EXAMPLE_POSE))
+            j = getattr(args, "posture", 1)
+            q = ik(model, X, j)
+            print(f"{model.name}: pose X = {X.tolist()} (m, m, rad), posture {j}")
+            if np.isnan(q[0]):
+                print("the pose is outside the posture's tool space")
+                return 1
+            print_solutions(model, q, args.rule)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

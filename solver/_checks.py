@@ -1,0 +1,91 @@
+"""Argument checking shared by every public function of :mod:`solver`.
+
+One helper turns an argument into a float array of the expected trailing
+shape and says exactly what was wrong otherwise ("q: expected (..., 3), got
+(4,)").  The exceptions subclass :class:`ValueError` so that callers who catch
+``ValueError`` keep working.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["SolverInputError", "GeometryError", "as_array", "check_posture"]
+
+
+class SolverInputError(ValueError):
+    """An argument has the wrong shape, a non-finite entry or an invalid value."""
+
+
+class GeometryError(ValueError):
+    """A manipulator geometry is invalid (non-positive lengths, degenerate triangles...)."""
+
+
+def _shape_text(trailing: tuple[int, ...]) -> str:
+    inner = ", ".join(str(n) for n in trailing)
+    return f"(..., {inner})" if trailing else "(...)"
+
+
+def _preview(a: np.ndarray) -> str:
+    flat = a.ravel()
+    text = np.array2string(flat[:6], precision=6, separator=", ")
+    return text[:-1] + ", ...]" if flat.size > 6 else text
+
+
+def as_array(name: str, value, trailing: tuple[int, ...] = (3,), *, finite: bool = True,
+             dtype=np.float64) -> np.ndarray:
+    """Convert ``value`` to an array of shape ``(..., *trailing)`` or raise.
+
+    Parameters
+    ----------
+    name : str
+        Argument name used in the error message.
+    value : array_like
+        The argument.
+    trailing : tuple of int
+        Required trailing dimensions, e.g. ``(3,)`` for poses or joint vectors.
+    finite : bool
+        Reject NaN and infinite entries.
+    dtype : numpy dtype
+        Target dtype (float64 by default; complex input is refused for float).
+
+    Raises
+    ------
+    SolverInputError
+        If the array cannot be converted, has the wrong trailing shape, or holds
+        non-finite entries while ``finite`` is true.
+    """
+    try:
+        arr = np.asarray(value)
+    except Exception as exc:  # pragma: no cover - exotic objects
+        raise SolverInputError(f"{name}: cannot convert {type(value).__name__} to an array ({exc})") from exc
+    if arr.dtype == object or arr.dtype.kind in "USV":
+        raise SolverInputError(f"{name}: expected a numeric array {_shape_text(trailing)}, got dtype {arr.dtype}")
+    if np.dtype(dtype).kind == "f" and arr.dtype.kind == "c":
+        raise SolverInputError(f"{name}: expected real numbers, got complex dtype {arr.dtype}")
+    n = len(trailing)
+    if arr.ndim < n or tuple(arr.shape[arr.ndim - n:]) != tuple(trailing):
+        raise SolverInputError(f"{name}: expected shape {_shape_text(trailing)}, got {arr.shape}")
+    arr = arr.astype(dtype, copy=False)
+    if finite and not np.all(np.isfinite(arr)):
+        raise SolverInputError(
+            f"{name}: expected finite numbers, got non-finite entries in {_preview(arr)}")
+    return arr
+
+
+def check_posture(posture) -> np.ndarray:
+    """Return ``posture`` as an int array with every entry in 1..8, or raise.
+
+    Raises
+    ------
+    SolverInputError
+        If an entry is not an integer in 1..8.
+    """
+    arr = np.asarray(posture)
+    if arr.dtype.kind == "b" or arr.dtype.kind not in "iuf":
+        raise SolverInputError(f"posture: expected an integer in 1..8, got {posture!r}")
+    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr) & (arr == np.round(arr))):
+        raise SolverInputError(f"posture: expected an integer in 1..8, got {posture!r}")
+    iarr = arr.astype(np.int64)
+    if np.any((iarr < 1) | (iarr > 8)):
+        raise SolverInputError(f"posture: expected an integer in 1..8, got {posture!r}")
+    return iarr

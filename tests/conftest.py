@@ -1,0 +1,32 @@
+import numpy as np
+import pytest
+from hypothesis import settings
+
+from solver import Manipulator
+
+# numba compiles on first use; hypothesis must not count that against a deadline
+settings.register_profile("project", deadline=None, max_examples=200, derandomize=True)
+settings.load_profile("project")
+
+
+@pytest.fixture(scope="session")
+def model():
+    return Manipulator.paper()
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(20261121)
+
+
+def random_poses(rng, n, model=None):
+    """Uniform poses over a box that covers the paper manipulator's tool space."""
+    return np.column_stack([rng.uniform(-0.2, 1.2, n), rng.uniform(-0.3, 1.1, n),
+                            rng.uniform(-np.pi, np.pi, n)])
+
+
+def pose_distance(a, b):
+    """max(|dx|, |dy|, |wrapped dphi|) between real poses (..., 3)."""
+    d = np.abs(np.asarray(a) - np.asarray(b))
+    d[..., 2] = np.abs(np.angle(np.exp(1j * (np.asarray(a)[..., 2] - np.asarray(b)[..., 2]))))
+    return d.max(axis=-1)
