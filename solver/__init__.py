@@ -16,6 +16,7 @@ from .kinematics import (DEFAULT_RULE, ORDERING_RULES, DKSolutions, SingularityM
                          constraints, dk_all, elbow_points, ik, jacobians, order_solutions,
                          platform_points, posture_of, singularity_measures, wrap_angle)
 from .manipulator import Manipulator
+from .trajectories import PAPER_CIRCLE, circle_path
 
 __version__ = "0.1.0"
 
@@ -24,4 +25,5 @@ __all__ = [
     "ik", "posture_of", "dk_all", "DKSolutions", "order_solutions", "ORDERING_RULES",
     "DEFAULT_RULE", "jacobians", "singularity_measures", "SingularityMeasures",
     "constraints", "elbow_points", "platform_points", "wrap_angle", "__version__",
+    "PAPER_CIRCLE", "circle_path",
 ]
