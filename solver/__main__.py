@@ -5,6 +5,10 @@ Subcommands
 dk Q1 Q2 Q3        all six direct-kinematics solutions of one joint vector (rad)
 ik X Y PHI         the motor angles in each of the 8 postures
 example            the paper's Fig. 11 experiment: a pose, its joints, all DK solutions back
+build              procedure 1: build map tensors (one file per posture)
+inspect FILE       what a map tensor file holds (regions, counts, size)
+plot FILE          slices of a map tensor file as PNG
+figures            the paper's Figs 13-15 (cross-sections with singular curves) as PNG
 """
 from __future__ import annotations
 
@@ -13,7 +17,10 @@ import sys
 
 import numpy as np
 
+from pathlib import Path
+
 from . import DEFAULT_RULE, ORDERING_RULES, Manipulator, dk_all, ik, posture_of, singularity_measures
+from .maptensor import DEFAULT_STEP, MapTensor, default_bounds
 
 #: The home pose (FMU start values): the centroid of the motor triangle, phi = 0.
 HOME_POSE = (0.5, float(np.sqrt(3.0) / 6.0), 0.0)
@@ -53,6 +60,22 @@ def main(argv=None) -> int:
     p.add_argument("q", nargs=3, type=float, metavar="Q")
     p = sub.add_parser("ik", help="IK of a pose in all 8 postures")
     p.add_argument("X", nargs=3, type=float, metavar="X")
+    p = sub.add_parser("build", help="procedure 1: build map tensors")
+    p.add_argument("--posture", type=int, nargs="+", default=[1], help="postures 1..8 (default 1)")
+    p.add_argument("--step-mm", type=float, default=DEFAULT_STEP[0] * 1e3, help="x/y node spacing, mm")
+    p.add_argument("--step-deg", type=float, default=float(np.rad2deg(DEFAULT_STEP[2])),
+                   help="phi node spacing, degrees")
+    p.add_argument("--out", default="build/maps", help="output folder (map_posture<j>.npz)")
+    p = sub.add_parser("inspect", help="describe a map tensor file")
+    p.add_argument("file")
+    p = sub.add_parser("plot", help="plot slices of a map tensor file")
+    p.add_argument("file")
+    p.add_argument("--phi", type=float, nargs="+", default=[-60.0, 0.0, 60.0], help="degrees")
+    p.add_argument("--out", default="results/figures")
+    p = sub.add_parser("figures", help="the paper's Figs 13-15")
+    p.add_argument("--posture", type=int, default=1)
+    p.add_argument("--step-mm", type=float, default=4.0)
+    p.add_argument("--out", default="results/figures")
     p = sub.add_parser("example", help="the paper's Fig. 11 experiment")
     p.add_argument("--pose", nargs=3, type=float, default=EXAMPLE_POSE, metavar=("X", "Y", "PHI"))
     p.add_argument("--posture", type=int, default=1)
@@ -66,6 +89,37 @@ def main(argv=None) -> int:
             for j in range(1, 9):
                 q = ik(model, X, j)
                 print(f"posture {j}: q = {np.array2string(q, precision=9)} rad")
+        elif args.cmd == "build":
+            step = (args.step_mm / 1e3, args.step_mm / 1e3, float(np.deg2rad(args.step_deg)))
+            bounds = default_bounds(model, step)
+            span = bounds[:, 1] - bounds[:, 0]
+            shape = (int(round(span[0] / step[0])) + 1, int(round(span[1] / step[1])) + 1,
+                     int(round(span[2] / step[2])))
+            for j in args.posture:
+                mt = MapTensor.build(model, j, bounds=bounds, shape=shape, rule=args.rule,
+                                     progress=sys.stderr.isatty())
+                path = mt.save(Path(args.out) / f"map_posture{j}.npz")
+                print(f"{path}: {path.stat().st_size / 1e6:.2f} MB, {mt.stats['nodes']:,} nodes in "
+                      f"{mt.stats['build_seconds']:.1f} s "
+                      f"({mt.stats['nodes'] / mt.stats['build_seconds']:,.0f} nodes/s)")
+        elif args.cmd == "inspect":
+            mt = MapTensor.load(args.file)
+            print(mt.summary())
+            print(f"  file {Path(args.file).stat().st_size / 1e6:.3f} MB, labels sha256 {mt.checksum()[:16]}...")
+            print(f"  near a label border (procedure 2, default radius): {100 * mt.border_fraction():.1f} % "
+                  f"of reachable nodes")
+        elif args.cmd == "plot":
+            from .figures import plot_map_slice
+            mt = MapTensor.load(args.file)
+            for phd in args.phi:
+                print(plot_map_slice(mt, phd, args.out))
+        elif args.cmd == "figures":
+            from .figures import plot_cross_sections
+            for phd, (path, st) in plot_cross_sections(model, args.posture, out_dir=args.out,
+                                                       step=args.step_mm / 1e3, rule=args.rule).items():
+                print(f"{path}: singular nodes within one cell of a border "
+                      f"{100 * st['singular_near_border']:.1f} %, border nodes singular "
+                      f"{100 * st['border_singular']:.1f} %")
         else:
             X = np.array(getattr(args, "pose", EXAMPLE_POSE))
             j = getattr(args, "posture", 1)

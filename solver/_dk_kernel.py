@@ -26,6 +26,8 @@ PHI_DRIFT = 1e-5
 HADAMARD_SINGULAR = 1e-6
 RULE_REAL_PHI = 0
 RULE_LITERAL = 1
+RULE_REAL_X = 2
+RULE_REAL_Y = 3
 
 
 @njit(cache=True, inline="always")
@@ -302,8 +304,8 @@ def dk_one(q, M, l1, l2sq, b, cos8, sin8, T, psis, rule, snap_tol, real_tol, ste
 
 
 @njit(cache=True)
-def _key(out, isreal, k):
-    re, im = out[k, 2].real, out[k, 2].imag
+def _key(out, k, comp):
+    re, im = out[k, comp].real, out[k, comp].imag
     if not math.isfinite(re):
         re = np.inf
     if not math.isfinite(im):
@@ -313,11 +315,21 @@ def _key(out, isreal, k):
 
 @njit(cache=True)
 def _before(out, isreal, a, b, rule):
-    """Whether solution ``a`` sorts strictly before ``b`` under ``rule``."""
-    if rule == RULE_REAL_PHI and isreal[a] != isreal[b]:
+    """Whether solution ``a`` sorts strictly before ``b`` under ``rule``.
+
+    literal: all six by (Re phi, Im phi); real-phi / real-x / real-y: real
+    solutions first, by phi / x / y, then the complex ones by (Re phi, Im phi).
+    """
+    if rule != RULE_LITERAL and isreal[a] != isreal[b]:
         return isreal[a]
-    ra, ia = _key(out, isreal, a)
-    rb, ib = _key(out, isreal, b)
+    comp = 2
+    if isreal[a] and isreal[b]:
+        if rule == RULE_REAL_X:
+            comp = 0
+        elif rule == RULE_REAL_Y:
+            comp = 1
+    ra, ia = _key(out, a, comp)
+    rb, ib = _key(out, b, comp)
     if ra != rb:
         return ra < rb
     return ia < ib

@@ -99,6 +99,8 @@ PARALLEL_MIN = 2048
 ORDERING_RULES = {
     "real-phi": "real solutions first, by phi ascending in (-pi, pi]; then the complex ones "
                 "by (Re phi, Im phi) ascending",
+    "real-x": "real solutions first, by x ascending; then the complex ones by (Re phi, Im phi)",
+    "real-y": "real solutions first, by y ascending; then the complex ones by (Re phi, Im phi)",
     "literal": "all six by (Re phi, Im phi) ascending, Re phi wrapped to (-pi, pi], real and "
                "complex alike (the paper's 'arrange all imaginary and real solutions in an "
                "arbitrary order (e.g. increasing)')",
@@ -355,16 +357,18 @@ def posture_of(model: Manipulator, X, q) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- direct kinematics
-_RULE_CODES = {"real-phi": 0, "literal": 1}
+_RULE_CODES = {"real-phi": 0, "literal": 1, "real-x": 2, "real-y": 3}
 
 
 def _order(X, real, rule):
+    comp = {"real-x": 0, "real-y": 1}.get(rule, 2)
+    key = np.where(real, X[..., comp].real, X[..., 2].real)
+    re = np.where(np.isfinite(key), key, np.inf)
     phi = X[..., 2]
-    re = np.where(np.isfinite(phi.real), phi.real, np.inf)
-    im = np.where(np.isfinite(phi.imag), phi.imag, np.inf)
-    if rule == "real-phi":
-        return np.lexsort((im, re, ~real), axis=-1)
-    return np.lexsort((im, re), axis=-1)
+    im = np.where(real, 0.0, np.where(np.isfinite(phi.imag), phi.imag, np.inf))
+    if rule == "literal":
+        return np.lexsort((im, re), axis=-1)
+    return np.lexsort((im, re, ~real), axis=-1)
 
 
 def order_solutions(poses, real, rule: str = DEFAULT_RULE) -> DKSolutions:
