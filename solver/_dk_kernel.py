@@ -28,6 +28,7 @@ RULE_REAL_PHI = 0
 RULE_LITERAL = 1
 RULE_REAL_X = 2
 RULE_REAL_Y = 3
+RULE_ASPECT = 4
 
 
 @njit(cache=True, inline="always")
@@ -297,6 +298,8 @@ def dk_one(q, M, l1, l2sq, b, cos8, sin8, T, psis, rule, snap_tol, real_tol, ste
         while j > 0 and _before(out, isreal, order[j], order[j - 1], rule):
             order[j], order[j - 1] = order[j - 1], order[j]
             j -= 1
+    if rule == RULE_ASPECT:
+        order = _aspect_order(out, isreal, order, D, b)
     for i in range(6):
         for c in range(3):
             poses[i, c] = out[order[i], c]
@@ -333,6 +336,75 @@ def _before(out, isreal, a, b, rule):
     if ra != rb:
         return ra < rb
     return ia < ib
+
+
+@njit(cache=True)
+def _det_sign(x, y, phi, D, b):
+    """Sign of det J at a real pose (+1 or -1; 0 exactly singular)."""
+    c, s = math.cos(phi), math.sin(phi)
+    J = np.empty((3, 3))
+    for i in range(3):
+        rbx = c * b[i, 0] - s * b[i, 1]
+        rby = s * b[i, 0] + c * b[i, 1]
+        lx, ly = x + rbx - D[i, 0], y + rby - D[i, 1]
+        J[i, 0], J[i, 1], J[i, 2] = lx, ly, ly * rbx - lx * rby
+    det = (J[0, 0] * (J[1, 1] * J[2, 2] - J[1, 2] * J[2, 1]) - J[0, 1] * (J[1, 0] * J[2, 2] - J[1, 2] * J[2, 0])
+           + J[0, 2] * (J[1, 0] * J[2, 1] - J[1, 1] * J[2, 0]))
+    return 1 if det > 0 else (-1 if det < 0 else 0)
+
+
+@njit(cache=True)
+def _aspect_order(out, isreal, order, D, b):
+    """Rule 'aspect': slots 1-3 real solutions with det J >= 0, slots 4-6 those with det J < 0,
+    each by phi; complex solutions (by Re phi, Im phi) fill the free slots, first class first.
+
+    ``order`` arrives sorted by the real-phi key (real by phi, then complex).  Real solutions
+    are born and die in pairs of opposite det J sign, so each class holds at most three;
+    should a class overflow (only at an exactly singular input) the slots fill in sequence.
+    """
+    pos = np.empty(6, dtype=np.int64)
+    neg = np.empty(6, dtype=np.int64)
+    cpx = np.empty(6, dtype=np.int64)
+    npos, nneg, ncpx = 0, 0, 0
+    for i in range(6):
+        k = order[i]
+        if isreal[k]:
+            if _det_sign(out[k, 0].real, out[k, 1].real, out[k, 2].real, D, b) >= 0:
+                pos[npos] = k
+                npos += 1
+            else:
+                neg[nneg] = k
+                nneg += 1
+        else:
+            cpx[ncpx] = k
+            ncpx += 1
+    res = np.empty(6, dtype=np.int64)
+    if npos > 3 or nneg > 3:
+        n = 0
+        for i in range(npos):
+            res[n] = pos[i]
+            n += 1
+        for i in range(nneg):
+            res[n] = neg[i]
+            n += 1
+        for i in range(ncpx):
+            res[n] = cpx[i]
+            n += 1
+        return res
+    c = 0
+    for i in range(3):
+        if i < npos:
+            res[i] = pos[i]
+        else:
+            res[i] = cpx[c]
+            c += 1
+    for i in range(3):
+        if i < nneg:
+            res[3 + i] = neg[i]
+        else:
+            res[3 + i] = cpx[c]
+            c += 1
+    return res
 
 
 @njit(cache=True)

@@ -101,6 +101,10 @@ ORDERING_RULES = {
                 "by (Re phi, Im phi) ascending",
     "real-x": "real solutions first, by x ascending; then the complex ones by (Re phi, Im phi)",
     "real-y": "real solutions first, by y ascending; then the complex ones by (Re phi, Im phi)",
+    "aspect": "real solutions with det J >= 0 in slots 1-3 and with det J < 0 in slots 4-6, each "
+              "by phi ascending; complex solutions by (Re phi, Im phi) fill the free slots, first "
+              "class first (det J keeps its sign inside a basic region; each class holds at most "
+              "three real solutions)",
     "literal": "all six by (Re phi, Im phi) ascending, Re phi wrapped to (-pi, pi], real and "
                "complex alike (the paper's 'arrange all imaginary and real solutions in an "
                "arbitrary order (e.g. increasing)')",
@@ -357,7 +361,7 @@ def posture_of(model: Manipulator, X, q) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------- direct kinematics
-_RULE_CODES = {"real-phi": 0, "literal": 1, "real-x": 2, "real-y": 3}
+_RULE_CODES = {"real-phi": 0, "literal": 1, "real-x": 2, "real-y": 3, "aspect": 4}
 
 
 def _order(X, real, rule):
@@ -371,7 +375,8 @@ def _order(X, real, rule):
     return np.lexsort((im, re, ~real), axis=-1)
 
 
-def order_solutions(poses, real, rule: str = DEFAULT_RULE) -> DKSolutions:
+def order_solutions(poses, real, rule: str = DEFAULT_RULE, model: Manipulator | None = None,
+                    q=None) -> DKSolutions:
     """Renumber solutions by an ordering rule (see :data:`ORDERING_RULES`).
 
     Parameters
@@ -379,6 +384,10 @@ def order_solutions(poses, real, rule: str = DEFAULT_RULE) -> DKSolutions:
     poses : array_like, shape (..., 6, 3), complex
     real : array_like, shape (..., 6), bool
     rule : str
+    model : Manipulator, optional
+        Needed by rule ``"aspect"`` (the sign of det J).
+    q : array_like, shape (..., 3), optional
+        Joints of each solution set; needed by rule ``"aspect"``.
 
     Returns
     -------
@@ -389,8 +398,30 @@ def order_solutions(poses, real, rule: str = DEFAULT_RULE) -> DKSolutions:
     if poses.shape[-2:] != (6, 3) or real.shape != poses.shape[:-1]:
         raise SolverInputError(f"poses, real: expected shapes (..., 6, 3) and (..., 6), got "
                                f"{poses.shape} and {real.shape}")
+    if rule not in ORDERING_RULES:
+        raise SolverInputError(f"rule: expected one of {sorted(ORDERING_RULES)}, got {rule!r}")
     flat_p, flat_r = poses.reshape(-1, 6, 3), real.reshape(-1, 6)
-    perm = _order(flat_p, flat_r, rule)
+    perm = _order(flat_p, flat_r, "real-phi" if rule == "aspect" else rule)
+    if rule == "aspect":
+        if model is None or q is None:
+            raise SolverInputError("model, q: rule 'aspect' needs the model and the joints")
+        qf = as_array("q", q).reshape(-1, 3)
+        sp = np.take_along_axis(flat_p, perm[..., None], axis=1)
+        sr = np.take_along_axis(flat_r, perm, axis=1)
+        J, _ = _jacobians(model, np.where(sr[..., None], sp.real, 0.0), qf[:, None, :])
+        pos = sr & (np.linalg.det(J) >= 0)
+        neg = sr & ~pos
+        cls = np.where(pos, 0, np.where(neg, 1, 2))
+        # stable: real-phi order inside each class; complex fill the free slots of class 0, then 1
+        new = np.empty_like(perm)
+        for n in range(len(perm)):
+            p_i, n_i, c_i = [list(np.nonzero(cls[n] == c)[0]) for c in range(3)]
+            if len(p_i) > 3 or len(n_i) > 3:
+                seq = p_i + n_i + c_i
+            else:
+                seq = p_i + c_i[:3 - len(p_i)] + n_i + c_i[3 - len(p_i):]
+            new[n] = perm[n][seq]
+        perm = new
     return DKSolutions(np.take_along_axis(flat_p, perm[..., None], axis=1).reshape(poses.shape),
                        np.take_along_axis(flat_r, perm, axis=1).reshape(real.shape))
 

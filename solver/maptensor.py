@@ -41,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import _map_kernel as _mk
 from ._checks import SolverInputError, as_array, check_posture
 from .kinematics import DEFAULT_RULE, ORDERING_RULES, dk_all, ik, wrap_angle
 from .manipulator import Manipulator
@@ -200,19 +201,27 @@ class MapTensor:
     @property
     def step(self) -> np.ndarray:
         """Node spacing per axis, shape (3,), m, m, rad."""
+        cached = self.__dict__.get("_step")
+        if cached is not None:
+            return cached
         n = np.asarray(self.shape, dtype=float)
         span = self.bounds[:, 1] - self.bounds[:, 0]
         st = span / np.maximum(n - 1, 1)
         if self.periodic:
             st[2] = span[2] / n[2]
+        object.__setattr__(self, "_step", st)
         return st
 
     @property
     def origin(self) -> np.ndarray:
         """Coordinates of node (0, 0, 0), shape (3,), m, m, rad."""
+        cached = self.__dict__.get("_origin")
+        if cached is not None:
+            return cached
         o = self.bounds[:, 0].copy()
         if self.periodic:
             o[2] = self.bounds[2, 0] + self.step[2]
+        object.__setattr__(self, "_origin", o)
         return o
 
     def axes(self) -> list[np.ndarray]:
@@ -324,26 +333,24 @@ class MapTensor:
             0 outside the grid.
         """
         X = as_array("X", X)
-        idx = np.rint(self._fractional_index(X)).astype(np.int64)
-        return self._labels_at_index(idx)
-
-    def _labels_at_index(self, idx):
-        n = np.asarray(self.shape)
-        if self.periodic:
-            idx = idx.copy()
-            idx[..., 2] %= n[2]
-        inside = np.all((idx >= 0) & (idx < n), axis=-1)
-        safe = np.where(inside[..., None], idx, 0)
-        lab = self.labels[safe[..., 0], safe[..., 1], safe[..., 2]]
-        return np.where(inside, lab, 0).astype(np.int8)
+        lead = X.shape[:-1]
+        Xf = np.ascontiguousarray(X.reshape(-1, 3))
+        out = np.empty(len(Xf), dtype=np.int8)
+        _mk.label_at_batch(self.labels, self.origin, self.step, self.periodic, Xf, out)
+        return out.reshape(lead)
 
     def _stencil(self, r, w):
         key = (float(r), tuple(float(v) for v in w))
         cache = self.__dict__.setdefault("_stencils", {})
         if key not in cache:
+            # offsets o from the cell base floor(f) whose node can be within r of a pose in the
+            # cell: the nearest point of [0, 1) to o_a is o_a - 1 (o_a >= 1), 0, or -o_a (o_a <= 0)
             reach = np.ceil(r / (np.sqrt(w) * self.step)).astype(int) + 1
             grids = np.meshgrid(*[np.arange(-k, k + 2) for k in reach], indexing="ij")
-            cache[key] = np.stack([g.ravel() for g in grids], axis=-1)          # (S, 3) offsets
+            off = np.stack([g.ravel() for g in grids], axis=-1).astype(np.int64)    # (S, 3) offsets
+            gap = np.maximum(np.maximum(off - 1, -off), 0) * self.step
+            keep = np.sum(w * gap * gap, axis=1) <= r * r * (1 + 1e-12)
+            cache[key] = np.ascontiguousarray(off[keep])
         return cache[key]
 
     def near_labels(self, X, r: float | None = None, weights=None) -> np.ndarray:
@@ -374,23 +381,10 @@ class MapTensor:
         if not (np.isfinite(r) and r > 0):
             raise SolverInputError(f"r: expected a positive radius, got {r!r}")
         lead = X.shape[:-1]
-        Xf = X.reshape(-1, 3)
-        base = np.floor(self._fractional_index(Xf)).astype(np.int64)           # (N, 3)
-        off = self._stencil(r, w)                                               # (S, 3)
-        idx = base[:, None, :] + off[None, :, :]                                # (N, S, 3)
-        d = self.origin + idx * self.step - Xf[:, None, :]
-        if self.periodic:
-            d[..., 2] = wrap_angle(d[..., 2])
-        near = np.einsum("nsk,k->ns", d * d, w) <= r * r
-        n = np.asarray(self.shape)
-        if self.periodic:
-            idx[..., 2] %= n[2]
-        near &= np.all((idx >= 0) & (idx < n), axis=-1)
-        safe = np.where(near[..., None], idx, 0)
-        lab = self.labels[safe[..., 0], safe[..., 1], safe[..., 2]]
-        out = np.zeros((len(Xf), 7), dtype=bool)
-        rows = np.broadcast_to(np.arange(len(Xf))[:, None], lab.shape)
-        out[rows[near], lab[near]] = True
+        Xf = np.ascontiguousarray(X.reshape(-1, 3))
+        out = np.empty((len(Xf), 7), dtype=np.bool_)
+        _mk.near_mask_batch(self.labels, self.origin, self.step, self.periodic, Xf, r * r,
+                            np.ascontiguousarray(w, dtype=float), self._stencil(r, w), out)
         return out.reshape(lead + (7,))
 
     # ------------------------------------------------------------------ measurements

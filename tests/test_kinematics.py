@@ -377,8 +377,12 @@ def test_property_joint_angles_modulo_two_pi(model, X, posture, turns):
     assume(not np.isnan(q[0]))
     a = dk_all(model, q)
     b = dk_all(model, q + 2 * np.pi * np.array(turns))
-    np.testing.assert_array_equal(a.real, b.real)
-    np.testing.assert_allclose(a.poses[a.real], b.poses[b.real], atol=1e-9)
+    # the same set of poses (the numbering may differ only where phi sits on the +-pi wrap)
+    assert a.n_real == b.n_real
+    pa, pb = a.poses[a.real].real, b.poses[b.real].real
+    if len(pa):
+        d = pose_distance(pa[:, None, :], pb[None, :, :])
+        assert d.min(axis=1).max() < 1e-9 and d.min(axis=0).max() < 1e-9
 
 
 @given(shape=st.sampled_from([(), (2,), (4,), (3, 2), (2, 4), (0,)]))

@@ -1,0 +1,186 @@
+r"""A smooth time law on the experiments' circle, starting from rest.
+
+The geometry is :data:`solver.PAPER_CIRCLE` (centre (0.45, 0.30) m, radius
+0.25 m, constant phi = -45 deg, posture 1; the path :func:`solver.circle_path`
+samples).  The time law is on the polar angle ``theta`` of the circle:
+
+.. math::
+
+   \dot\theta(t) = \Omega\, s(t / T_r) \quad (0 \le t < T_r), \qquad
+   \dot\theta(t) = \Omega \quad (t \ge T_r), \qquad
+   s(u) = 10u^3 - 15u^4 + 6u^5,
+
+``Omega = 2 pi / period``.  The quintic smoothstep ``s`` has ``s(0) = 0``,
+``s(1) = 1`` and zero first and second derivatives at both ends, so the motion
+starts from rest (zero velocity and acceleration at ``t = 0``) and velocity,
+acceleration and jerk are continuous at ``T_r``.  Integrating,
+``theta = theta_0 + Omega T_r (5u^4/2 - 3u^5 + u^6)`` during the ramp and
+``theta = theta_0 + Omega (t - T_r / 2)`` after it.  Before ``t = 0`` the robot
+rests at ``theta_0``.
+
+Defaults: one revolution per 2 s (``Omega = pi`` rad/s, tool speed
+``0.25 pi = 0.785`` m/s, centripetal acceleration 2.47 m/s^2) reached after a
+0.5 s ramp (peak tangential acceleration ``1.875 Omega r / T_r = 2.95`` m/s^2).
+
+The joint-space reference is exact: ``q_d = g_j(X)`` (inverse kinematics in the
+posture), ``dq_d = J_q dX`` (eq. 3) and ``ddq_d = J_q ddX + ddq_0(X, dX)`` from
+the loop constraints differentiated twice (:func:`dynamics.model.joint_accelerations`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from solver import PAPER_CIRCLE, Manipulator
+from solver._checks import SolverInputError, check_posture
+
+from .model import _geometry, _ik, _mat_vec, _motion, _KINEMATIC_ONLY
+
+__all__ = ["CircleTrajectory"]
+
+
+def _positive(name, value, allow_zero=False):
+    ok = isinstance(value, (int, float, np.floating, np.integer)) and np.isfinite(value) and (
+        value >= 0 if allow_zero else value > 0)
+    if not ok:
+        what = "non-negative" if allow_zero else "positive"
+        raise SolverInputError(f"{name}: expected a {what} finite number, got {value!r}")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class CircleTrajectory:
+    """Circle in the tool space at constant orientation, traversed counter-clockwise from rest.
+
+    Parameters
+    ----------
+    center : (float, float)
+        Centre, m.
+    radius : float
+        Radius, m.
+    phi : float
+        Constant platform orientation, rad.
+    posture : int
+        Posture 1..8 of the inverse kinematics.
+    period : float
+        Time per revolution at cruise speed, s.
+    ramp_time : float
+        Duration of the smoothstep speed ramp from rest, s (0: cruise speed at
+        once, the motion then does not start from rest).
+    start : float
+        Polar angle of the start point, rad (0: the point ``center + (radius, 0)``).
+
+    Examples
+    --------
+    >>> traj = CircleTrajectory()
+    >>> X, dX, ddX = traj.task(0.0)
+    >>> bool(np.all(dX == 0) and np.all(ddX == 0))
+    True
+    """
+
+    center: tuple = field(default=tuple(PAPER_CIRCLE["center"]))
+    radius: float = PAPER_CIRCLE["radius"]
+    phi: float = PAPER_CIRCLE["phi"]
+    posture: int = PAPER_CIRCLE["posture"]
+    period: float = 2.0
+    ramp_time: float = 0.5
+    start: float = 0.0
+
+    def __post_init__(self):
+        c = np.asarray(self.center, dtype=float)
+        if c.shape != (2,) or not np.all(np.isfinite(c)):
+            raise SolverInputError(f"center: expected two finite numbers in m, got {self.center!r}")
+        object.__setattr__(self, "center", (float(c[0]), float(c[1])))
+        object.__setattr__(self, "radius", _positive("radius", self.radius))
+        object.__setattr__(self, "period", _positive("period", self.period))
+        object.__setattr__(self, "ramp_time", _positive("ramp_time", self.ramp_time, allow_zero=True))
+        for key in ("phi", "start"):
+            v = getattr(self, key)
+            if not (isinstance(v, (int, float, np.floating, np.integer)) and np.isfinite(v)):
+                raise SolverInputError(f"{key}: expected a finite angle in rad, got {v!r}")
+            object.__setattr__(self, key, float(v))
+        object.__setattr__(self, "posture", int(check_posture(self.posture)))
+
+    @property
+    def angular_speed(self) -> float:
+        """Cruise rate of the polar angle ``Omega = 2 pi / period``, rad/s."""
+        return 2.0 * np.pi / self.period
+
+    def polar_angle(self, t):
+        """Polar angle of the circle and its first two time derivatives.
+
+        Parameters
+        ----------
+        t : float or array_like, shape (...)
+            Time, s.
+
+        Returns
+        -------
+        theta, dtheta, ddtheta : ndarray, shape (...)
+            rad, rad/s, rad/s^2.
+        """
+        t = np.asarray(t, dtype=float)
+        if not np.all(np.isfinite(t)):
+            raise SolverInputError(f"t: expected finite times in s, got {t!r}")
+        W, Tr = self.angular_speed, self.ramp_time
+        if Tr == 0.0:
+            tt = np.maximum(t, 0.0)
+            return self.start + W * tt, np.where(t >= 0, W, 0.0), np.zeros_like(t)
+        u = np.clip(t / Tr, 0.0, 1.0)
+        ramp = t < Tr
+        S = u ** 4 * (2.5 - 3.0 * u + u * u)                 # integral of s
+        s = u ** 3 * (10.0 - 15.0 * u + 6.0 * u * u)
+        ds = 30.0 * u * u * (1.0 - u) ** 2
+        theta = self.start + np.where(ramp, W * Tr * S, W * (t - 0.5 * Tr))
+        dtheta = np.where(ramp, W * s, W)
+        ddtheta = np.where(ramp, W * ds / Tr, 0.0)
+        return theta, dtheta, ddtheta
+
+    def task(self, t):
+        """Tool-space reference at time ``t``.
+
+        Parameters
+        ----------
+        t : float or array_like, shape (...)
+            Time, s.
+
+        Returns
+        -------
+        X, dX, ddX : ndarray, shape (..., 3)
+            Pose (m, m, rad), rate (m/s, m/s, rad/s), acceleration (m/s^2, m/s^2, rad/s^2).
+        """
+        th, dth, ddth = self.polar_angle(t)
+        c, s, r = np.cos(th), np.sin(th), self.radius
+        zero = np.zeros_like(th)
+        X = np.stack([self.center[0] + r * c, self.center[1] + r * s, np.full_like(th, self.phi)], -1)
+        dX = np.stack([-r * s * dth, r * c * dth, zero], -1)
+        ddX = np.stack([-r * s * ddth - r * c * dth ** 2, r * c * ddth - r * s * dth ** 2, zero], -1)
+        return X, dX, ddX
+
+    def joint(self, model: Manipulator, t):
+        """Joint-space reference at time ``t`` (exact IK, velocity and acceleration models).
+
+        Parameters
+        ----------
+        model : Manipulator
+        t : float or array_like, shape (...)
+            Time, s.
+
+        Returns
+        -------
+        q_d, dq_d, ddq_d : ndarray, shape (..., 3)
+            Motor angles in (-pi, pi] (rad), rates (rad/s), accelerations (rad/s^2).
+
+        Raises
+        ------
+        SolverInputError
+            If the circle leaves the posture's tool space for this geometry.
+        """
+        if not isinstance(model, Manipulator):
+            raise SolverInputError(f"model: expected a Manipulator, got {type(model).__name__}")
+        X, dX, ddX = self.task(t)
+        q = _ik(model, X, self.posture)
+        g = _geometry(model, (0.0, 0.0), X, q)
+        mo = _motion(_KINEMATIC_ONLY, model, g, dX)
+        return q, mo.dq, _mat_vec(g.Jq, ddX) + mo.ddq0
