@@ -8,7 +8,7 @@ example            the paper's Fig. 11 experiment: a pose, its joints, all DK so
 build              procedure 1: build map tensors (one file per posture)
 inspect FILE       what a map tensor file holds (regions, counts, size)
 plot FILE          slices of a map tensor file as PNG
-figures            the paper's Figs 13-15 (cross-sections with singular curves) as PNG
+figures            the paper's Figs 13-18 as PNG (cross-sections with singular curves, the circle)
 """
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ import numpy as np
 from pathlib import Path
 
 from . import DEFAULT_RULE, ORDERING_RULES, Manipulator, dk_all, ik, posture_of, singularity_measures
-from .maptensor import DEFAULT_STEP, MapTensor, default_bounds
+from .maptensor import DEFAULT_STEP, MapTensor, default_bounds, load_or_build
 
 #: The home pose (FMU start values): the centroid of the motor triangle, phi = 0.
 HOME_POSE = (0.5, float(np.sqrt(3.0) / 6.0), 0.0)
@@ -72,7 +72,7 @@ def main(argv=None) -> int:
     p.add_argument("file")
     p.add_argument("--phi", type=float, nargs="+", default=[-60.0, 0.0, 60.0], help="degrees")
     p.add_argument("--out", default="results/figures")
-    p = sub.add_parser("figures", help="the paper's Figs 13-15")
+    p = sub.add_parser("figures", help="the paper's Figs 13-18")
     p.add_argument("--posture", type=int, default=1)
     p.add_argument("--step-mm", type=float, default=4.0)
     p.add_argument("--out", default="results/figures")
@@ -114,12 +114,22 @@ def main(argv=None) -> int:
             for phd in args.phi:
                 print(plot_map_slice(mt, phd, args.out))
         elif args.cmd == "figures":
-            from .figures import plot_cross_sections
+            from .figures import plot_circle_experiment, plot_cross_sections
+            from .suite import NEAR_SINGULAR_SEEDS, make_path, near_singular_circle
+            from .trajectories import circle_path
             for phd, (path, st) in plot_cross_sections(model, args.posture, out_dir=args.out,
                                                        step=args.step_mm / 1e3, rule=args.rule).items():
                 print(f"{path}: singular nodes within one cell of a border "
                       f"{100 * st['singular_near_border']:.1f} %, border nodes singular "
                       f"{100 * st['border_singular']:.1f} %")
+            mt = load_or_build(model, 1, args.rule, progress=sys.stderr.isatty())
+            post, centre, phd = NEAR_SINGULAR_SEEDS[0]
+            radius, _ = near_singular_circle(model, post, centre, phd, 0.005)
+            hard = make_path(model, f"p{post}-near-sing-5mm", post,
+                             circle_path(300, centre, radius, float(np.deg2rad(phd))))
+            hard_map = mt if post == 1 else load_or_build(model, post, args.rule)
+            for path in plot_circle_experiment(model, mt, args.out, hard_path=hard, hard_map=hard_map):
+                print(path)
         else:
             X = np.array(getattr(args, "pose", EXAMPLE_POSE))
             j = getattr(args, "posture", 1)

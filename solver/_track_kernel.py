@@ -241,8 +241,6 @@ def tracker_step(mode, q, Xp, qp, X2, hist, dq_scale, M, l1, l2sq, b, cos8, sin8
             ok = ok and math.isfinite(X_pred[i])
         if not ok:
             X_pred[:] = Xp if not (cond_prev > params[P_SING]) else X_lin
-        near_pred = np.zeros(7, dtype=np.bool_)
-        near_mask_one(labels, origin, step, periodic, X_pred, r2, w, stencil, near_pred)
         region = label_at_one(labels, origin, step, periodic, X_pred)
         info_i[I_REGION] = region
         use_map = params[P_USE_MAP] > 0.0
@@ -251,12 +249,21 @@ def tracker_step(mode, q, Xp, qp, X2, hist, dq_scale, M, l1, l2sq, b, cos8, sin8
         X_ext = np.empty(3)
         for i in range(3):
             X_ext[i] = Xp[i] + (_wrap(Xp[i] - X2[i]) if i == 2 else Xp[i] - X2[i])
+        near_pred = np.zeros(7, dtype=np.bool_)
         near_ext = np.zeros(7, dtype=np.bool_)
+        kc, rc = _nearest(poses, real, X_pred, w, near_prev, near_pred, near_ext, False)
+        ke, re = kc, rc
         if have_ext:
-            near_mask_one(labels, origin, step, periodic, X_ext, r2, w, stencil, near_ext)
-        kc, rc = _nearest(poses, real, X_pred, w, near_prev, near_pred, near_ext, use_map)
+            ke, re = _nearest(poses, real, X_ext, w, near_prev, near_pred, near_ext, False)
+        # procedure 2 at the predictions only when a candidate's label is not seen near X_prev
+        if use_map and n_near > 0 and not (near_prev[kc + 1] and near_prev[ke + 1]):
+            near_mask_one(labels, origin, step, periodic, X_pred, r2, w, stencil, near_pred)
+            if have_ext:
+                near_mask_one(labels, origin, step, periodic, X_ext, r2, w, stencil, near_ext)
+            kc, rc = _nearest(poses, real, X_pred, w, near_prev, near_pred, near_ext, True)
+            if have_ext:
+                ke, re = _nearest(poses, real, X_ext, w, near_prev, near_pred, near_ext, True)
         if have_ext:
-            ke, re = _nearest(poses, real, X_ext, w, near_prev, near_pred, near_ext, use_map)
             strategy = params[P_STRATEGY]
             if kc == ke:
                 chosen = kc
@@ -390,3 +397,24 @@ def baseline_step(kind, q, Xp, qp, M, l1, l2sq, b, cos8, sin8, T, psis, rule, sn
         res, it, had = newton(X_pred, q, M, l1, l2sq, b, 1.0, 50, tol, X_out)
     info_f[F_COND] = had
     info_i[I_STATUS] = STATUS_OK if res <= tol * 10.0 else STATUS_DIVERGED
+
+
+# ----------------------------------------------------------------------------- packed entry points
+# Few arguments: numba unboxes every argument of a call from Python, and these run once per step.
+# geo = [M (6), l1 (3), l2sq (3), b (6), cos8 (8), sin8 (8), psis (8), snap_tol, real_tol, steps]
+# st = [X (3), q (3), X2 (3), history, dq_scale]; mgeo = [origin (3), step (3), periodic, r2, w (3)]
+# out_f = [X (3), X_pred (3), info_f (5)]
+@njit(cache=True)
+def tracker_step_packed(mode, rule, q, st, geo, T, labels, mgeo, stencil, params, out_f, out_i):
+    tracker_step(mode, q, st[0:3], st[3:6], st[6:9], int(st[9]), st[10], geo[0:6].reshape((3, 2)),
+                 geo[6:9], geo[9:12], geo[12:18].reshape((3, 2)), geo[18:26], geo[26:34], T, geo[34:42],
+                 rule, geo[42], geo[43], int(geo[44]), labels, mgeo[0:3], mgeo[3:6], mgeo[6] > 0.0, mgeo[7],
+                 mgeo[8:11], stencil, params, out_f[0:3], out_f[3:6], out_f[6:11], out_i)
+
+
+@njit(cache=True)
+def baseline_step_packed(kind, rule, q, st, geo, T, bpar, out_f, out_i):
+    """bpar = [w (3), tol]."""
+    baseline_step(kind, q, st[0:3], st[3:6], geo[0:6].reshape((3, 2)), geo[6:9], geo[9:12],
+                  geo[12:18].reshape((3, 2)), geo[18:26], geo[26:34], T, geo[34:42], rule, geo[42], geo[43],
+                  int(geo[44]), bpar[0:3], bpar[3], out_f[0:3], out_f[3:6], out_f[6:11], out_i)

@@ -15,8 +15,10 @@ DK code), so their times compare like with like.
 """
 from __future__ import annotations
 
+import numpy as np
+
 from . import _track_kernel as _tk
-from .kinematics import _RULE_CODES, DEFAULT_RULE, NEWTON_STEPS, REAL_RESIDUAL, REAL_SNAP
+from .kinematics import _RULE_CODES, DEFAULT_RULE
 from .manipulator import Manipulator
 from .tracker import _TrackerBase
 
@@ -32,11 +34,11 @@ class _Baseline(_TrackerBase):
     def __init__(self, model: Manipulator, rule: str = DEFAULT_RULE):
         super().__init__(model)
         self._rule = _RULE_CODES[rule]
-        self._tol = REAL_RESIDUAL * float(min(model.l2) ** 2)
+        self._bpar = np.concatenate([self._w, [NEWTON_TOL]])
 
     def _kernel(self, q, st):
-        _tk.baseline_step(self.kind, q, st.X, st.q, *self._dk, self._rule, REAL_SNAP, self._tol,
-                          NEWTON_STEPS, self._w, NEWTON_TOL, self._X, self._Xp, self._fi, self._ii)
+        _tk.baseline_step_packed(self.kind, self._rule, q, st, self._geo, self._T, self._bpar, self._out_f,
+                                 self._ii)
 
 
 class NewtonTracker(_Baseline):

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .kinematics import DEFAULT_RULE, ik, jacobians
+from .kinematics import DEFAULT_RULE, ik, jacobians, wrap_angle
 from .manipulator import Manipulator
 from .maptensor import default_bounds, label_poses
 
@@ -168,3 +168,114 @@ def plot_map_slice(mt, phi_deg: float, out_dir="results/figures"):
     fig.savefig(path)
     plt.close(fig)
     return path
+
+
+def plot_circle_experiment(model: Manipulator, map_tensor, out_dir="results/figures", n: int = 1000,
+                           hard_path=None, hard_map=None):
+    """Figs 16-18: the discretised circle, all DK branches of its joint path, the tracked result.
+
+    Parameters
+    ----------
+    model : Manipulator
+    map_tensor : MapTensor
+        Map of the circle's posture (used by the tracker and for the region colours).
+    out_dir : path
+    n : int
+        Points on the circle (paper: 1000).
+    hard_path : solver.suite.SuitePath, optional
+        A second path for Fig. 18's right panel (near a singularity, where borders matter).
+    hard_map : MapTensor, optional
+        Map of ``hard_path``'s posture.
+
+    Returns
+    -------
+    list of Path
+        The three PNG files.
+    """
+    from .kinematics import dk_all
+    from .trajectories import PAPER_CIRCLE, circle_path
+    from .tracker import Tracker
+
+    plt, cmap, norm = _mpl()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    X = circle_path(n)
+    posture = PAPER_CIRCLE["posture"]
+    q = ik(model, X, posture)
+    paths = []
+
+    # Fig. 16: the circle on the cross-section of the basic regions at its orientation
+    xs, ys, labels, det_j = cross_section(model, posture, PAPER_CIRCLE["phi"], 0.006, map_tensor.rule)
+    fig, ax = plt.subplots(figsize=(6.0, 5.6), dpi=110)
+    ax.pcolormesh(xs, ys, labels.T, cmap=cmap, norm=norm, shading="nearest", alpha=0.35)
+    ax.contour(xs, ys, np.where(labels.T > 0, det_j.T, np.nan), levels=[0.0], colors="k", linewidths=0.8)
+    ax.plot(X[:, 0], X[:, 1], ".", ms=2.5, color="k", label=f"{n} points")
+    ax.plot(*model.motors.T, "k^", ms=8, label="motors")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(fontsize=8, loc="upper right")
+    ax.set_title(f"Fig. 16: the discretised circle (posture {posture}, phi = "
+                 f"{np.rad2deg(PAPER_CIRCLE['phi']):g} deg)\nbackground: basic regions, rule "
+                 f"{map_tensor.rule!r}", fontsize=9)
+    fig.tight_layout()
+    paths.append(out / "fig16_circle.png")
+    fig.savefig(paths[-1])
+    plt.close(fig)
+
+    # Fig. 17: every real DK solution of every joint vector, coloured by solution number
+    sol = dk_all(model, q, rule=map_tensor.rule)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.8), dpi=110)
+    for k in range(6):
+        m = sol.real[:, k]
+        P = sol.poses[m, k].real
+        axes[0].plot(P[:, 0], P[:, 1], ".", ms=2, color=LABEL_COLOURS[k + 1], label=f"solution {k + 1}")
+        axes[1].plot(np.nonzero(m)[0], np.rad2deg(P[:, 2]), ".", ms=2, color=LABEL_COLOURS[k + 1])
+    axes[0].plot(*model.motors.T, "k^", ms=7)
+    axes[0].set_aspect("equal")
+    axes[0].set_xlabel("x [m]")
+    axes[0].set_ylabel("y [m]")
+    axes[0].legend(fontsize=7, markerscale=4, loc="best")
+    axes[1].set_xlabel("point index along the circle")
+    axes[1].set_ylabel("phi [deg]")
+    axes[1].axhline(np.rad2deg(PAPER_CIRCLE["phi"]), color="k", lw=0.6, ls="--")
+    fig.suptitle(f"Fig. 17: all real DK solutions of the circle's joint path, coloured by solution number "
+                 f"(rule {map_tensor.rule!r}); the true path is phi = {np.rad2deg(PAPER_CIRCLE['phi']):g} deg",
+                 fontsize=9)
+    fig.tight_layout()
+    paths.append(out / "fig17_all_branches.png")
+    fig.savefig(paths[-1])
+    plt.close(fig)
+
+    # Fig. 18: the tracked result, near-border steps marked
+    panels = [("paper circle", X, q, map_tensor)]
+    if hard_path is not None:
+        panels.append((hard_path.name, hard_path.X, hard_path.q, hard_map))
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.6 * len(panels), 5.2), dpi=110, squeeze=False)
+    for ax, (title, Xt, qt, mt) in zip(axes[0], panels):
+        for mode, colour, marker in (("default", "tab:blue", "o"), ("paper", "tab:red", "x")):
+            res = Tracker(model, mt, mode=mode).track(qt, Xt[0])
+            d = np.abs(res.X - Xt)
+            d[:, 2] = np.abs(wrap_angle(res.X[:, 2] - Xt[:, 2]))
+            err = d.max(axis=1) > 1e-6
+            if mode == "default":
+                ax.plot(res.X[:, 0], res.X[:, 1], "-", color=colour, lw=1.2, label="tracked (default mode)")
+                nb = res.near_border
+                ax.plot(res.X[nb, 0], res.X[nb, 1], "o", mfc="none", color="tab:orange", ms=5,
+                        label=f"near a border ({int(nb.sum())} steps)")
+            ax.plot(res.X[err, 0], res.X[err, 1], marker, color=colour, ms=6,
+                    label=f"{mode} mode: {int(err.sum())} branch errors")
+        ax.plot(Xt[:, 0], Xt[:, 1], ":", color="k", lw=0.8, label="true path")
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.legend(fontsize=7, loc="best")
+        ax.set_title(f"{title} ({len(Xt)} points)", fontsize=9)
+    fig.suptitle("Fig. 18: procedures 2-3 at work (map rule "
+                 f"{map_tensor.rule!r}, {map_tensor.step[0] * 1e3:g} mm / "
+                 f"{np.rad2deg(map_tensor.step[2]):g} deg)", fontsize=10)
+    fig.tight_layout()
+    paths.append(out / "fig18_tracked.png")
+    fig.savefig(paths[-1])
+    plt.close(fig)
+    return paths

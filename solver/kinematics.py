@@ -110,7 +110,7 @@ ORDERING_RULES = {
                "arbitrary order (e.g. increasing)')",
 }
 #: The rule used when none is given (chosen by the border-volume measurement, README).
-DEFAULT_RULE = "real-phi"
+DEFAULT_RULE = "aspect"
 
 
 class DKSolutions(NamedTuple):

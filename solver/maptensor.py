@@ -47,7 +47,7 @@ from .kinematics import DEFAULT_RULE, ORDERING_RULES, dk_all, ik, wrap_angle
 from .manipulator import Manipulator
 
 __all__ = ["MapTensor", "MapTensorFileError", "FORMAT_VERSION", "DEFAULT_STEP",
-           "default_bounds", "label_poses"]
+           "default_bounds", "label_poses", "grid_shape", "load_or_build"]
 
 #: Version of the map file format; the loader refuses any other.
 FORMAT_VERSION = 1
@@ -541,3 +541,28 @@ class MapTensor:
         return cls(model if model is not None else file_model, int(meta["posture"]),
                    np.asarray(meta["bounds"], dtype=float), tuple(meta["shape"]), meta["rule"], labels,
                    meta.get("stats", {}))
+
+
+def grid_shape(bounds, step) -> tuple:
+    """Node counts for ``bounds`` (3, 2) at spacing ``step`` (m, m, rad): x, y inclusive, phi periodic."""
+    span = np.asarray(bounds, float)[:, 1] - np.asarray(bounds, float)[:, 0]
+    return (int(round(span[0] / step[0])) + 1, int(round(span[1] / step[1])) + 1, int(round(span[2] / step[2])))
+
+
+def load_or_build(model: Manipulator, posture: int, rule: str = DEFAULT_RULE, step=DEFAULT_STEP,
+                  folder="build/maps", progress: bool = False) -> MapTensor:
+    """The map of ``posture`` at node spacing ``step`` from the cache folder, built and saved if missing
+    (or if the cached file does not check out).
+
+    Files are named ``map_posture<j>_<rule>_<mm>mm_<deg>deg.npz``.
+    """
+    name = f"map_posture{int(posture)}_{rule}_{step[0] * 1e3:g}mm_{np.rad2deg(step[2]):g}deg.npz"
+    path = Path(folder) / name
+    try:
+        return MapTensor.load(path, model=model, posture=posture)
+    except MapTensorFileError:
+        bounds = default_bounds(model, step)
+        mt = MapTensor.build(model, posture, bounds=bounds, shape=grid_shape(bounds, step), rule=rule,
+                             progress=progress)
+        mt.save(path)
+        return mt

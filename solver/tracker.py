@@ -172,11 +172,12 @@ class TrackResult(NamedTuple):
 
 
 def _check_q(q) -> np.ndarray:
-    arr = np.asarray(q, dtype=float) if not isinstance(q, np.ndarray) else q
-    if arr.shape != (3,) or arr.dtype != np.float64 or not np.isfinite(arr).all():
-        arr = as_array("q", q, (3,))
-        if arr.shape != (3,):
-            raise SolverInputError(f"q: expected shape (3,), got {arr.shape}")
+    """q as a float array (3,), or SolverInputError naming ``q`` (fast path for the common case)."""
+    if isinstance(q, np.ndarray) and q.shape == (3,) and q.dtype == np.float64 and np.isfinite(q).all():
+        return q
+    arr = as_array("q", q, (3,))
+    if arr.shape != (3,):
+        raise SolverInputError(f"q: expected shape (3,), got {arr.shape}")
     return arr
 
 
@@ -190,12 +191,14 @@ class _TrackerBase:
             raise TrackerError(f"model: expected a Manipulator, got {type(model).__name__}")
         self.model = model
         k = _constants(model)
-        self._dk = (k["M"], k["l1"], k["l2sq"], k["b"], k["cos8"], k["sin8"], k["T"], k["psi"])
+        tol = REAL_RESIDUAL * float(np.min(model.l2) ** 2)
+        self._geo = np.concatenate([k["M"].ravel(), k["l1"], k["l2sq"], k["b"].ravel(), k["cos8"], k["sin8"],
+                                    k["psi"], [REAL_SNAP, tol, float(NEWTON_STEPS)]])
+        self._T = np.ascontiguousarray(k["T"])
         self._w = np.array([1.0, 1.0, float(np.mean(model.platform_radius)) ** 2])
         self.state: TrackerState | None = None
-        self._X = np.empty(3)
-        self._Xp = np.empty(3)
-        self._fi = np.empty(5)
+        self._st = np.empty(11)
+        self._out_f = np.empty(11)
         self._ii = np.empty(7, dtype=np.int64)
 
     def reset(self, X0, q0) -> None:
@@ -244,11 +247,16 @@ class _TrackerBase:
         st = self.state
         if st is None:
             raise TrackerError(f"{self.name}: no state; call reset(X0, q0) first")
-        self._kernel(q, st)
-        ii, fi = self._ii, self._fi
+        pk = self._st
+        pk[0:3], pk[3:6] = st.X, st.q
+        pk[6:9] = st.X if st.X2 is None else st.X2
+        pk[9], pk[10] = st.history, st.dq_scale
+        self._kernel(q, pk)
+        ii, of = self._ii, self._out_f
         status = int(ii[_tk.I_STATUS])
-        X = self._X.copy()
-        info = StepInfo(int(ii[_tk.I_LABEL]), bool(ii[_tk.I_NEAR_BORDER]), self._Xp.copy(),
+        X = of[0:3].copy()
+        fi = of[6:11]
+        info = StepInfo(int(ii[_tk.I_LABEL]), bool(ii[_tk.I_NEAR_BORDER]), of[3:6].copy(),
                         int(ii[_tk.I_N_REAL]), float(fi[_tk.F_COND]), bool(ii[_tk.I_AMBIGUOUS]), status,
                         bool(ii[_tk.I_JUMP]), float(fi[_tk.F_D_BEST]), float(fi[_tk.F_D_SECOND]))
         if status != _tk.STATUS_UNREACHABLE:
@@ -344,17 +352,15 @@ class Tracker(_TrackerBase):
         r = map_tensor.default_radius(w) if r is None else float(r)
         self._w = np.ascontiguousarray(w, dtype=float)
         self.r = r
-        self._mapargs = (np.ascontiguousarray(map_tensor.labels), np.ascontiguousarray(map_tensor.origin),
-                         np.ascontiguousarray(map_tensor.step), map_tensor.periodic, r * r, self._w,
-                         map_tensor._stencil(r, w))
+        self._labels = np.ascontiguousarray(map_tensor.labels)
+        self._mgeo = np.concatenate([map_tensor.origin, map_tensor.step, [1.0 if map_tensor.periodic else 0.0,
+                                                                          r * r], self._w])
+        self._stencil = map_tensor._stencil(r, w)
         self._params = np.array([ambiguity_ratio, jump_factor, 0.05, 16.0, singular_tol,
                                  1.0 if use_map else 0.0, float(strategy), segment_singular])
         self._mode = _tk.MODE_PAPER if mode == "paper" else _tk.MODE_DEFAULT
         self._rule = _RULE_CODES[map_tensor.rule]
-        self._tol = REAL_RESIDUAL * float(np.min(model.l2) ** 2)
 
     def _kernel(self, q, st):
-        _tk.tracker_step(self._mode, q, st.X, st.q, st.X if st.X2 is None else st.X2, st.history,
-                         st.dq_scale, *self._dk, self._rule, REAL_SNAP,
-                         self._tol, NEWTON_STEPS, *self._mapargs, self._params, self._X, self._Xp,
-                         self._fi, self._ii)
+        _tk.tracker_step_packed(self._mode, self._rule, q, st, self._geo, self._T, self._labels, self._mgeo,
+                                self._stencil, self._params, self._out_f, self._ii)

@@ -75,7 +75,7 @@ def test_real_solutions_satisfy_the_constraints_and_come_in_pairs(model):
 
 def test_a_joint_vector_with_six_real_solutions(model):
     q = ik(model, EXAMPLE, 1)
-    sol = dk_all(model, q)
+    sol = dk_all(model, q, rule="real-phi")
     assert sol.n_real == 6
     P = sol.real_poses()
     assert np.max(np.abs(constraints(model, P, q))) < 1e-14
@@ -329,7 +329,7 @@ def test_singularity_measures(model):
 def test_numbering_is_deterministic_and_rules_reorder_the_same_set(model, rng):
     q = ik(model, random_poses(rng, 3000), 1)
     q = q[~np.isnan(q[:, 0])]
-    a, b = dk_all(model, q), dk_all(model, q)
+    a, b = dk_all(model, q, rule="real-phi"), dk_all(model, q, rule="real-phi")
     np.testing.assert_array_equal(a.poses, b.poses)
     lit = dk_all(model, q, rule="literal")
     again = order_solutions(lit.poses, lit.real, "real-phi")
@@ -340,6 +340,13 @@ def test_numbering_is_deterministic_and_rules_reorder_the_same_set(model, rng):
     assert np.all(first == a.real)
     phi = np.where(a.real, a.poses.real[..., 2], 0.0)
     assert np.all(np.diff(phi, axis=1)[a.real[:, 1:]] > 0)
+    # aspect (the default): det J >= 0 in slots 1-3, < 0 in slots 4-6, each by phi
+    asp = dk_all(model, q)
+    P = np.where(asp.real[..., None], asp.poses.real, 0.0)
+    det = np.linalg.det(jacobians(model, P, q[:, None, :])[0])
+    assert np.all((det[:, :3] >= 0) | ~asp.real[:, :3]) and np.all((det[:, 3:] < 0) | ~asp.real[:, 3:])
+    assert np.all(asp.n_real == a.n_real)
+    np.testing.assert_array_equal(np.sum(asp.real[:, :3], 1), np.sum(asp.real[:, 3:], 1))
 
 
 def test_single_call_equals_batch_row(model, rng):

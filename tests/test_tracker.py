@@ -1,0 +1,236 @@
+"""Procedures 2-3 (the tracker) and the baselines."""
+import numpy as np
+import pytest
+
+from solver import Manipulator, SolverInputError, circle_path, dk_all, ik, jacobians, wrap_angle
+from solver.baselines import BASELINES, NewtonTracker
+from solver.maptensor import MapTensor, default_bounds
+from solver.suite import default_suite, make_path, near_singular_circle
+from solver.tracker import STATUS, Tracker, TrackerError, TrackerState
+
+STEP = (0.02, 0.02, np.deg2rad(4.0))
+
+
+def coarse_map(model, posture, rule="aspect"):
+    b = default_bounds(model, STEP)
+    span = b[:, 1] - b[:, 0]
+    shape = (int(round(span[0] / STEP[0])) + 1, int(round(span[1] / STEP[1])) + 1, 90)
+    return MapTensor.build(model, posture, bounds=b, shape=shape, rule=rule)
+
+
+@pytest.fixture(scope="module")
+def maps(model):
+    return {p: coarse_map(model, p) for p in (1, 3, 5)}
+
+
+@pytest.fixture(scope="module")
+def suite(model):
+    return default_suite(model)
+
+
+def errors(X, truth):
+    d = np.abs(X - truth)
+    d[:, 2] = np.abs(wrap_angle(X[:, 2] - truth[:, 2]))
+    return d.max(axis=1)
+
+
+# ------------------------------------------------------------------ the targets, on the suite
+def test_suite_has_hard_and_easy_paths(suite):
+    postures = {p.posture for p in suite}
+    assert len(postures) >= 3
+    assert {len(p.X) for p in suite} >= {1000, 30}
+    assert any(p.resolvable for p in suite) and any(not p.resolvable for p in suite)
+    assert min(p.min_gap for p in suite) < 5e-3                 # two solutions come within 5 mm
+
+
+def test_newton_jumps_branch_near_singularities(model, suite):
+    """The suite contains the failure the paper is about."""
+    bad = 0
+    for p in suite:
+        if "near-sing" in p.name:
+            res = NewtonTracker(model).track(p.q, p.X[0])
+            bad += int(np.sum(errors(res.X, p.X) > 1e-6))
+    assert bad > 0
+
+
+def test_default_mode_has_no_branch_error_on_resolvable_paths_and_beats_every_method(model, maps, suite):
+    totals = {}
+    for p in suite:
+        makers = {"default": Tracker(model, maps[p.posture]),
+                  "paper": Tracker(model, maps[p.posture], mode="paper")}
+        makers.update({n: c(model) for n, c in BASELINES.items()})
+        for name, tr in makers.items():
+            e = errors(tr.track(p.q, p.X[0]).X, p.X)
+            n_err = int(np.sum(e > 1e-6))
+            if name == "default" and p.resolvable:
+                assert n_err == 0, p.name
+            totals[name] = totals.get(name, 0) + n_err
+    for name, n in totals.items():
+        if name != "default":
+            assert totals["default"] < n, totals
+
+
+# ------------------------------------------------------------------ procedures 2-3 as written
+def test_paper_mode_follows_procedures_2_and_3(model, maps):
+    mt = maps[1]
+    radius, _ = near_singular_circle(model, 1, (0.50, 0.29), 0.0, 0.01)   # crosses label borders
+    X = circle_path(300, (0.50, 0.29), radius, 0.0)
+    q = ik(model, X, 1)
+    tr = Tracker(model, mt, mode="paper")
+    tr.reset(X[0], q[0])
+    seen_border = seen_far = 0
+    for k in range(1, len(q)):
+        st = tr.state
+        Xk, info = tr.step(q[k])
+        near = mt.near_labels(st.X)
+        near[0] = False
+        J, K = jacobians(model, st.X, st.q)
+        pred = st.X - np.linalg.solve(J, K @ wrap_angle(q[k] - st.q))
+        np.testing.assert_allclose(info.X_pred, pred, atol=1e-12)
+        assert info.near_border == (near.sum() > 1)
+        region = int(np.nonzero(near)[0][0]) if near.sum() == 1 else int(mt.label_at(pred))
+        sol = dk_all(model, q[k], rule=mt.rule)
+        if region and sol.real[region - 1]:
+            assert info.label == region
+            np.testing.assert_allclose(Xk, sol.poses[region - 1].real, atol=1e-12)
+        else:
+            assert info.ambiguous
+        seen_border += info.near_border
+        seen_far += not info.near_border
+    assert seen_border > 0 and seen_far > 0
+
+
+# ------------------------------------------------------------------ interface and state
+def test_track_starts_at_x0_and_reports_per_step(model, maps):
+    X = circle_path(200)
+    q = ik(model, X, 1)
+    res = Tracker(model, maps[1]).track(q, X[0])
+    np.testing.assert_array_equal(res.X[0], X[0])
+    assert res.X.shape == (200, 3) and res.label.shape == (200,)
+    assert np.all(res.n_real[1:] >= 2) and np.all(res.status[1:] == 0)
+    assert np.all(errors(res.X, X) < 1e-9)
+    assert np.all((res.cond[1:] > 0) & (res.cond[1:] <= 1))
+
+
+def test_state_is_kept_apart_and_restorable(model, maps):
+    X = circle_path(100)
+    q = ik(model, X, 1)
+    tr = Tracker(model, maps[1])
+    tr.reset(X[0], q[0])
+    for k in range(1, 10):
+        tr.step(q[k])
+    saved = tr.state
+    a = [tr.step(q[k])[0] for k in range(10, 20)]
+    tr.state = saved                                            # roll back
+    b = [tr.step(q[k])[0] for k in range(10, 20)]
+    np.testing.assert_array_equal(a, b)
+    again = TrackerState.from_array(saved.as_array())
+    np.testing.assert_array_equal(again.as_array(), saved.as_array())
+    with pytest.raises(TrackerError, match="state"):
+        TrackerState.from_array([1, 2, 3])
+
+
+def test_bad_input_leaves_the_state_untouched(model, maps):
+    X = circle_path(100)
+    q = ik(model, X, 1)
+    tr = Tracker(model, maps[1])
+    tr.reset(X[0], q[0])
+    tr.step(q[1])
+    before = tr.state
+    for bad in ([np.nan, 0, 0], [0, np.inf, 0], [0, 0], [[0, 0, 0]], "abc"):
+        with pytest.raises(SolverInputError, match="q"):
+            tr.step(bad)
+        assert tr.state is before
+    X2, info = tr.step(q[2])                                     # continues correctly
+    assert errors(X2[None], X[2][None])[0] < 1e-9 and info.status == 0
+    with pytest.raises(TrackerError, match="reset"):
+        Tracker(model, maps[1]).step(q[0])
+
+
+def test_unreachable_joints_hold_the_pose_and_tracking_resumes(model, maps):
+    X = circle_path(100)
+    q = ik(model, X, 1)
+    tr = Tracker(model, maps[1])
+    tr.reset(X[0], q[0])
+    X1, _ = tr.step(q[1])
+    far = np.array([np.pi, 0.0, np.pi / 2])     # D1, D2 2.2 m apart > 0.6 + 0.3 + 0.6: no assembly
+    assert dk_all(model, far).n_real == 0
+    Xh, info = tr.step(far)
+    assert info.status == 1 and STATUS[info.status] == "unreachable" and info.n_real == 0
+    np.testing.assert_array_equal(Xh, X1)
+    X2, info = tr.step(q[2])
+    assert info.status == 0 and errors(X2[None], X[2][None])[0] < 1e-9
+
+
+def test_joint_angles_modulo_two_pi(model, maps):
+    X = circle_path(150)
+    q = ik(model, X, 1)
+    shift = 2 * np.pi * np.array([1, -2, 3])
+    a = Tracker(model, maps[1]).track(q, X[0]).X
+    b = Tracker(model, maps[1]).track(q + shift, X[0]).X
+    np.testing.assert_allclose(a, b, atol=1e-9)
+
+
+def test_a_jump_is_flagged_ambiguous(model, maps):
+    X = circle_path(1000)
+    q = ik(model, X, 1)
+    tr = Tracker(model, maps[1])
+    tr.reset(X[0], q[0])
+    for k in range(1, 50):
+        _, info = tr.step(q[k])
+        assert not info.ambiguous and not info.jump
+    _, info = tr.step(q[400])                                   # 350 steps at once
+    assert info.jump and info.ambiguous
+
+
+def test_a_singular_configuration_is_flagged(model, maps):
+    radius, r_star = near_singular_circle(model, 1, (0.50, 0.29), 0.0, 0.0)
+    X = circle_path(2000, (0.50, 0.29), r_star, 0.0)
+    q = ik(model, X, 1)
+    J = np.linalg.det(jacobians(model, X, q)[0])
+    k = int(np.argmin(np.abs(J)))                                 # the touching point
+    tr = Tracker(model, maps[1])
+    tr.reset(X[k - 5], q[k - 5])
+    statuses = [tr.step(q[j])[1].status for j in range(k - 4, k + 1)]
+    assert statuses[-1] == 2 and STATUS[2] == "singular"
+
+
+def test_constructor_checks(model, maps):
+    other = Manipulator.symmetric(1.0, 0.6, 0.65, 0.3, name="other")
+    with pytest.raises(TrackerError, match="geometry"):
+        Tracker(other, maps[1])
+    with pytest.raises(TrackerError, match="mode"):
+        Tracker(model, maps[1], mode="magic")
+    with pytest.raises(TrackerError, match="map_tensor"):
+        Tracker(model, "map.npz")
+    with pytest.raises(TrackerError, match="ambiguity_ratio"):
+        Tracker(model, maps[1], ambiguity_ratio=-1)
+
+
+def test_baselines_share_the_interface(model):
+    X = circle_path(100)
+    q = ik(model, X, 1)
+    for name, cls in BASELINES.items():
+        res = cls(model).track(q, X[0])
+        assert np.all(errors(res.X, X) < 1e-9), name
+        with pytest.raises(SolverInputError):
+            tr = cls(model)
+            tr.reset(X[0], q[0])
+            tr.step([np.nan, 0, 0])
+
+
+def test_make_path_measures_the_ambiguity_ratio(model):
+    X = circle_path(50)
+    p = make_path(model, "c", 1, X)
+    w = np.array([1.0, 1.0, np.mean(model.platform_radius) ** 2])
+    ratios = []
+    for k in range(len(X)):
+        sol = dk_all(model, p.q[k])
+        others = [P for P in sol.real_poses() if errors(P[None], X[k][None])[0] > 1e-9]
+        gap = min(np.sqrt(np.sum(w * np.r_[P[:2] - X[k, :2], wrap_angle(P[2] - X[k, 2])] ** 2))
+                  for P in others)
+        prev = X[k - 1]
+        step = np.sqrt(np.sum(w * np.r_[X[k, :2] - prev[:2], wrap_angle(X[k, 2] - prev[2])] ** 2))
+        ratios.append(step / gap)
+    assert p.ratio == pytest.approx(max(ratios), rel=1e-9)
+    assert p.resolvable == (max(ratios) < 0.5)
