@@ -161,7 +161,7 @@ def _nearest(poses, real, Xref, w, m1, m2, m3, use_map):
 
 
 @njit(cache=True)
-def tracker_step(mode, q, Xp, qp, X2, hist, dq_scale, M, l1, l2sq, b, cos8, sin8, T, psis, rule, snap_tol,
+def tracker_step(mode, q, Xp, qp, X2, hist, dq_scale, ext_scale, M, l1, l2sq, b, cos8, sin8, T, psis, rule, snap_tol,
                  real_tol, steps, labels, origin, step, periodic, r2, w, stencil, params,
                  X_out, X_pred, info_f, info_i):
     """One step of procedure 3 (``mode`` paper or default); see :mod:`solver.tracker`."""
@@ -244,11 +244,11 @@ def tracker_step(mode, q, Xp, qp, X2, hist, dq_scale, M, l1, l2sq, b, cos8, sin8
         region = label_at_one(labels, origin, step, periodic, X_pred)
         info_i[I_REGION] = region
         use_map = params[P_USE_MAP] > 0.0
-        # tool-space extrapolation from the last two poses (uniformly sampled stream)
+        # tool-space extrapolation from the last two poses, scaled by the ratio of time steps
         have_ext = hist >= 2 and params[P_STRATEGY] != S_CONT
         X_ext = np.empty(3)
         for i in range(3):
-            X_ext[i] = Xp[i] + (_wrap(Xp[i] - X2[i]) if i == 2 else Xp[i] - X2[i])
+            X_ext[i] = Xp[i] + ext_scale * (_wrap(Xp[i] - X2[i]) if i == 2 else Xp[i] - X2[i])
         near_pred = np.zeros(7, dtype=np.bool_)
         near_ext = np.zeros(7, dtype=np.bool_)
         kc, rc = _nearest(poses, real, X_pred, w, near_prev, near_pred, near_ext, False)
@@ -402,11 +402,11 @@ def baseline_step(kind, q, Xp, qp, M, l1, l2sq, b, cos8, sin8, T, psis, rule, sn
 # ----------------------------------------------------------------------------- packed entry points
 # Few arguments: numba unboxes every argument of a call from Python, and these run once per step.
 # geo = [M (6), l1 (3), l2sq (3), b (6), cos8 (8), sin8 (8), psis (8), snap_tol, real_tol, steps]
-# st = [X (3), q (3), X2 (3), history, dq_scale]; mgeo = [origin (3), step (3), periodic, r2, w (3)]
+# st = [X (3), q (3), X2 (3), history, dq_scale, extrapolation scale]; mgeo = [origin (3), step (3), periodic, r2, w (3)]
 # out_f = [X (3), X_pred (3), info_f (5)]
 @njit(cache=True)
 def tracker_step_packed(mode, rule, q, st, geo, T, labels, mgeo, stencil, params, out_f, out_i):
-    tracker_step(mode, q, st[0:3], st[3:6], st[6:9], int(st[9]), st[10], geo[0:6].reshape((3, 2)),
+    tracker_step(mode, q, st[0:3], st[3:6], st[6:9], int(st[9]), st[10], st[11], geo[0:6].reshape((3, 2)),
                  geo[6:9], geo[9:12], geo[12:18].reshape((3, 2)), geo[18:26], geo[26:34], T, geo[34:42],
                  rule, geo[42], geo[43], int(geo[44]), labels, mgeo[0:3], mgeo[3:6], mgeo[6] > 0.0, mgeo[7],
                  mgeo[8:11], stencil, params, out_f[0:3], out_f[3:6], out_f[6:11], out_i)

@@ -69,10 +69,14 @@ class TrackerState:
         Previous pose (m, m, rad).
     q : ndarray, shape (3,)
         Previous joints (rad).
+    X2 : ndarray, shape (3,) or None
+        The pose before ``X`` (for the tool-space extrapolation), None right after a reset.
     dq_scale : float
         Running mean of recent joint step sizes max|dq_i| (rad), for jump detection.
     steps : int
         Accepted steps since reset.
+    dt : float
+        Duration of the last accepted step (s) when the caller gave one, else NaN.
     """
 
     X: np.ndarray
@@ -80,6 +84,7 @@ class TrackerState:
     X2: np.ndarray | None = None
     dq_scale: float = 0.0
     steps: int = 0
+    dt: float = float("nan")
 
     @property
     def history(self) -> int:
@@ -87,17 +92,17 @@ class TrackerState:
         return 1 if self.X2 is None else 2
 
     def as_array(self) -> np.ndarray:
-        """The state as 11 floats (X, q, X2 or NaN, dq_scale, steps): what an FMU serialises."""
+        """The state as 12 floats (X, q, X2 or NaN, dq_scale, steps, dt or NaN): what an FMU serialises."""
         x2 = np.full(3, np.nan) if self.X2 is None else self.X2
-        return np.concatenate([self.X, self.q, x2, [self.dq_scale, float(self.steps)]])
+        return np.concatenate([self.X, self.q, x2, [self.dq_scale, float(self.steps), self.dt]])
 
     @classmethod
     def from_array(cls, a) -> "TrackerState":
         a = np.asarray(a, dtype=float)
-        if a.shape != (11,) or not np.all(np.isfinite(np.delete(a, [6, 7, 8]))):
-            raise TrackerError(f"state: expected 11 floats (X, q, X2, dq_scale, steps), got {a!r}")
+        if a.shape != (12,) or not np.all(np.isfinite(a[[0, 1, 2, 3, 4, 5, 9, 10]])):
+            raise TrackerError(f"state: expected 12 floats (X, q, X2, dq_scale, steps, dt), got {a!r}")
         x2 = None if np.any(np.isnan(a[6:9])) else a[6:9].copy()
-        return cls(a[:3].copy(), a[3:6].copy(), x2, float(a[9]), int(a[10]))
+        return cls(a[:3].copy(), a[3:6].copy(), x2, float(a[9]), int(a[10]), float(a[11]))
 
 
 class StepInfo(NamedTuple):
@@ -197,7 +202,7 @@ class _TrackerBase:
         self._T = np.ascontiguousarray(k["T"])
         self._w = np.array([1.0, 1.0, float(np.mean(model.platform_radius)) ** 2])
         self.state: TrackerState | None = None
-        self._st = np.empty(11)
+        self._st = np.empty(12)
         self._out_f = np.empty(11)
         self._ii = np.empty(7, dtype=np.int64)
 
@@ -217,18 +222,22 @@ class _TrackerBase:
             raise SolverInputError(f"X0, q0: expected shapes (3,) and (3,), got {X0.shape} and {q0.shape}")
         X0 = X0.copy()
         X0[2] = wrap_angle(X0[2])
-        self.state = TrackerState(X0, q0.copy(), None, 0.0, 0)
+        self.state = TrackerState(X0, q0.copy(), None, 0.0, 0, float("nan"))
 
     def _kernel(self, q, st):                                      # pragma: no cover - abstract
         raise NotImplementedError
 
-    def step(self, q):
+    def step(self, q, dt: float | None = None):
         """Track one step: the pose of the manipulator at joints ``q``.
 
         Parameters
         ----------
         q : array_like, shape (3,)
             Current joints (rad).
+        dt : float, optional
+            Time since the previous sample (s).  Only the ratio of successive
+            ``dt`` matters (it scales the tool-space extrapolation); without it
+            the samples are taken as uniformly spaced.
 
         Returns
         -------
@@ -251,6 +260,9 @@ class _TrackerBase:
         pk[0:3], pk[3:6] = st.X, st.q
         pk[6:9] = st.X if st.X2 is None else st.X2
         pk[9], pk[10] = st.history, st.dq_scale
+        if dt is not None and not (np.isfinite(dt) and dt > 0):
+            raise SolverInputError(f"dt: expected a positive time step in s, got {dt!r}")
+        pk[11] = dt / st.dt if dt is not None and np.isfinite(st.dt) else 1.0
         self._kernel(q, pk)
         ii, of = self._ii, self._out_f
         status = int(ii[_tk.I_STATUS])
@@ -262,7 +274,8 @@ class _TrackerBase:
         if status != _tk.STATUS_UNREACHABLE:
             dqn = float(fi[_tk.F_DQ])
             scale = dqn if st.steps == 0 else 0.8 * st.dq_scale + 0.2 * dqn
-            self.state = TrackerState(X, q.copy(), st.X, scale, st.steps + 1)
+            self.state = TrackerState(X, q.copy(), st.X, scale, st.steps + 1,
+                                      float("nan") if dt is None else float(dt))
         return X, info
 
     def track(self, q_stream, X0) -> TrackResult:

@@ -234,3 +234,32 @@ def test_make_path_measures_the_ambiguity_ratio(model):
         ratios.append(step / gap)
     assert p.ratio == pytest.approx(max(ratios), rel=1e-9)
     assert p.resolvable == (max(ratios) < 0.5)
+
+
+def test_time_steps_scale_the_extrapolation(model, maps):
+    """Constant dt is the uniform case; a bad dt is refused with the state intact."""
+    radius, _ = near_singular_circle(model, 1, (0.50, 0.29), 0.0, 0.005)
+    X = circle_path(100, (0.50, 0.29), radius, 0.0)
+    q = ik(model, X, 1)
+    a, b = Tracker(model, maps[1]), Tracker(model, maps[1])
+    a.reset(X[0], q[0])
+    b.reset(X[0], q[0])
+    for k in range(1, len(q)):
+        np.testing.assert_array_equal(a.step(q[k])[0], b.step(q[k], dt=0.01)[0])
+    assert b.state.dt == 0.01 and np.isnan(a.state.dt)
+    before = b.state
+    for bad in (0.0, -1.0, np.nan):
+        with pytest.raises(SolverInputError, match="dt"):
+            b.step(q[0], dt=bad)
+        assert b.state is before
+    # the same path sampled twice as densely for a while: half steps, dt says so
+    c = Tracker(model, maps[1])
+    c.reset(X[0], q[0])
+    for k in range(1, len(q)):
+        if 30 <= k < 60:
+            mid = ik(model, 0.5 * (X[k - 1] + X[k]), 1)
+            c.step(mid, dt=0.005)
+            Xk, _ = c.step(q[k], dt=0.005)
+        else:
+            Xk, _ = c.step(q[k], dt=0.01)
+        assert errors(Xk[None], X[k][None])[0] < 1e-9
