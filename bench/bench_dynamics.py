@@ -9,7 +9,13 @@ along the paper's circle) of
   the DK at each of the four stages (``NearestPoseDK``: ``dk_all`` + nearest real solution);
 * one DK call of that supplier alone, and one ``forward_dynamics`` evaluation alone;
 * one computed-torque evaluation given the pose, and with the DK call included
-  (what a controller period costs).
+  (what a controller period costs);
+* the task-space form (no DK): one ``forward_dynamics_task`` evaluation, one
+  ``rk4_step`` of ``task_space_rhs`` with constant torques, and the cost per
+  step of ``rk4`` over ``--steps`` steps of free motion.
+
+The dynamics run compiled kernels (``dynamics/_kernel.py``); they are compiled
+(or loaded from numba's cache) before the timing starts.
 """
 from __future__ import annotations
 
@@ -22,8 +28,8 @@ import numpy as np
 
 from solver import Manipulator
 from dynamics.control import ComputedTorqueGains, computed_torque
-from dynamics.integrate import NearestPoseDK, joint_space_rhs, rk4_step
-from dynamics.model import DynamicParameters, forward_dynamics
+from dynamics.integrate import NearestPoseDK, joint_space_rhs, rk4, rk4_step, task_space_rhs
+from dynamics.model import DynamicParameters, forward_dynamics, forward_dynamics_task
 from dynamics.trajectory import CircleTrajectory
 
 
@@ -46,7 +52,7 @@ def main(argv=None):
     gains = ComputedTorqueGains.design(50.0, 1.0)
     traj = CircleTrajectory()
     t = 1e-3 * np.arange(args.steps)
-    X, _, _ = traj.task(t)
+    X, dX, _ = traj.task(t)
     q, dq, ddq = traj.joint(model, t)
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"python {platform.python_version()}, numpy {np.__version__}")
@@ -55,6 +61,12 @@ def main(argv=None):
     tau = np.array([0.1, -0.2, 0.05])
     f = joint_space_rhs(params, model, dk, tau)
     states = np.concatenate([q, dq], axis=1)
+    # compile (first run) or load from numba's cache every kernel before timing
+    forward_dynamics(params, model, q[0], dq[0], X[0], tau)
+    computed_torque(params, model, gains, q[0], dq[0], X[0], q[0], dq[0], ddq[0])
+    forward_dynamics_task(params, model, X[0], dX[0], tau)
+    rk4(task_space_rhs(params, model, traj.posture), 0.0, np.concatenate([X[0], dX[0]]), 1e-3, 1)
+    rk4_step(f, t[0], states[0], 1e-3)
 
     def step(k):
         dk.pose = X[k]
@@ -76,12 +88,28 @@ def main(argv=None):
         computed_torque(params, model, gains, q[k], dq[k], dk(q[k]), q_des[k], dq[k], ddq[k])
 
     us_ct_dk = _median_us(ct_with_dk, args.steps, args.repeat)
+    us_fdt = _median_us(lambda k: forward_dynamics_task(params, model, X[k], dX[k], tau), args.steps, args.repeat)
+    ft = task_space_rhs(params, model, traj.posture, tau)
+    task_states = np.concatenate([X, dX], axis=1)
+    us_task_step = _median_us(lambda k: rk4_step(ft, t[k], task_states[k], 1e-3), args.steps, args.repeat)
+    # free motion from the circle's centre (0.1 m/s, 0.5 rad/s): stays clear of singularities for 2 s
+    free = task_space_rhs(params, model, traj.posture)
+    x_start = np.array([0.45, 0.30, np.deg2rad(-45.0), 0.10, 0.0, 0.5])
+    runs = []
+    for _ in range(args.repeat):
+        t0 = time.perf_counter()
+        rk4(free, 0.0, x_start, 1e-3, args.steps)
+        runs.append((time.perf_counter() - t0) / args.steps)
+    us_task_loop = 1e6 * float(np.median(runs))
     print(f"states: {args.steps} along the circle, median of {args.repeat} runs")
     print(f"RK4 step, joint-space dynamics with DK at 4 stages : {us_step:8.1f} us")
     print(f"  DK pose supplier call (dk_all + nearest)        : {us_dk:8.1f} us")
     print(f"  forward_dynamics (eq. 7), pose given            : {us_fd:8.1f} us")
     print(f"computed-torque evaluation, pose given            : {us_ct:8.1f} us")
     print(f"computed-torque evaluation incl. DK call          : {us_ct_dk:8.1f} us")
+    print(f"task space: forward_dynamics_task, q by IK        : {us_fdt:8.1f} us")
+    print(f"task space: rk4_step of task_space_rhs            : {us_task_step:8.1f} us")
+    print(f"task space: rk4, per step (of {args.steps:5d} steps)      : {us_task_loop:8.1f} us")
 
 
 if __name__ == "__main__":

@@ -15,9 +15,15 @@ With an exact model the error obeys ``de'' + K_d de' + K_p e = 0`` per joint,
 a double integrator ``[0 1; 0 0]`` under state feedback ``[K_p K_d]``; the
 gains come from pole placement with python-control on that model
 (:meth:`ComputedTorqueGains.design`).
+
+The law is evaluated by a compiled kernel (:func:`dynamics._kernel.computed_torque_batch`,
+the inverse dynamics of :mod:`dynamics.model` with the PD terms in front); its
+numpy form is kept as :func:`_reference_computed_torque`, which also handles
+(and raises on) whatever input the kernel refuses.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable, NamedTuple
 
@@ -26,8 +32,10 @@ import numpy as np
 from solver import Manipulator
 from solver._checks import SolverInputError, as_array
 
+from . import _kernel as _k
 from .integrate import NearestPoseDK, joint_space_rhs, rk4_step
-from .model import DynamicParameters, _broadcast, _check, _inverse_joint
+from .model import (ASSEMBLY_TOL, DynamicParameters, _broadcast, _check, _kernel_model, _kernel_params, _rows,
+                    _single, _reference_inverse_joint)
 from .trajectory import CircleTrajectory
 
 __all__ = ["ComputedTorqueGains", "ComputedTorqueController", "computed_torque", "TrackingResult",
@@ -156,15 +164,68 @@ def computed_torque(params: DynamicParameters, model: Manipulator, gains: Comput
     _check(params, model)
     if not isinstance(gains, ComputedTorqueGains):
         raise SolverInputError(f"gains: expected a ComputedTorqueGains, got {type(gains).__name__}")
-    q, dq, X, q_d, dq_d, ddq_d = _broadcast(
-        q=as_array("q", q), dq=as_array("dq", dq), X=as_array("X", X), q_d=as_array("q_d", q_d),
-        dq_d=as_array("dq_d", dq_d), ddq_d=as_array("ddq_d", ddq_d))
-    return _computed_torque(params, model, gains, q, dq, X, q_d, dq_d, ddq_d)
+    if not _single((q, dq, X, q_d, dq_d, ddq_d)):
+        q, dq, X, q_d, dq_d, ddq_d = _broadcast(
+            q=as_array("q", q), dq=as_array("dq", dq), X=as_array("X", X), q_d=as_array("q_d", q_d),
+            dq_d=as_array("dq_d", dq_d), ddq_d=as_array("ddq_d", ddq_d))
+    out = _computed_torque_kernel(params, model, gains, q, dq, X, q_d, dq_d, ddq_d)
+    if out is None:      # refused by the kernel: the numpy reference raises or answers
+        return _reference_computed_torque(params, model, gains, q, dq, X, q_d, dq_d, ddq_d)
+    return out
 
 
 def _computed_torque(params, model, gains, q, dq, X, q_d, dq_d, ddq_d):
+    """The law on arrays that broadcast, compiled; the numpy reference where the kernel refuses."""
+    out = _computed_torque_kernel(params, model, gains, q, dq, X, q_d, dq_d, ddq_d)
+    return _reference__computed_torque(params, model, gains, q, dq, X, q_d, dq_d, ddq_d) if out is None else out
+
+
+def _gain_pack(gains) -> np.ndarray:
+    """``(kp, kd)`` (6,) for the kernel, cached on the (frozen) gains."""
+    g = gains.__dict__.get("_kernel_pack")
+    if g is None:
+        g = np.concatenate([gains.kp, gains.kd]).astype(np.float64)
+        object.__setattr__(gains, "_kernel_pack", g)
+    return g
+
+
+def _computed_torque_kernel(params, model, gains, q, dq, X, q_d, dq_d, ddq_d):
+    """:func:`dynamics._kernel.computed_torque_batch` on arrays (..., 3) that broadcast; None if refused."""
+    arrs = (q, dq, X, q_d, dq_d, ddq_d)
+    if _single(arrs):
+        lead, n = (), 1
+        rows = [a.reshape(1, 3) for a in arrs]
+    else:
+        try:
+            b = np.broadcast_arrays(*arrs)
+        except ValueError:
+            return None
+        if b[0].shape[-1:] != (3,):
+            return None
+        lead = b[0].shape[:-1]
+        n = math.prod(lead)
+        rows = [_rows(a, n) for a in b]
+    out = np.empty(lead + (3,))
+    st = _k.computed_torque_batch(_kernel_model(model), _kernel_params(params), _gain_pack(gains), *rows,
+                                  ASSEMBLY_TOL, out.reshape(n, 3))
+    return out if st == _k.OK else None
+
+
+def _reference_computed_torque(params, model, gains, q, dq, X, q_d, dq_d, ddq_d):
+    """numpy reference of :func:`computed_torque` (same arguments, checks and errors)."""
+    _check(params, model)
+    if not isinstance(gains, ComputedTorqueGains):
+        raise SolverInputError(f"gains: expected a ComputedTorqueGains, got {type(gains).__name__}")
+    q, dq, X, q_d, dq_d, ddq_d = _broadcast(
+        q=as_array("q", q), dq=as_array("dq", dq), X=as_array("X", X), q_d=as_array("q_d", q_d),
+        dq_d=as_array("dq_d", dq_d), ddq_d=as_array("ddq_d", ddq_d))
+    return _reference__computed_torque(params, model, gains, q, dq, X, q_d, dq_d, ddq_d)
+
+
+def _reference__computed_torque(params, model, gains, q, dq, X, q_d, dq_d, ddq_d):
+    """numpy reference of :func:`_computed_torque`."""
     v = ddq_d + gains.kd * (dq_d - dq) + gains.kp * wrap(q_d - q)
-    return _inverse_joint(params, model, q, dq, v, X)
+    return _reference_inverse_joint(params, model, q, dq, v, X)
 
 
 @dataclass(frozen=True, eq=False)

@@ -12,6 +12,14 @@ State-space right-hand sides
   supplier ``dk(q) -> X``.  In the co-simulation that supplier is the DK FMU;
   here :class:`NearestPoseDK` (all DK solutions by :func:`solver.dk_all`, keep
   the real one nearest to the previous pose) plays its part.
+
+Speed
+-----
+The right-hand sides are callable objects that evaluate the compiled kernels
+of :mod:`dynamics._kernel` for a single state (6,).  :func:`rk4_step` and
+:func:`rk4` recognise the task-space right-hand side with constant torques and
+then run the whole RK4 loop in one compiled call, with the same operations in
+the same order as the generic loop (the results are the same to the last bit).
 """
 from __future__ import annotations
 
@@ -22,7 +30,9 @@ import numpy as np
 from solver import Manipulator, dk_all
 from solver._checks import SolverInputError, as_array
 
-from .model import DynamicParameters, _check, _forward_joint, _forward_task, _ik
+from . import _kernel as _k
+from .model import (ASSEMBLY_TOL, DynamicParameters, _check, _forward_joint, _forward_task, _ik, _kernel_model,
+                    _kernel_params, _posture_bits, _single)
 
 __all__ = ["rk4_step", "rk4", "solve_reference", "task_space_rhs", "joint_space_rhs", "NearestPoseDK"]
 
@@ -53,6 +63,11 @@ def rk4_step(f: Callable, t: float, x, h: float) -> np.ndarray:
     ndarray, shape (n,)
         State at ``t + h``.
     """
+    fast = _compiled_rk4(f, t, x, h, 1)
+    return _rk4_generic(f, t, x, h) if fast is None else fast[1]
+
+
+def _rk4_generic(f, t, x, h):
     k1 = f(t, x)
     k2 = f(t + 0.5 * h, x + (0.5 * h) * k1)
     k3 = f(t + 0.5 * h, x + (0.5 * h) * k2)
@@ -103,11 +118,34 @@ def rk4(f: Callable, t0: float, x0, h: float, n_steps: int) -> tuple[np.ndarray,
         raise SolverInputError(f"x0: expected a state of shape (n,), got {np.shape(x0)}")
     x0 = _initial(f, t0, x0)
     t = t0 + h * np.arange(n_steps + 1)
+    fast = _compiled_rk4(f, t0, x0, h, n_steps)
+    if fast is not None:
+        return t, fast
     xs = np.empty((n_steps + 1,) + x0.shape)
     xs[0] = x0
     for k in range(n_steps):
         xs[k + 1] = rk4_step(f, t[k], xs[k], h)
     return t, xs
+
+
+def _compiled_rk4(f, t0, x0, h, n_steps):
+    """States (n_steps + 1, 6) by the compiled RK4 loop, or None where it does not apply.
+
+    It applies to the task-space right-hand side with constant torques, a
+    single float64 state (6,) and a float step.  If a right-hand side is
+    refused on the way (the pose left the tool space...), the generic loop
+    redoes that step from the last state computed, and raises as it does.
+    """
+    if type(f) is not _TaskSpaceRHS or f.tau is None or f.bits < 0 or not _single((x0,), 6):
+        return None
+    if not (isinstance(h, (int, float, np.floating, np.integer)) and not isinstance(h, bool)):
+        return None
+    xs = np.empty((n_steps + 1, 6))
+    xs[0] = x0
+    done = _k.rk4_task(_kernel_model(f.model), _kernel_params(f.params), f.bits, f.tau, float(h), xs)
+    for k in range(done, n_steps):      # the generic step raises (or, at an edge of the kernel, goes on)
+        xs[k + 1] = _rk4_generic(f, t0 + h * k, xs[k], h)
+    return xs
 
 
 def solve_reference(f: Callable, t0: float, x0, h: float, n_steps: int, *, rtol: float = 1e-12,
@@ -182,15 +220,7 @@ def task_space_rhs(params: DynamicParameters, model: Manipulator, posture=1, tau
         leaves the posture's tool space.
     """
     _check(params, model)
-    torque = _torque_source(tau)
-
-    def f(t, x):
-        X, dX = x[..., :3], x[..., 3:]
-        q = _ik(model, X, posture)
-        ddX = _forward_task(params, model, X, q, dX, np.asarray(torque(t, x)))
-        return np.concatenate([dX, ddX], axis=-1)
-
-    return f
+    return _TaskSpaceRHS(params, model, posture, tau)
 
 
 def joint_space_rhs(params: DynamicParameters, model: Manipulator, dk: Callable, tau=None) -> Callable:
@@ -213,15 +243,65 @@ def joint_space_rhs(params: DynamicParameters, model: Manipulator, dk: Callable,
     _check(params, model)
     if not callable(dk):
         raise SolverInputError(f"dk: expected a callable dk(q) -> X, got {type(dk).__name__}")
-    torque = _torque_source(tau)
+    return _JointSpaceRHS(params, model, dk, tau)
 
-    def f(t, x):
+
+class _TaskSpaceRHS:
+    """``f(t, x)`` of :func:`task_space_rhs`: compiled for a single state (6,) and an integer posture.
+
+    ``tau`` is the constant torque (3,) (zeros for None) or None for a
+    callable torque; ``bits`` the posture's elbow bits (-1: not a plain integer
+    posture, the numpy route checks it at each call).
+    """
+
+    __slots__ = ("params", "model", "posture", "torque", "tau", "bits")
+
+    def __init__(self, params, model, posture, tau):
+        self.params, self.model, self.posture = params, model, posture
+        self.torque = _torque_source(tau)
+        self.tau = None if callable(tau) else self.torque(0.0, None)    # the checked array itself, as before
+        self.bits = _posture_bits(posture)
+
+    def __call__(self, t, x):
+        tau = self.tau
+        if self.bits >= 0 and _single((x,), 6):
+            if tau is None:
+                tau = np.asarray(self.torque(t, x))
+            if _single((tau,)):
+                out = np.empty(6)
+                st = _k.task_rhs_batch(_kernel_model(self.model), _kernel_params(self.params), x.reshape(1, 6),
+                                       tau.reshape(1, 3), self.bits, out.reshape(1, 6))
+                if st == _k.OK:
+                    return out
+        X, dX = x[..., :3], x[..., 3:]
+        q = _ik(self.model, X, self.posture)
+        if tau is None:
+            tau = np.asarray(self.torque(t, x))
+        ddX = _forward_task(self.params, self.model, X, q, dX, tau)
+        return np.concatenate([dX, ddX], axis=-1)
+
+
+class _JointSpaceRHS:
+    """``f(t, x)`` of :func:`joint_space_rhs`: compiled for a single state (6,) with a pose (3,)."""
+
+    __slots__ = ("params", "model", "dk", "torque")
+
+    def __init__(self, params, model, dk, tau):
+        self.params, self.model, self.dk = params, model, dk
+        self.torque = _torque_source(tau)
+
+    def __call__(self, t, x):
         q, dq = x[..., :3], x[..., 3:]
-        X = np.asarray(dk(q), dtype=float)
-        ddq = _forward_joint(params, model, q, dq, X, np.asarray(torque(t, x)))
+        X = np.asarray(self.dk(q), dtype=float)
+        tau = np.asarray(self.torque(t, x))
+        if _single((x,), 6) and _single((X, tau)):
+            out = np.empty(6)
+            st = _k.joint_rhs_batch(_kernel_model(self.model), _kernel_params(self.params), x.reshape(1, 6),
+                                    X.reshape(1, 3), tau.reshape(1, 3), ASSEMBLY_TOL, out.reshape(1, 6))
+            if st == _k.OK:
+                return out
+        ddq = _forward_joint(self.params, self.model, q, dq, X, tau)
         return np.concatenate([dq, ddq], axis=-1)
-
-    return f
 
 
 class NearestPoseDK:

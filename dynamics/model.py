@@ -76,6 +76,20 @@ Task-space generalised forces are ``(F_x, F_y, torque)`` in N, N, N m.
 All functions broadcast over leading batch dimensions.  Near a type-2
 singularity (``det K = 0``, a leg stretched or folded) ``J_q`` is unbounded and
 near a type-1 singularity (``det J = 0``) ``J_x`` is; neither is guarded.
+
+Implementation
+--------------
+The inertia, Coriolis, gravity and friction terms and the forward and inverse
+dynamics, in task and in joint space, run compiled kernels
+(:mod:`dynamics._kernel`, numba) that evaluate the formulas above for one
+configuration at a time with scalar code, a batch as a loop over the same row
+function and a single configuration as a batch of one (a few microseconds per
+call instead of ~200).  The numpy implementation of the same formulas is kept
+as the reference (the ``_reference_*`` functions); the kernels are tested
+against it to 1e-12 relative (``tests/test_dynamics_kernel.py``), and any input
+a kernel refuses (non-finite, outside the tool space, loop not closed, singular)
+is handed to the reference, so the errors are those documented below.  The
+energies and the kinematic helpers are numpy only.
 """
 from __future__ import annotations
 
@@ -87,6 +101,8 @@ import numpy as np
 
 from solver import Manipulator, ik
 from solver._checks import SolverInputError, as_array
+
+from . import _kernel as _k
 
 __all__ = [
     "DynamicParameters", "ParameterError",
@@ -541,6 +557,153 @@ def _joint_terms(params, model, q, dq, X, check=True) -> _JointTerms:
     return _JointTerms(M, C, G, F, Jx, dX)
 
 
+# ----------------------------------------------------------------------------- compiled fast path
+# Every public dynamics function below runs one compiled kernel of :mod:`dynamics._kernel` over a
+# batch of rows; a single configuration (float64 arrays of shape (3,)) is a batch of one and skips
+# the numpy argument checks, which the kernel replaces by its own (finite inputs, inverse
+# kinematics, loop closure, non-singular matrices).  Whatever the kernel refuses goes to the numpy
+# reference (``_reference_*`` below), which raises the documented error or gives its answer.
+_F8 = np.dtype(np.float64)
+
+
+def _single(arrays, n=3) -> bool:
+    """True if every array is a float64 ndarray of shape ``(n,)`` (the single-configuration path).
+
+    Memory layout is not checked: numba compiles (once, then caches) a variant
+    of a kernel for read-only or strided arguments when it first meets one.
+    """
+    for a in arrays:
+        if type(a) is not np.ndarray or a.shape != (n,) or a.dtype is not _F8:
+            return False
+    return True
+
+
+def _rows(a, n):
+    """A fresh C-contiguous float64 copy of ``a`` (..., k) as ``(n, k)`` rows."""
+    return np.array(a, dtype=np.float64, order="C").reshape(n, a.shape[-1])
+
+
+def _posture_bits(posture) -> int:
+    """``posture - 1`` (the elbow bits) for a plain integer posture 1..8, else -1."""
+    if (type(posture) is int or isinstance(posture, np.integer)) and 1 <= posture <= 8:
+        return int(posture) - 1
+    return -1
+
+
+def _kernel_model(model) -> np.ndarray:
+    """The packed geometry of :mod:`dynamics._kernel`, cached on the (frozen) model."""
+    G = model.__dict__.get("_dynamics_kernel_pack")
+    if G is None:
+        G = _k.pack_model(model.motors, model.l1, model.l2, model.platform)
+        object.__setattr__(model, "_dynamics_kernel_pack", G)
+    return G
+
+
+def _kernel_params(params) -> np.ndarray:
+    """The packed parameters of :mod:`dynamics._kernel`, cached on the (frozen) parameters."""
+    P = params.__dict__.get("_kernel_pack")
+    if P is None:
+        c = _constants(params)
+        P = _k.pack_params(params.com_proximal, params.com_distal, c["w"], c["b"], params.gravity,
+                           params.com_platform)
+        object.__setattr__(params, "_kernel_pack", P)
+    return P
+
+
+def _out(mode, lead, n):
+    """Result array ``lead + (3, 3)`` (mass matrices) or ``lead + (3,)`` and its (n, k) row view."""
+    k = 9 if mode == _k.MASS else 3
+    out = np.empty(lead + ((3, 3) if k == 9 else (3,)))
+    return out, out.reshape(n, k)
+
+
+def _task_eval(params, model, mode, bits, X, dX, U, q=None, single=None):
+    """Task-space kernel on arrays ``(..., 3)`` that broadcast; None if the kernel refuses.
+
+    ``q`` is read when ``bits < 0``, else computed by the kernel's inverse
+    kinematics; ``single``: whether the caller has seen a single configuration.
+    """
+    if single is None:
+        single = _single((X, dX, U)) and (bits >= 0 or _single((q,)))
+    if single:
+        lead, n = (), 1
+        X, dX, U = X.reshape(1, 3), dX.reshape(1, 3), U.reshape(1, 3)
+        q = np.empty((1, 3)) if bits >= 0 else q.reshape(1, 3)
+    else:
+        try:
+            arrs = np.broadcast_arrays(X, dX, U, *(() if bits >= 0 else (q,)))
+        except ValueError:
+            return None
+        lead = arrs[0].shape[:-1]
+        if arrs[0].shape[-1:] != (3,):
+            return None
+        n = math.prod(lead)
+        X, dX, U = (_rows(a, n) for a in arrs[:3])
+        q = np.empty((n, 3)) if bits >= 0 else _rows(arrs[3], n)
+    out, rows = _out(mode, lead, n)
+    st = _k.task_batch(_kernel_model(model), _kernel_params(params), X, dX, U, q, bits, mode, rows)
+    return out if st == _k.OK else None
+
+
+def _task_kernel(params, model, mode, posture, **arrays):
+    """A public task-space function: ``arrays`` are its arguments in order, ``X`` first.
+
+    Checks as the reference does (:func:`_task_args`) unless it is a single
+    configuration; None if the kernel refuses (the caller then runs the reference).
+    """
+    _check(params, model)
+    bits = _posture_bits(posture)
+    vals = tuple(arrays.values())
+    q = None
+    single = bits >= 0 and _single(vals)
+    if not single:
+        vals = tuple(_broadcast(**{k: as_array(k, v) for k, v in arrays.items()}))
+        if bits < 0:
+            q = _ik(model, vals[0], posture)
+    X = vals[0]
+    dX = vals[1] if len(vals) > 1 else X       # unused by the modes without it
+    U = vals[2] if len(vals) > 2 else X
+    return _task_eval(params, model, mode, bits, X, dX, U, q, single)
+
+
+def _joint_eval(params, model, mode, q, dq, X, U, check=True, single=None):
+    """Joint-space kernel on arrays ``(..., 3)`` that broadcast; None if the kernel refuses.
+
+    ``single``: whether the caller has seen a single configuration.
+    """
+    if single is None:
+        single = _single((q, dq, X, U))
+    if single:
+        lead, n = (), 1
+        q, dq, X, U = q.reshape(1, 3), dq.reshape(1, 3), X.reshape(1, 3), U.reshape(1, 3)
+    else:
+        try:
+            arrs = np.broadcast_arrays(q, dq, X, U)
+        except ValueError:
+            return None
+        lead = arrs[0].shape[:-1]
+        if arrs[0].shape[-1:] != (3,):
+            return None
+        n = math.prod(lead)
+        q, dq, X, U = (_rows(a, n) for a in arrs)
+    out, rows = _out(mode, lead, n)
+    st = _k.joint_batch(_kernel_model(model), _kernel_params(params), q, dq, X, U,
+                        ASSEMBLY_TOL if check else math.inf, mode, rows)
+    return out if st == _k.OK else None
+
+
+def _joint_kernel(params, model, mode, **arrays):
+    """A public joint-space function: ``arrays`` are its arguments in order (``q``, ``dq``, ``X``
+    and ``tau`` or ``ddq``); checks as :func:`_joint_args` unless it is a single configuration."""
+    _check(params, model)
+    single = _single(arrays.values())
+    if not single:
+        arrays = dict(zip(arrays, _joint_args(params, model, **arrays)))
+    q = arrays["q"]
+    return _joint_eval(params, model, mode, q, arrays.get("dq", q), arrays["X"],
+                       arrays.get("tau", arrays.get("ddq", q)), True, single)
+
+
 # ----------------------------------------------------------------------------- public kinematics
 def joint_velocity_jacobian(model: Manipulator, X, q) -> np.ndarray:
     """``J_q = dq/dX = -K^{-1} J`` (eq. 3 solved for the motor rates).
@@ -695,8 +858,8 @@ def mass_matrix_task(params: DynamicParameters, model: Manipulator, X, posture=1
     SolverInputError
         Wrong shapes, non-finite input, a pose outside the posture's tool space.
     """
-    (X,), q = _task_args(params, model, X, posture)
-    return _task_terms(params, model, X, q, np.zeros_like(X)).MX
+    out = _task_kernel(params, model, _k.MASS, posture, X=X)
+    return _reference_mass_matrix_task(params, model, X, posture) if out is None else out
 
 
 def coriolis_task(params: DynamicParameters, model: Manipulator, X, dX, posture=1) -> np.ndarray:
@@ -716,8 +879,8 @@ def coriolis_task(params: DynamicParameters, model: Manipulator, X, dX, posture=
     ndarray, shape (..., 3)
         N, N, N m; quadratic in ``dX``.
     """
-    (X, dX), q = _task_args(params, model, X, posture, dX=dX)
-    return _task_terms(params, model, X, q, dX).CX
+    out = _task_kernel(params, model, _k.CORIOLIS, posture, X=X, dX=dX)
+    return _reference_coriolis_task(params, model, X, dX, posture) if out is None else out
 
 
 def gravity_task(params: DynamicParameters, model: Manipulator, X, posture=1) -> np.ndarray:
@@ -735,8 +898,8 @@ def gravity_task(params: DynamicParameters, model: Manipulator, X, posture=1) ->
     ndarray, shape (..., 3)
         N, N, N m (zero when ``params.gravity`` is zero).
     """
-    (X,), q = _task_args(params, model, X, posture)
-    return _task_terms(params, model, X, q, np.zeros_like(X)).GX
+    out = _task_kernel(params, model, _k.GRAVITY, posture, X=X)
+    return _reference_gravity_task(params, model, X, posture) if out is None else out
 
 
 def friction_task(params: DynamicParameters, model: Manipulator, X, dX, posture=1) -> np.ndarray:
@@ -756,8 +919,8 @@ def friction_task(params: DynamicParameters, model: Manipulator, X, dX, posture=
     ndarray, shape (..., 3)
         N, N, N m.
     """
-    (X, dX), q = _task_args(params, model, X, posture, dX=dX)
-    return _task_terms(params, model, X, q, dX).FX
+    out = _task_kernel(params, model, _k.FRICTION, posture, X=X, dX=dX)
+    return _reference_friction_task(params, model, X, dX, posture) if out is None else out
 
 
 def generalized_force_task(params: DynamicParameters, model: Manipulator, X, dX, tau,
@@ -778,9 +941,8 @@ def generalized_force_task(params: DynamicParameters, model: Manipulator, X, dX,
     ndarray, shape (..., 3)
         N, N, N m.
     """
-    (X, dX, tau), q = _task_args(params, model, X, posture, dX=dX, tau=tau)
-    t = _task_terms(params, model, X, q, dX)
-    return _matT_vec(t.Jq, tau) - t.FX
+    out = _task_kernel(params, model, _k.GENERALIZED, posture, X=X, dX=dX, tau=tau)
+    return _reference_generalized_force_task(params, model, X, dX, tau, posture) if out is None else out
 
 
 def forward_dynamics_task(params: DynamicParameters, model: Manipulator, X, dX, tau,
@@ -803,14 +965,14 @@ def forward_dynamics_task(params: DynamicParameters, model: Manipulator, X, dX, 
     ndarray, shape (..., 3)
         ``ddX`` in m/s^2, m/s^2, rad/s^2.
     """
-    (X, dX, tau), q = _task_args(params, model, X, posture, dX=dX, tau=tau)
-    return _forward_task(params, model, X, q, dX, tau)
+    out = _task_kernel(params, model, _k.FORWARD, posture, X=X, dX=dX, tau=tau)
+    return _reference_forward_dynamics_task(params, model, X, dX, tau, posture) if out is None else out
 
 
 def _forward_task(params, model, X, q, dX, tau):
-    t = _task_terms(params, model, X, q, dX)
-    rhs = _matT_vec(t.Jq, tau) - t.FX - t.CX - t.GX
-    return np.linalg.solve(t.MX, rhs[..., None])[..., 0]
+    """``ddX`` of checked arrays (``q`` given), compiled; the numpy reference where the kernel refuses."""
+    out = _task_eval(params, model, _k.FORWARD, -1, X, dX, tau, q)
+    return _reference_forward_task(params, model, X, q, dX, tau) if out is None else out
 
 
 def inverse_dynamics_task(params: DynamicParameters, model: Manipulator, X, dX, ddX,
@@ -829,11 +991,8 @@ def inverse_dynamics_task(params: DynamicParameters, model: Manipulator, X, dX, 
     ndarray, shape (..., 3)
         ``tau`` in N m.
     """
-    (X, dX, ddX), q = _task_args(params, model, X, posture, dX=dX, ddX=ddX)
-    t = _task_terms(params, model, X, q, dX)
-    f = _mat_vec(t.MX, ddX) + t.CX + t.GX + t.FX
-    # J_x^T f = J_q^{-T} f
-    return np.linalg.solve(np.swapaxes(t.Jq, -1, -2), f[..., None])[..., 0]
+    out = _task_kernel(params, model, _k.INVERSE, posture, X=X, dX=dX, ddX=ddX)
+    return _reference_inverse_dynamics_task(params, model, X, dX, ddX, posture) if out is None else out
 
 
 # ----------------------------------------------------------------------------- joint space
@@ -865,8 +1024,8 @@ def mass_matrix(params: DynamicParameters, model: Manipulator, q, X) -> np.ndarr
         Wrong shapes, non-finite input, or ``X`` not assembled with ``q``
         (loop residual above :data:`ASSEMBLY_TOL`).
     """
-    q, X = _joint_args(params, model, q=q, X=X)
-    return _joint_terms(params, model, q, np.zeros_like(q), X).M
+    out = _joint_kernel(params, model, _k.MASS, q=q, X=X)
+    return _reference_mass_matrix(params, model, q, X) if out is None else out
 
 
 def coriolis(params: DynamicParameters, model: Manipulator, q, dq, X) -> np.ndarray:
@@ -884,8 +1043,8 @@ def coriolis(params: DynamicParameters, model: Manipulator, q, dq, X) -> np.ndar
     ndarray, shape (..., 3)
         N m; quadratic in ``dq``.
     """
-    q, dq, X = _joint_args(params, model, q=q, dq=dq, X=X)
-    return _joint_terms(params, model, q, dq, X).C
+    out = _joint_kernel(params, model, _k.CORIOLIS, q=q, dq=dq, X=X)
+    return _reference_coriolis(params, model, q, dq, X) if out is None else out
 
 
 def gravity(params: DynamicParameters, model: Manipulator, q, X) -> np.ndarray:
@@ -905,8 +1064,8 @@ def gravity(params: DynamicParameters, model: Manipulator, q, X) -> np.ndarray:
     ndarray, shape (..., 3)
         N m (zero when ``params.gravity`` is zero).
     """
-    q, X = _joint_args(params, model, q=q, X=X)
-    return _joint_terms(params, model, q, np.zeros_like(q), X).G
+    out = _joint_kernel(params, model, _k.GRAVITY, q=q, X=X)
+    return _reference_gravity(params, model, q, X) if out is None else out
 
 
 def friction(params: DynamicParameters, model: Manipulator, q, dq, X) -> np.ndarray:
@@ -928,8 +1087,8 @@ def friction(params: DynamicParameters, model: Manipulator, q, dq, X) -> np.ndar
     ndarray, shape (..., 3)
         N m; linear in ``dq``.
     """
-    q, dq, X = _joint_args(params, model, q=q, dq=dq, X=X)
-    return _joint_terms(params, model, q, dq, X).F
+    out = _joint_kernel(params, model, _k.FRICTION, q=q, dq=dq, X=X)
+    return _reference_friction(params, model, q, dq, X) if out is None else out
 
 
 def forward_dynamics(params: DynamicParameters, model: Manipulator, q, dq, X, tau) -> np.ndarray:
@@ -951,13 +1110,14 @@ def forward_dynamics(params: DynamicParameters, model: Manipulator, q, dq, X, ta
     ndarray, shape (..., 3)
         ``ddq`` in rad/s^2.
     """
-    q, dq, X, tau = _joint_args(params, model, q=q, dq=dq, X=X, tau=tau)
-    return _forward_joint(params, model, q, dq, X, tau)
+    out = _joint_kernel(params, model, _k.FORWARD, q=q, dq=dq, X=X, tau=tau)
+    return _reference_forward_dynamics(params, model, q, dq, X, tau) if out is None else out
 
 
 def _forward_joint(params, model, q, dq, X, tau, check=True):
-    t = _joint_terms(params, model, q, dq, X, check)
-    return np.linalg.solve(t.M, (tau - t.C - t.G - t.F)[..., None])[..., 0]
+    """``ddq`` of checked arrays, compiled; the numpy reference where the kernel refuses."""
+    out = _joint_eval(params, model, _k.FORWARD, q, dq, X, tau, check)
+    return _reference_forward_joint(params, model, q, dq, X, tau, check) if out is None else out
 
 
 def inverse_dynamics(params: DynamicParameters, model: Manipulator, q, dq, ddq, X) -> np.ndarray:
@@ -975,13 +1135,121 @@ def inverse_dynamics(params: DynamicParameters, model: Manipulator, q, dq, ddq, 
     ndarray, shape (..., 3)
         ``tau`` in N m.
     """
-    q, dq, ddq, X = _joint_args(params, model, q=q, dq=dq, ddq=ddq, X=X)
-    return _inverse_joint(params, model, q, dq, ddq, X)
+    out = _joint_kernel(params, model, _k.INVERSE, q=q, dq=dq, ddq=ddq, X=X)
+    return _reference_inverse_dynamics(params, model, q, dq, ddq, X) if out is None else out
 
 
 def _inverse_joint(params, model, q, dq, ddq, X, check=True):
+    """``tau`` of checked arrays, compiled; the numpy reference where the kernel refuses."""
+    out = _joint_eval(params, model, _k.INVERSE, q, dq, X, ddq, check)
+    return _reference_inverse_joint(params, model, q, dq, ddq, X, check) if out is None else out
+
+
+# ----------------------------------------------------------------------------- numpy reference
+# The functions above run the compiled kernels of :mod:`dynamics._kernel`; these are the numpy
+# implementations of the same formulas they replaced.  They stay as the reference the kernels are
+# tested against (tests/test_dynamics_kernel.py), and every fast function hands its call to its
+# reference when the kernel refuses it (non-finite input, pose outside the tool space, loop not
+# closed, singular matrix), so that errors and edge cases are exactly the reference's.
+def _reference_forward_task(params, model, X, q, dX, tau):
+    """numpy reference of :func:`_forward_task`."""
+    t = _task_terms(params, model, X, q, dX)
+    rhs = _matT_vec(t.Jq, tau) - t.FX - t.CX - t.GX
+    return np.linalg.solve(t.MX, rhs[..., None])[..., 0]
+
+
+def _reference_forward_joint(params, model, q, dq, X, tau, check=True):
+    """numpy reference of :func:`_forward_joint`."""
+    t = _joint_terms(params, model, q, dq, X, check)
+    return np.linalg.solve(t.M, (tau - t.C - t.G - t.F)[..., None])[..., 0]
+
+
+def _reference_inverse_joint(params, model, q, dq, ddq, X, check=True):
+    """numpy reference of :func:`_inverse_joint`."""
     t = _joint_terms(params, model, q, dq, X, check)
     return _mat_vec(t.M, ddq) + t.C + t.G + t.F
+
+
+def _reference_mass_matrix_task(params, model, X, posture=1):
+    """numpy reference of :func:`mass_matrix_task` (same arguments, checks and errors)."""
+    (X,), q = _task_args(params, model, X, posture)
+    return _task_terms(params, model, X, q, np.zeros_like(X)).MX
+
+
+def _reference_coriolis_task(params, model, X, dX, posture=1):
+    """numpy reference of :func:`coriolis_task` (same arguments, checks and errors)."""
+    (X, dX), q = _task_args(params, model, X, posture, dX=dX)
+    return _task_terms(params, model, X, q, dX).CX
+
+
+def _reference_gravity_task(params, model, X, posture=1):
+    """numpy reference of :func:`gravity_task` (same arguments, checks and errors)."""
+    (X,), q = _task_args(params, model, X, posture)
+    return _task_terms(params, model, X, q, np.zeros_like(X)).GX
+
+
+def _reference_friction_task(params, model, X, dX, posture=1):
+    """numpy reference of :func:`friction_task` (same arguments, checks and errors)."""
+    (X, dX), q = _task_args(params, model, X, posture, dX=dX)
+    return _task_terms(params, model, X, q, dX).FX
+
+
+def _reference_generalized_force_task(params, model, X, dX, tau, posture=1):
+    """numpy reference of :func:`generalized_force_task` (same arguments, checks and errors)."""
+    (X, dX, tau), q = _task_args(params, model, X, posture, dX=dX, tau=tau)
+    t = _task_terms(params, model, X, q, dX)
+    return _matT_vec(t.Jq, tau) - t.FX
+
+
+def _reference_forward_dynamics_task(params, model, X, dX, tau, posture=1):
+    """numpy reference of :func:`forward_dynamics_task` (same arguments, checks and errors)."""
+    (X, dX, tau), q = _task_args(params, model, X, posture, dX=dX, tau=tau)
+    return _reference_forward_task(params, model, X, q, dX, tau)
+
+
+def _reference_inverse_dynamics_task(params, model, X, dX, ddX, posture=1):
+    """numpy reference of :func:`inverse_dynamics_task` (same arguments, checks and errors)."""
+    (X, dX, ddX), q = _task_args(params, model, X, posture, dX=dX, ddX=ddX)
+    t = _task_terms(params, model, X, q, dX)
+    f = _mat_vec(t.MX, ddX) + t.CX + t.GX + t.FX
+    # J_x^T f = J_q^{-T} f
+    return np.linalg.solve(np.swapaxes(t.Jq, -1, -2), f[..., None])[..., 0]
+
+
+def _reference_mass_matrix(params, model, q, X):
+    """numpy reference of :func:`mass_matrix` (same arguments, checks and errors)."""
+    q, X = _joint_args(params, model, q=q, X=X)
+    return _joint_terms(params, model, q, np.zeros_like(q), X).M
+
+
+def _reference_coriolis(params, model, q, dq, X):
+    """numpy reference of :func:`coriolis` (same arguments, checks and errors)."""
+    q, dq, X = _joint_args(params, model, q=q, dq=dq, X=X)
+    return _joint_terms(params, model, q, dq, X).C
+
+
+def _reference_gravity(params, model, q, X):
+    """numpy reference of :func:`gravity` (same arguments, checks and errors)."""
+    q, X = _joint_args(params, model, q=q, X=X)
+    return _joint_terms(params, model, q, np.zeros_like(q), X).G
+
+
+def _reference_friction(params, model, q, dq, X):
+    """numpy reference of :func:`friction` (same arguments, checks and errors)."""
+    q, dq, X = _joint_args(params, model, q=q, dq=dq, X=X)
+    return _joint_terms(params, model, q, dq, X).F
+
+
+def _reference_forward_dynamics(params, model, q, dq, X, tau):
+    """numpy reference of :func:`forward_dynamics` (same arguments, checks and errors)."""
+    q, dq, X, tau = _joint_args(params, model, q=q, dq=dq, X=X, tau=tau)
+    return _reference_forward_joint(params, model, q, dq, X, tau)
+
+
+def _reference_inverse_dynamics(params, model, q, dq, ddq, X):
+    """numpy reference of :func:`inverse_dynamics` (same arguments, checks and errors)."""
+    q, dq, ddq, X = _joint_args(params, model, q=q, dq=dq, ddq=ddq, X=X)
+    return _reference_inverse_joint(params, model, q, dq, ddq, X)
 
 
 # ----------------------------------------------------------------------------- energy
