@@ -22,6 +22,8 @@ from numba import njit, prange
 EPS = 2.220446049250313e-16
 #: A polished real root may not move phi further than this from the sextic's root (rad).
 PHI_DRIFT = 1e-5
+#: Two real solutions closer than this (sum of |dx|, |dy|, |dphi|) are the same solution twice.
+DUPLICATE = 1e-7
 #: Below this Hadamard ratio of J a repeated solution is a genuine double root.
 HADAMARD_SINGULAR = 1e-6
 RULE_REAL_PHI = 0
@@ -109,8 +111,11 @@ def _roots6(coef):
     """All roots of the degree-6 polynomial ``coef`` (highest first, coef[0] != 0).
 
     Aberth-Ehrlich simultaneous iteration (Gauss-Seidel updates) from points on
-    a circle of radius the geometric mean of the root moduli; a root is frozen
-    once ``|p(z)|`` is below its rounding-error bound ``4 eps sum |a_i| |z|^i``.
+    a circle of radius the geometric mean of the root moduli.  A root is frozen
+    once its correction is at rounding level, or once ``|p(z)|`` is below its
+    rounding-error bound ``4 eps sum |a_i| |z|^i`` and the corrections stop
+    shrinking (a multiple root).  Stopping on ``|p|`` alone would leave the two
+    roots of a close pair with a forward error far above their separation.
     """
     n = 6
     a = np.empty(n + 1, dtype=np.complex128)
@@ -123,6 +128,7 @@ def _roots6(coef):
     for k in range(n):
         z[k] = r * cmath.exp(1j * (2.0 * math.pi * k / n + 0.4))
     done = np.zeros(n, dtype=np.bool_)
+    last = np.full(n, np.inf)
     for _ in range(200):
         alldone = True
         for k in range(n):
@@ -137,7 +143,7 @@ def _roots6(coef):
                 dp = dp * zk + p
                 p = p * zk + a[i]
                 bound = bound * az + abs(a[i])
-            if abs(p) <= 4.0 * EPS * bound:
+            if p == 0:
                 done[k] = True
                 continue
             alldone = False
@@ -153,8 +159,11 @@ def _roots6(coef):
                         sigma += 1.0 / diff
             w = ratio / (1.0 - ratio * sigma)
             z[k] = zk - w
-            if abs(w) <= EPS * abs(z[k]):
+            # converged when the correction is at rounding level, or when |p| is at its rounding
+            # level and the correction no longer shrinks (a multiple root, linear convergence)
+            if abs(w) <= 2.0 * EPS * abs(z[k]) or (abs(p) <= 4.0 * EPS * bound and abs(w) >= 0.5 * last[k]):
                 done[k] = True
+            last[k] = abs(w)
         if alldone:
             break
     return z
@@ -189,6 +198,56 @@ def _line_circle_candidates(phi, D, b, l2sq):
 
 
 @njit(cache=True)
+def _deflated_newton(x, y, p, ax, ay, ap, D, b, l2sq, iters):
+    """Newton on the deflated system ``(1 / |X - X_a|^2 + 1) F(X) = 0`` (Farrell et al.).
+
+    The factor makes the accepted solution ``X_a`` repel the iteration, so from a start near a
+    (near-)double root it converges to the *other* solution.  Returns x, y, phi.
+    """
+    Lx = np.empty(3)
+    Ly = np.empty(3)
+    J3 = np.empty(3)
+    F = np.empty(3)
+    A = np.empty((3, 3))
+    for _ in range(iters):
+        c, s = math.cos(p), math.sin(p)
+        for i in range(3):
+            rbx = c * b[i, 0] - s * b[i, 1]
+            rby = s * b[i, 0] + c * b[i, 1]
+            Lx[i] = x + rbx - D[i, 0]
+            Ly[i] = y + rby - D[i, 1]
+            J3[i] = Ly[i] * rbx - Lx[i] * rby
+            F[i] = 0.5 * (Lx[i] * Lx[i] + Ly[i] * Ly[i] - l2sq[i])
+        dx, dy, dp = x - ax, y - ay, _wrap(p - ap)
+        r2 = dx * dx + dy * dy + dp * dp
+        if r2 == 0.0:
+            dx, dy, dp, r2 = 1e-8, 1e-8, 1e-8, 3e-16
+        m = 1.0 / r2 + 1.0
+        g0, g1, g2 = -2.0 * dx / (r2 * r2), -2.0 * dy / (r2 * r2), -2.0 * dp / (r2 * r2)
+        for i in range(3):                 # d(m F)/dX = m J + F grad(m)^T  (J halved like F)
+            A[i, 0] = m * Lx[i] + F[i] * g0
+            A[i, 1] = m * Ly[i] + F[i] * g1
+            A[i, 2] = m * J3[i] + F[i] * g2
+        det = (A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]) - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
+               + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]))
+        if det == 0.0 or not math.isfinite(det):
+            break
+        r0, r1, rr2 = -m * F[0], -m * F[1], -m * F[2]
+        sx = (r0 * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]) - A[0, 1] * (r1 * A[2, 2] - A[1, 2] * rr2)
+              + A[0, 2] * (r1 * A[2, 1] - A[1, 1] * rr2)) / det
+        sy = (A[0, 0] * (r1 * A[2, 2] - A[1, 2] * rr2) - r0 * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
+              + A[0, 2] * (A[1, 0] * rr2 - r1 * A[2, 0])) / det
+        sp = (A[0, 0] * (A[1, 1] * rr2 - r1 * A[2, 1]) - A[0, 1] * (A[1, 0] * rr2 - r1 * A[2, 0])
+              + r0 * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0])) / det
+        if not (math.isfinite(sx) and math.isfinite(sy) and math.isfinite(sp)):
+            break
+        x, y, p = x + sx, y + sy, p + sp
+        if abs(sx) + abs(sy) + abs(sp) < 1e-15:
+            break
+    return x, y, p
+
+
+@njit(cache=True)
 def _acceptable(x, y, ph, res, had, ph0, out, isreal, real_tol):
     """Whether a polished candidate is the real solution of the root at ``ph0``.
 
@@ -201,7 +260,7 @@ def _acceptable(x, y, ph, res, had, ph0, out, isreal, real_tol):
     if had > HADAMARD_SINGULAR:
         for j in range(6):
             if isreal[j] and (abs(out[j, 0].real - x) + abs(out[j, 1].real - y)
-                              + abs(_wrap(out[j, 2].real - ph))) < 1e-9:
+                              + abs(_wrap(out[j, 2].real - ph))) < DUPLICATE:
                 return False
     return True
 
@@ -255,18 +314,30 @@ def dk_one(q, M, l1, l2sq, b, cos8, sin8, T, psis, rule, snap_tol, real_tol, ste
             c0, s0 = math.cos(ph0), math.sin(ph0)
             delta, nx, ny, _u, _v, _k, _a, _b, _c, _d, _e, _f = _elim(c0, s0, D, b, l2sq)
             xa, ya, xb, yb, lc_ok = _line_circle_candidates(ph0, D, b, l2sq)
-            for cand in range(3):
+            for cand in range(4):
+                p0 = ph0
                 if cand == 0:
                     if delta == 0.0:
                         continue
                     x0, y0 = nx / delta, ny / delta
-                elif not lc_ok:
-                    break
-                elif cand == 1:
-                    x0, y0 = xa, ya
+                elif cand == 1 or cand == 2:
+                    if not lc_ok:
+                        continue
+                    x0, y0 = (xa, ya) if cand == 1 else (xb, yb)
                 else:
-                    x0, y0 = xb, yb
-                x, y, ph, res, had = _polish(x0, y0, ph0, D, b, l2sq, steps)
+                    # a twin of an accepted solution (a close pair the sextic cannot separate):
+                    # deflated Newton from the Cramer point, away from the nearest accepted one
+                    jn, dn = -1, np.inf
+                    for j in range(6):
+                        if isreal[j] and abs(_wrap(out[j, 2].real - ph0)) < 1e-4:
+                            dd = abs(_wrap(out[j, 2].real - ph0))
+                            if dd < dn:
+                                jn, dn = j, dd
+                    if jn < 0 or delta == 0.0:
+                        continue
+                    x0, y0, p0 = _deflated_newton(nx / delta, ny / delta, ph0, out[jn, 0].real,
+                                                  out[jn, 1].real, out[jn, 2].real, D, b, l2sq, 40)
+                x, y, ph, res, had = _polish(x0, y0, p0, D, b, l2sq, steps)
                 if _acceptable(x, y, ph, res, had, ph0, out, isreal, real_tol):
                     out[k, 0], out[k, 1], out[k, 2] = x, y, ph
                     isreal[k] = True
@@ -419,3 +490,29 @@ def dk_parallel(q, M, l1, l2sq, b, cos8, sin8, T, psis, rule, snap_tol, real_tol
     for n in prange(q.shape[0]):
         dk_one(q[n], M, l1, l2sq, b, cos8, sin8, T, psis, rule, snap_tol, real_tol, steps,
                poses[n], real[n])
+
+
+@njit(cache=True)
+def ik_batch(X, bits, M, l1, l2, b, out):
+    """Inverse kinematics of poses X (N, 3) with elbow bits (N, 3) (1 = negative elbow) into out (N, 3)."""
+    for n in range(X.shape[0]):
+        c, s = math.cos(X[n, 2]), math.sin(X[n, 2])
+        ok = True
+        for i in range(3):
+            dx = X[n, 0] + c * b[i, 0] - s * b[i, 1] - M[i, 0]
+            dy = X[n, 1] + s * b[i, 0] + c * b[i, 1] - M[i, 1]
+            rho2 = dx * dx + dy * dy
+            rho = math.sqrt(rho2)
+            if rho == 0.0:
+                ok = False
+                break
+            ca = (l1[i] * l1[i] + rho2 - l2[i] * l2[i]) / (2.0 * l1[i] * rho)
+            if not abs(ca) <= 1.0 + 1e-12:
+                ok = False
+                break
+            alpha = math.acos(min(1.0, max(-1.0, ca)))
+            sign = 1.0 - 2.0 * bits[n, i]
+            out[n, i] = _wrap(math.atan2(dy, dx) - sign * alpha)
+        if not ok:
+            for i in range(3):
+                out[n, i] = np.nan

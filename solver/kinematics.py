@@ -320,18 +320,11 @@ def ik(model: Manipulator, X, posture=1) -> np.ndarray:
     except ValueError:
         raise SolverInputError(f"posture: expected a shape broadcastable to {X.shape[:-1]}, "
                                f"got {np.shape(posture)}") from None
-    d = _platform(model, X) - model.motors                      # (..., 3, 2) A_i - M_i
-    rho2 = np.sum(d * d, axis=-1)
-    rho = np.sqrt(rho2)
-    l1, l2 = model.l1, model.l2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cos_a = (l1 * l1 + rho2 - l2 * l2) / (2.0 * l1 * rho)
-    reach = np.abs(cos_a) <= 1.0 + 1e-12
-    alpha = np.arccos(np.clip(cos_a, -1.0, 1.0))
-    sign = 1.0 - 2.0 * bits                                      # +1 positive elbow, -1 negative
-    q = wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - sign * alpha)
-    ok = np.all(reach, axis=-1, keepdims=True)
-    return np.where(ok, q, np.nan)
+    Xf = np.ascontiguousarray(np.broadcast_to(X, bits.shape).reshape(-1, 3))
+    out = np.empty(Xf.shape)
+    _kernel.ik_batch(Xf, np.ascontiguousarray(bits.reshape(-1, 3), dtype=np.float64), model.motors,
+                     model.l1, model.l2, model.platform, out)
+    return out.reshape(bits.shape)
 
 
 def posture_of(model: Manipulator, X, q) -> np.ndarray:
