@@ -130,6 +130,21 @@ class Scenario:
 
 
 # ----------------------------------------------------------------------------- one FMU
+#: FMUs extracted in this process: (path, mtime, guid) -> folder.  Each FMU file is extracted once
+#: and every instance loads the same copy of its shared library (see :meth:`FMUUnit.close`).
+_EXTRACTED: dict = {}
+
+
+def _remove_extracted():
+    for folder in _EXTRACTED.values():
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+import atexit  # noqa: E402
+
+atexit.register(_remove_extracted)
+
+
 class FMUUnit:
     """One FMU instance driven through fmpy's ``FMU2Slave`` (extracted once, reusable by reset).
 
@@ -140,7 +155,8 @@ class FMUUnit:
     name : str
         Instance name.
     unzip_dir : str or Path, optional
-        Where to extract (default: a temporary folder removed by :meth:`close`).
+        Where to extract (default: a folder shared by all instances of this FMU file in the
+        process, removed at exit).
     """
 
     def __init__(self, path, name: str, unzip_dir=None, logging_on: bool = False):
@@ -151,8 +167,14 @@ class FMUUnit:
         if not self.path.exists():
             raise FileNotFoundError(f"{self.path}: no such FMU (build it with `python -m dynamics.cosim --build`)")
         self.md = read_model_description(str(self.path))
-        self._own_dir = unzip_dir is None
-        self.unzip_dir = extract(str(self.path), unzipdir=None if unzip_dir is None else str(unzip_dir))
+        self._own_dir = False
+        if unzip_dir is None:
+            key = (str(self.path.resolve()), self.path.stat().st_mtime_ns, self.md.guid)
+            if key not in _EXTRACTED:
+                _EXTRACTED[key] = extract(str(self.path))
+            self.unzip_dir = _EXTRACTED[key]
+        else:
+            self.unzip_dir = extract(str(self.path), unzipdir=str(unzip_dir))
         self.vars = {v.name: v for v in self.md.modelVariables}
         self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzip_dir,
                              modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
@@ -191,11 +213,22 @@ class FMUUnit:
         self.fmu.reset()
 
     def close(self) -> None:
+        """fmi2Terminate and fmi2FreeInstance; the shared library stays loaded.
+
+        fmpy's ``freeInstance`` also unloads the FMU's shared library.  With several pythonfmu
+        FMUs in one process, unloading one of them, or loading a second extracted copy of the
+        same FMU, corrupts the heap and the process aborts at exit ("corrupted double-linked
+        list", reproduced here).  So every FMU file is extracted once per process, its library
+        loaded once and never unloaded; instances are freed.
+        """
+        if self.fmu is None:
+            return
         try:
             self.fmu.terminate()
         except Exception:  # noqa: BLE001 - terminate after an error may be refused; free anyway
             pass
-        self.fmu.freeInstance()
+        self.fmu.fmi2FreeInstance(self.fmu.component)
+        self.fmu = None
         if self._own_dir:
             shutil.rmtree(self.unzip_dir, ignore_errors=True)
 

@@ -1,0 +1,322 @@
+"""RRRDirectKinematics: direct kinematics of the planar 3-RRR with basic regions, FMI 2.0 Co-Simulation.
+
+Joint angles (q1, q2, q3) in, platform pose (x, y, phi) out: ``solver.Tracker`` (procedures 2-3 of
+the paper) on the map tensor(s) (procedure 1) embedded in ``resources/maps/``.  Variables,
+equations, initialization, status codes and bad-input behaviour: ``fmu_src/RRRDirectKinematics.md``
+(also ``documentation/index.md`` inside the FMU).  Built by ``python build_fmu.py``.
+
+Module-level code: imports, two build constants (rewritten by build_fmu.py in the staged copy), a
+helper and the class (pythonfmu's C wrapper re-executes this module at every instantiation).
+"""
+import hashlib
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+from pythonfmu import DefaultExperiment
+from pythonfmu.enums import Fmi2Status
+
+from fmu_src.table_slave import TableSlave, Var
+from solver import Manipulator, dk_all, ik, jacobians, wrap_angle
+from solver.__main__ import HOME_POSE
+from solver.maptensor import MapTensor, MapTensorFileError
+from solver.tracker import STATUS, Tracker, TrackerState
+
+# Build constants: start values of the parameters ``posture`` and ``mode`` (build_fmu.py --posture/--mode).
+BUILD_POSTURE = 1
+BUILD_MODE = "default"
+
+
+def _home_joints(posture):
+    """Joints of HOME_POSE in ``posture`` (start values of q1..q3, consistent with x0, y0, phi0)."""
+    q = ik(Manipulator.paper(), np.array(HOME_POSE, dtype=float), posture)
+    return [float(v) for v in q]
+
+
+class RRRDirectKinematics(TableSlave):
+    """Direct kinematics of the 3-RRR (paper Table 1) by the basic-regions tracker."""
+
+    description = ("Direct kinematics of the planar 3-RRR parallel manipulator with basic regions: "
+                   "joint angles -> platform pose (tracker + embedded map tensor)")
+    author = "rrr-dk"
+    version = "0.1.0"
+    license = "MIT"
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=1e-3)
+
+    MODES = ("default", "paper")                 # value of the Integer parameter ``mode``
+    MAP_DIR = "maps"                              # resources/maps/manifest.json + one .npz per posture
+    Q0_TOL = 1e-6                                 # rad: q inputs at initialization "consistent" with X0
+    _HOME_Q = _home_joints(BUILD_POSTURE)
+
+    VARIABLES = (
+        Var("q1", "Real", "input", start=_HOME_Q[0], unit="rad",
+            description="motor angle theta_1 of leg 1 (from +x)"),
+        Var("q2", "Real", "input", start=_HOME_Q[1], unit="rad",
+            description="motor angle theta_2 of leg 2 (from +x)"),
+        Var("q3", "Real", "input", start=_HOME_Q[2], unit="rad",
+            description="motor angle theta_3 of leg 3 (from +x)"),
+        Var("x0", "Real", "parameter", "fixed", start=float(HOME_POSE[0]), unit="m",
+            description="initial pose: x of the platform centre"),
+        Var("y0", "Real", "parameter", "fixed", start=float(HOME_POSE[1]), unit="m",
+            description="initial pose: y of the platform centre"),
+        Var("phi0", "Real", "parameter", "fixed", start=float(HOME_POSE[2]), unit="rad",
+            description="initial pose: platform orientation"),
+        Var("posture", "Integer", "parameter", "fixed", start=BUILD_POSTURE, min=1, max=8,
+            description="IK branch 1..8 (CONVENTIONS.md); needs an embedded map of that posture"),
+        Var("mode", "Integer", "parameter", "fixed", start=MODES.index(BUILD_MODE), min=0, max=1,
+            description="tracker mode: 0 default (RK4 continuation + map), 1 paper (procedures 2-3 as written)"),
+        Var("x", "Real", "output", unit="m", depends_on=("q1", "q2", "q3"),
+            description="platform centre x"),
+        Var("y", "Real", "output", unit="m", depends_on=("q1", "q2", "q3"),
+            description="platform centre y"),
+        Var("phi", "Real", "output", unit="rad", depends_on=("q1", "q2", "q3"),
+            description="platform orientation, wrapped to (-pi, pi]"),
+        Var("region", "Integer", "output", depends_on=("q1", "q2", "q3"),
+            description="number 1..6 of the DK solution returned (map's ordering rule); 0 none"),
+        Var("near_border", "Boolean", "output", depends_on=("q1", "q2", "q3"),
+            description="procedure 2 saw more than one region label near the previous pose"),
+        Var("n_real", "Integer", "output", depends_on=("q1", "q2", "q3"),
+            description="number of real DK solutions of q (0, 2, 4 or 6)"),
+        Var("ambiguous", "Boolean", "output", depends_on=("q1", "q2", "q3"),
+            description="the choice of solution is not certain"),
+        Var("status", "Integer", "output", depends_on=("q1", "q2", "q3"),
+            description="0 ok, 1 unreachable (pose held), 2 singular, 3 rejected input (step refused), "
+                        "4 diverged"),
+        Var("cond", "Real", "output", unit="1", depends_on=("q1", "q2", "q3"),
+            description="|det J| / prod |rows of J| at the pose (0 singular, 1 best)"),
+    )
+    # _track: the TrackerState (the tracker's whole mutable data: previous pose and joints, the pose
+    # before, the joint-step scale, the step count); _committed: (q, outputs) of the last doStep (or of
+    # the initialization), what the outputs are whenever the inputs equal that q; _episode: status of the
+    # last logged change (unreachable / singular episodes are logged once, at their start and end)
+    STATE = ("_track", "_committed", "_episode")
+    # _maps/_model: read and verified at instantiation; _tracker: built at initialization for
+    # (posture, mode), rebuilt by set_state if a state of other parameters is set; _cache: the last
+    # tentative step, keyed by the q and the TrackerState object it started from (never stale)
+    CONSTANT = ("_maps", "_model", "_tracker", "_cache")
+    SINGULAR_TOL = 1e-4                           # cond below this: status 2 (the tracker's default)
+    OUTPUTS = ("x", "y", "phi", "region", "near_border", "n_real", "ambiguous", "status", "cond")
+
+    # ------------------------------------------------------------------ instantiation
+    def setup(self):
+        try:
+            self._maps, self._model = self._load_maps(Path(self.resources) / self.MAP_DIR)
+        except Exception as exc:
+            # instantiation fails (fmi2Instantiate returns NULL; pythonfmu logs the exception with status
+            # fmi2Fatal when loggingOn): say why on Python logging too, fmpy.simulate_fmu shows no log
+            self._pylog.error("instance %r: instantiation failed: %s", self.instance_name, exc)
+            raise
+        self._tracker = None
+        self._track = None
+        self._committed = None
+        self._episode = 0
+        self._cache = None
+
+    @classmethod
+    def _load_maps(cls, folder: Path):
+        """Read resources/maps/manifest.json and every map it lists; refuse anything that does not check out."""
+        where = f"{cls.__name__}: embedded map tensors ({folder})"
+        manifest = folder / "manifest.json"
+        try:
+            entries = json.loads(manifest.read_text())["maps"]
+        except FileNotFoundError:
+            raise MapTensorFileError(f"{where}: resources/{cls.MAP_DIR}/manifest.json is missing "
+                                     "(FMU not built by build_fmu.py, or damaged)") from None
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise MapTensorFileError(f"{where}: unreadable manifest.json ({type(exc).__name__}: {exc})") from None
+        if not entries:
+            raise MapTensorFileError(f"{where}: manifest.json lists no map")
+        maps, model = {}, None
+        for entry in entries:
+            try:
+                posture, name, size, sha = int(entry["posture"]), str(entry["file"]), entry["bytes"], entry["sha256"]
+            except (KeyError, TypeError, ValueError) as exc:
+                raise MapTensorFileError(f"{where}: malformed manifest entry {entry!r} ({exc})") from None
+            path = folder.parent / name
+            if not path.is_file():
+                raise MapTensorFileError(f"{where}: the map of posture {posture}, resources/{name}, is missing")
+            data = path.read_bytes()
+            digest = hashlib.sha256(data).hexdigest()
+            if len(data) != size or digest != sha:
+                raise MapTensorFileError(
+                    f"{where}: the map of posture {posture}, resources/{name}, is truncated or modified: "
+                    f"{len(data)} bytes, sha256 {digest[:16]}...; the build recorded {size} bytes, "
+                    f"sha256 {str(sha)[:16]}...")
+            try:
+                mt = MapTensor.load(path, posture=posture)
+            except MapTensorFileError as exc:
+                raise MapTensorFileError(f"{where}: {exc}") from None
+            if model is not None and mt.model.digest() != model.digest():
+                raise MapTensorFileError(f"{where}: the maps were built for different geometries")
+            model = mt.model
+            maps[posture] = mt
+        return maps, model
+
+    def _make_tracker(self, posture, mode):
+        if posture not in self._maps:
+            raise ValueError(f"parameter 'posture' = {posture!r}: this FMU embeds maps of posture(s) "
+                             f"{sorted(self._maps)} only (build_fmu.py --posture)")
+        if not 0 <= mode < len(self.MODES):
+            raise ValueError(f"parameter 'mode' = {mode!r}: expected 0 (default) or 1 (paper)")
+        return Tracker(self._model, self._maps[posture], mode=self.MODES[mode], singular_tol=self.SINGULAR_TOL)
+
+    # ------------------------------------------------------------------ initialization
+    def on_initialized(self):
+        """Reset the tracker at (x0, y0, phi0) with the joints at t0 (see the readme, "Initialization")."""
+        try:
+            self._initialize_tracker()
+        except Exception:
+            self.status = 3                       # every doStep will be refused with the reason
+            raise
+
+    def _initialize_tracker(self):
+        self._tracker = self._make_tracker(self.posture, self.mode)
+        X0 = np.array([self.x0, self.y0, self.phi0], dtype=float)
+        for name, value in zip(("x0", "y0", "phi0"), X0):
+            if not math.isfinite(value):
+                raise ValueError(f"parameter {name!r} = {value!r} is not finite")
+        q_ik = ik(self._model, X0, self.posture)
+        if np.isnan(q_ik[0]):
+            raise ValueError(f"the initial pose (x0, y0, phi0) = ({X0[0]!r}, {X0[1]!r}, {X0[2]!r}) is outside "
+                             f"the tool space of posture {self.posture} (no inverse-kinematics solution)")
+        q_in = np.array([self.q1, self.q2, self.q3], dtype=float)
+        gap = float(np.max(np.abs(wrap_angle(q_in - q_ik)))) if np.all(np.isfinite(q_in)) else math.inf
+        if gap <= self.Q0_TOL:
+            q0 = q_in                             # the joints at t0 are the inputs
+        else:
+            q0 = q_ik
+            self._report(f"initialization: inputs (q1, q2, q3) = ({q_in[0]!r}, {q_in[1]!r}, {q_in[2]!r}) "
+                         f"are not the joints of the initial pose (x0, y0, phi0) in posture {self.posture} "
+                         f"(largest difference {gap:.3g} rad > {self.Q0_TOL:g} rad); the tracker starts "
+                         f"from the inverse kinematics q = ({q_ik[0]!r}, {q_ik[1]!r}, {q_ik[2]!r}) and "
+                         "moves to the inputs at the first step", Fmi2Status.warning)
+        self._tracker.reset(X0, q0)
+        self._track = self._tracker.state
+        self._cache = None
+        self._initial_outputs()
+        self._committed = (tuple(float(v) for v in q0), self._outputs())
+
+    def _initial_outputs(self):
+        """Outputs at the initial configuration: the initial pose itself, described like a step."""
+        st, mt = self._track, self._tracker.map
+        sol = dk_all(self._model, st.q, rule=mt.rule)
+        real = sol.poses.real[sol.real]
+        labels = np.flatnonzero(sol.real) + 1
+        region = 0
+        if len(real):
+            d = np.abs(real - st.X)
+            d[:, 2] = np.abs(wrap_angle(d[:, 2]))
+            region = int(labels[np.argmin(d.max(axis=1))])
+        J, _ = jacobians(self._model, st.X, st.q)
+        cond = float(abs(np.linalg.det(J)) / np.prod(np.linalg.norm(J, axis=1)))
+        near = mt.near_labels(st.X, self._tracker.r, mt.default_weights)[1:]
+        self.x, self.y, self.phi = (float(v) for v in st.X)
+        self.region = region
+        self.near_border = bool(np.count_nonzero(near) > 1)
+        self.n_real = int(sol.n_real)
+        self.ambiguous = False
+        self.status = 2 if cond < self.SINGULAR_TOL else 0
+        self.cond = cond
+        self._episode = self.status
+        if self.status:
+            self._report(f"initialization: the initial pose is {STATUS[self.status]} (cond {cond:.3g})",
+                         Fmi2Status.warning)
+
+    # ------------------------------------------------------------------ stepping
+    def _outputs(self):
+        return tuple(getattr(self, name) for name in self.OUTPUTS)
+
+    def _solve(self, q):
+        """The tracker's step to ``q`` from the committed state, not committed: (X, info, state after).
+
+        Cached by (q, TrackerState object): doStep after a get of the outputs costs no second step.
+        """
+        st = self._track
+        c = self._cache
+        if c is not None and c[0] == q and c[1] is st:
+            return c[2], c[3], c[4]
+        tr = self._tracker
+        tr.state = st
+        try:
+            X, info = tr.step(np.array(q, dtype=float))
+            after = tr.state
+        finally:
+            tr.state = st
+        self._cache = (q, st, X, info, after)
+        return X, info, after
+
+    def _publish(self, X, info):
+        self.x, self.y, self.phi = float(X[0]), float(X[1]), float(X[2])
+        self.region = int(info.label)
+        self.near_border = bool(info.near_border)
+        self.n_real = int(info.n_real)
+        self.ambiguous = bool(info.ambiguous)
+        self.status = int(info.status)
+        self.cond = float(info.cond)
+
+    def step(self, t, dt):
+        q = (self.q1, self.q2, self.q3)
+        X, info, after = self._solve(q)
+        self._track = after                       # the only place the tracker state advances
+        self._publish(X, info)
+        self._committed = (q, self._outputs())
+        if info.status != self._episode:
+            self._log_episode(t + dt, info)
+
+    def evaluate(self):
+        """Direct feedthrough: the outputs for the current q, seen from the committed state.
+
+        q equal to the q of the last doStep (or of the initialization): that step's outputs.
+        Another q: the step the tracker would take to it, computed but not committed.
+        """
+        if self._track is None:
+            return
+        q = (self.q1, self.q2, self.q3)
+        if q == self._committed[0]:
+            for name, value in zip(self.OUTPUTS, self._committed[1]):
+                setattr(self, name, value)
+            return
+        X, info, _ = self._solve(q)
+        self._publish(X, info)
+
+    def _log_episode(self, t, info):
+        q = f"(q1, q2, q3) = ({self.q1!r}, {self.q2!r}, {self.q3!r})"
+        if info.status == 1:
+            self._report(f"t={t!r}: {q} has no real direct-kinematics solution (outside the joint space); "
+                         f"status 1 unreachable, pose held at (x, y, phi) = ({self.x!r}, {self.y!r}, "
+                         f"{self.phi!r}) until q is reachable again", Fmi2Status.warning)
+        elif info.status == 2:
+            self._report(f"t={t!r}: {q} is at a singularity (cond {info.cond:.3g}); status 2 singular",
+                         Fmi2Status.warning)
+        elif info.status in STATUS and info.status:
+            self._report(f"t={t!r}: {q}: status {info.status} {STATUS[info.status]}", Fmi2Status.warning)
+        else:
+            msg = f"t={t!r}: status 0 ok again at {q}, (x, y, phi) = ({self.x!r}, {self.y!r}, {self.phi!r})"
+            self.log(msg, Fmi2Status.ok)
+            self._pylog.info("%s", msg)
+        self._episode = info.status
+
+    def do_step(self, current_time, step_size):
+        ok = super().do_step(current_time, step_size)
+        if not ok:
+            # refused (fmi2Discard): the state is that of the start of the step; the outputs keep the
+            # last pose and say why nothing moved
+            self.status = 3
+        return ok
+
+    # ------------------------------------------------------------------ FMU state
+    def get_state(self):
+        snap = super().get_state()
+        snap["_track"] = None if self._track is None else self._track.as_array().tolist()
+        return snap
+
+    def set_state(self, snapshot):
+        snap = dict(snapshot)
+        track = snap.pop("_track")
+        super().set_state(snap)
+        self._track = None if track is None else TrackerState.from_array(track)
+        self._cache = None
+        if track is not None and (self._tracker is None or self._tracker.posture != self.posture
+                                  or self._tracker.mode != self.MODES[self.mode]):
+            self._tracker = self._make_tracker(self.posture, self.mode)
