@@ -56,7 +56,7 @@ import solver
 from solver import PAPER_CIRCLE, Manipulator, ik
 
 __all__ = ["Scenario", "FMUUnit", "ClosedLoop", "ClosedLoopResult", "build_fmus", "simulate_fig3",
-           "write_csv", "plot_closed_loop", "main"]
+           "start_values", "write_osp_system", "CONNECTIONS", "write_csv", "plot_closed_loop", "main"]
 
 FMU_NAMES = ("RRRDirectKinematics", "ComputedTorqueController", "RRRPlant")
 DK_STATUS = {0: "ok", 1: "unreachable", 2: "singular", 3: "rejected", 4: "diverged"}
@@ -357,27 +357,15 @@ class ClosedLoop:
         self.close()
 
     def _initialize(self, sc: Scenario, t0: float):
-        model = Manipulator.paper()
-        X0 = sc.start_pose
-        q0 = ik(model, X0, sc.posture)
-        if np.isnan(q0[0]):
-            raise ValueError(f"scenario: the start pose {X0.tolist()} is outside posture {sc.posture}")
+        values = start_values(sc)
         dk, ct, pl = (self.units[n] for n in FMU_NAMES)
         if not self._fresh:
             for unit in self.units.values():
                 unit.reset()
         self._fresh = False
-        pl.initialize(t0, {"x0": X0[0], "y0": X0[1], "phi0": X0[2], "posture": sc.posture,
-                           "mass_scale": sc.plant_mass_scale, "substeps": sc.plant_substeps})
-        dk.initialize(t0, {"x0": X0[0], "y0": X0[1], "phi0": X0[2], "posture": sc.posture,
-                           "mode": 0 if sc.tracker_mode == "default" else 1,
-                           "q1": q0[0], "q2": q0[1], "q3": q0[2]})
-        ct.initialize(t0, {"bandwidth": sc.bandwidth, "damping": sc.damping,
-                           "mass_scale": sc.controller_mass_scale, "posture": sc.posture,
-                           "center_x": sc.center[0], "center_y": sc.center[1], "radius": sc.radius,
-                           "phi_ref": sc.phi, "period": sc.period, "ramp_time": sc.ramp_time,
-                           "q1": q0[0], "q2": q0[1], "q3": q0[2], "dq1": 0.0, "dq2": 0.0, "dq3": 0.0,
-                           "x": X0[0], "y": X0[1], "phi": X0[2]})
+        pl.initialize(t0, values["plant"])
+        dk.initialize(t0, values["dk"])
+        ct.initialize(t0, values["controller"])
 
     def run(self, scenario: Scenario | None = None, t0: float = 0.0) -> ClosedLoopResult:
         """Run one scenario from ``t0``; returns the time series (one row per communication point)."""
@@ -432,6 +420,56 @@ class ClosedLoop:
             sens = np.array(pl.getReal(vr["pl_out"]))
         wall = time.perf_counter() - wall
         return ClosedLoopResult(sc, {name: out[:, i] for i, name in enumerate(names)}, wall)
+
+
+# ----------------------------------------------------------------------------- system structure
+#: The closed loop's connections, "instance.output" -> "instance.input" (OSP / SSP style).
+CONNECTIONS = (
+    [(f"plant.q{i}", f"dk.q{i}") for i in (1, 2, 3)]
+    + [(f"plant.q{i}", f"controller.q{i}") for i in (1, 2, 3)]
+    + [(f"plant.dq{i}", f"controller.dq{i}") for i in (1, 2, 3)]
+    + [(f"dk.{v}", f"controller.{v}") for v in ("x", "y", "phi")]
+    + [(f"controller.tau{i}", f"plant.tau{i}") for i in (1, 2, 3)]
+)
+
+
+def start_values(sc: Scenario) -> dict:
+    """Parameters and initial inputs of the three FMUs for a scenario: {instance: {variable: value}}."""
+    X0 = sc.start_pose
+    q0 = ik(Manipulator.paper(), X0, sc.posture)
+    if np.isnan(q0[0]):
+        raise ValueError(f"scenario: the start pose {X0.tolist()} is outside posture {sc.posture}")
+    return {
+        "plant": {"x0": X0[0], "y0": X0[1], "phi0": X0[2], "posture": sc.posture,
+                  "mass_scale": sc.plant_mass_scale, "substeps": sc.plant_substeps},
+        "dk": {"x0": X0[0], "y0": X0[1], "phi0": X0[2], "posture": sc.posture,
+               "mode": 0 if sc.tracker_mode == "default" else 1, "q1": q0[0], "q2": q0[1], "q3": q0[2]},
+        "controller": {"bandwidth": sc.bandwidth, "damping": sc.damping, "mass_scale": sc.controller_mass_scale,
+                       "posture": sc.posture, "center_x": sc.center[0], "center_y": sc.center[1],
+                       "radius": sc.radius, "phi_ref": sc.phi, "period": sc.period, "ramp_time": sc.ramp_time,
+                       "q1": q0[0], "q2": q0[1], "q3": q0[2], "dq1": 0.0, "dq2": 0.0, "dq3": 0.0,
+                       "x": X0[0], "y": X0[1], "phi": X0[2]},
+    }
+
+
+def write_osp_system(paths: dict, folder, scenario: Scenario | None = None) -> Path:
+    """The closed loop as libcosim's OspSystemStructure.xml (instances dk, controller, plant).
+
+    libcosim's fixed-step algorithm steps all FMUs from the same inputs and then moves the
+    outputs along the connections: the ``order="jacobi"`` scheme of :class:`ClosedLoop`.
+    """
+    from fmu_src.fmi_build import write_osp_system_structure
+
+    sc = Scenario() if scenario is None else scenario
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    return write_osp_system_structure(
+        folder / "OspSystemStructure.xml",
+        {"dk": paths["RRRDirectKinematics"], "controller": paths["ComputedTorqueController"],
+         "plant": paths["RRRPlant"]},
+        base_step_size=sc.h, connections=CONNECTIONS,
+        initial_values={k: {n: (int(v) if isinstance(v, (int, np.integer)) else float(v)) for n, v in d.items()}
+                        for k, d in start_values(sc).items()})
 
 
 # ----------------------------------------------------------------------------- Fig. 3
