@@ -227,23 +227,25 @@ class RRRDirectKinematics(TableSlave):
     def _outputs(self):
         return tuple(getattr(self, name) for name in self.OUTPUTS)
 
-    def _solve(self, q):
+    def _solve(self, q, dt=None):
         """The tracker's step to ``q`` from the committed state, not committed: (X, info, state after).
 
-        Cached by (q, TrackerState object): doStep after a get of the outputs costs no second step.
+        ``dt``: the time from the committed sample to this one (the doStep's step size; None when
+        the outputs are read before doStep).  Cached by (q, dt, TrackerState object): doStep after
+        a get of the outputs costs no second step when the time step agrees.
         """
         st = self._track
         c = self._cache
-        if c is not None and c[0] == q and c[1] is st:
+        if c is not None and c[0] == q and c[1] is st and c[5] == dt:
             return c[2], c[3], c[4]
         tr = self._tracker
         tr.state = st
         try:
-            X, info = tr.step(np.array(q, dtype=float))
+            X, info = tr.step(np.array(q, dtype=float), dt=dt)
             after = tr.state
         finally:
             tr.state = st
-        self._cache = (q, st, X, info, after)
+        self._cache = (q, st, X, info, after, dt)
         return X, info, after
 
     def _publish(self, X, info):
@@ -257,7 +259,9 @@ class RRRDirectKinematics(TableSlave):
 
     def step(self, t, dt):
         q = (self.q1, self.q2, self.q3)
-        X, info, after = self._solve(q)
+        # the tracker's extrapolation scales with the ratio of successive time steps (a master that
+        # rolls back and evaluates Runge-Kutta stages steps by h/2 and h from the same state)
+        X, info, after = self._solve(q, dt if dt > 0 else None)
         self._track = after                       # the only place the tracker state advances
         self._publish(X, info)
         self._committed = (q, self._outputs())
