@@ -1,0 +1,55 @@
+"""Procedure 1 at the default resolution: build time, throughput, file size, memory peak.
+
+    python bench/bench_maptensor.py [--posture 1] [--rule aspect]
+
+Target: >= 100,000 nodes per second.  Memory: the peak of Python-tracked allocations during the
+build (tracemalloc, numpy included) and the process's maximum resident set size.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import tempfile
+import time
+import tracemalloc
+
+import numpy as np
+
+from solver import DEFAULT_RULE, Manipulator, dk_all
+from solver.maptensor import DEFAULT_STEP, MapTensor
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--posture", type=int, default=1)
+    ap.add_argument("--rule", default=DEFAULT_RULE)
+    args = ap.parse_args(argv)
+    model = Manipulator.paper()
+    dk_all(model, np.zeros((4096, 3)))                 # compile / load the kernels first
+    tracemalloc.start()
+    t0 = time.perf_counter()
+    mt = MapTensor.build(model, args.posture, rule=args.rule)
+    seconds = time.perf_counter() - t0
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    with tempfile.TemporaryDirectory() as d:
+        path = mt.save(os.path.join(d, "map.npz"))
+        size = path.stat().st_size
+        t1 = time.perf_counter()
+        MapTensor.load(path, model=model)
+        load = time.perf_counter() - t1
+    n = mt.labels.size
+    print(f"default resolution: step {DEFAULT_STEP[0] * 1e3:g} mm, {DEFAULT_STEP[1] * 1e3:g} mm, "
+          f"{np.rad2deg(DEFAULT_STEP[2]):g} deg -> grid {mt.shape[0]} x {mt.shape[1]} x {mt.shape[2]} = {n:,} nodes "
+          f"({mt.stats['reachable_nodes']:,} reachable)")
+    print(f"build (posture {args.posture}, rule {args.rule!r}): {seconds:.2f} s -> {n / seconds:,.0f} nodes/s "
+          f"(target >= 100,000); reachable nodes only: {mt.stats['reachable_nodes'] / seconds:,.0f} nodes/s")
+    print(f"file: {size / 1e6:.3f} MB compressed (labels {n / 1e6:.2f} MB as int8); load + verify {load * 1e3:.0f} ms")
+    print(f"memory: peak traced allocations during the build {peak / 1e6:.1f} MB; "
+          f"process max RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3:.0f} MB")
+    print(f"largest node-solution distance: {mt.stats['max_node_solution_distance']:.2e}")
+
+
+if __name__ == "__main__":
+    main()
