@@ -178,6 +178,7 @@ class FMUUnit:
         self.vars = {v.name: v for v in self.md.modelVariables}
         self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzip_dir,
                              modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
+        self._logging_on = logging_on
         self.fmu.instantiate(loggingOn=logging_on)
         self.name = name
 
@@ -209,8 +210,14 @@ class FMUUnit:
                 raise TypeError(f"{self.name}.{name}: unsupported type {v.type}")
 
     def reset(self) -> None:
-        """fmi2Reset: back to the state after instantiation (then :meth:`initialize` again)."""
-        self.fmu.reset()
+        """Back to the state after instantiation (then :meth:`initialize` again).
+
+        Done by fmi2FreeInstance + fmi2Instantiate from the already loaded library, not by
+        fmi2Reset: with our pythonfmu 0.7 FMUs, three or more fmi2Reset calls in one process leave
+        the heap corrupted and the process aborts at exit (reproduced; a fresh instance does not).
+        """
+        self.fmu.fmi2FreeInstance(self.fmu.component)
+        self.fmu.instantiate(loggingOn=self._logging_on)
 
     def close(self) -> None:
         """fmi2Terminate and fmi2FreeInstance; the shared library stays loaded.
@@ -237,37 +244,40 @@ class FMUUnit:
 def build_fmus(out_dir="build", resolution=None, force: bool = False, log=print) -> dict:
     """Build (or reuse) the three FMUs in ``out_dir``; returns {name: path}.
 
-    The DK FMU comes from ``build_fmu.py`` (map tensor of posture 1 at the default resolution,
-    cached in ``<out_dir>/maps``); the plant and the controller from ``fmu_src`` with the
-    ``solver`` and ``dynamics`` packages as resources.
+    The DK FMU comes from ``build_fmu.py`` (map tensor of posture 1 at the default resolution, or
+    ``resolution`` = (m, rad), cached in ``<out_dir>/maps``); the plant and the controller from
+    ``fmu_src`` with the ``solver`` and ``dynamics`` packages as resources.  Each build runs in a
+    child process: building validates and test-runs the FMU, and a process that later runs FMUs
+    must load each FMU only once (see :meth:`FMUUnit.close`).
     """
-    from fmu_src.fmi_build import build_fmu
+    import subprocess
 
     root = Path(__file__).resolve().parent.parent
-    out = Path(out_dir)
+    out = Path(out_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
-    paths = {}
+    jobs = []
     dk = out / "RRRDirectKinematics.fmu"
     if force or not dk.exists():
-        sys.path.insert(0, str(root))
-        try:
-            import build_fmu as dk_builder
-        finally:
-            sys.path.pop(0)
-        kwargs = {} if resolution is None else {"resolution": resolution}
-        t0 = time.perf_counter()
-        dk_builder.build(out_dir=str(out), **kwargs)
-        log(f"built {dk} in {time.perf_counter() - t0:.1f} s")
-    paths["RRRDirectKinematics"] = dk
+        res = "None" if resolution is None else repr(tuple(float(v) for v in resolution))
+        jobs.append((dk, "import sys; sys.path.insert(0, {root!r}); import build_fmu; "
+                         "kw = {{}} if {res} is None else {{'resolution': {res}}}; "
+                         "build_fmu.build(out_dir={out!r}, log=lambda *a: None, **kw)".format(
+                             root=str(root), res=res, out=str(out))))
     for name in ("ComputedTorqueController", "RRRPlant"):
         path = out / f"{name}.fmu"
         src = root / "fmu_src" / f"{name}.py"
         if force or not path.exists() or path.stat().st_mtime < src.stat().st_mtime:
-            t0 = time.perf_counter()
-            build_fmu(src, out, project_packages=[str(root / "solver"), str(root / "dynamics")])
-            log(f"built {path} in {time.perf_counter() - t0:.1f} s")
-        paths[name] = path
-    return paths
+            jobs.append((path, "from fmu_src.fmi_build import build_fmu; build_fmu({src!r}, {out!r}, "
+                               "project_packages=[{s!r}, {d!r}])".format(src=str(src), out=str(out),
+                                                                         s=str(root / "solver"),
+                                                                         d=str(root / "dynamics"))))
+    for path, code in jobs:
+        t0 = time.perf_counter()
+        proc = subprocess.run([sys.executable, "-c", code], cwd=str(root), capture_output=True, text=True)
+        if proc.returncode != 0 or not path.exists():
+            raise RuntimeError(f"building {path.name} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
+        log(f"built {path} in {time.perf_counter() - t0:.1f} s")
+    return {name: out / f"{name}.fmu" for name in FMU_NAMES}
 
 
 # ----------------------------------------------------------------------------- closed loop
