@@ -34,6 +34,18 @@ solution, :data:`NOT_ASSEMBLED` loop residual above the tolerance,
 callers in :mod:`dynamics.model` then hand the call to the numpy reference,
 which raises the documented error (or returns what it returns), so errors and
 edge cases are exactly those of the reference.
+
+Also here, for the closed loop of the co-simulation (one compiled call per
+communication step and FMU, instead of ~100 numpy calls):
+
+* the circle reference of :class:`dynamics.trajectory.CircleTrajectory`
+  (:func:`circle_task_row`, :func:`circle_joint_row`, :func:`circle_batch`;
+  packed circle ``C`` of :func:`pack_circle`), with the inverse kinematics of
+  :func:`solver.ik` operation for operation (:func:`ik_solver_row`);
+* the plant FMU's step (:func:`plant_step`: RK4 with held torques, then
+  :func:`plant_outputs`: ``q``, ``dq = J_q dX``, the energy) and the
+  computed-torque FMU's step (:func:`controller_step`), on the packed
+  constants ``K`` (``G``, ``P``, then the gains and the circle).
 """
 from __future__ import annotations
 
@@ -572,4 +584,238 @@ def computed_torque_batch(G, P, gains, q, dq, X, q_d, dq_d, ddq_d, tol, out):
         st = joint_row(G, P, q[k], dq[k], X[k], v, tol, INVERSE, out[k], ws)
         if st != OK:
             return st
+    return OK
+
+
+# ----------------------------------------------------------------------------- circle reference
+# The time law and geometry of :class:`dynamics.trajectory.CircleTrajectory` (its numpy code is the
+# reference, ``CircleTrajectory._reference_task`` / ``_reference_joint``), evaluated with scalar
+# code in the same order of operations.  Packed trajectory ``C`` (7,), built by :func:`pack_circle`.
+#: offsets in the packed circle ``C``
+CCX, CCY, CRAD, CPHI, COMEGA, CRAMP, CSTART = 0, 1, 2, 3, 4, 5, 6
+
+
+def pack_circle(center, radius, phi, omega, ramp_time, start) -> np.ndarray:
+    """The packed circle ``C`` (7,): centre (x, y), radius, orientation, cruise rate ``Omega``,
+    ramp time, start angle."""
+    return np.array([center[0], center[1], radius, phi, omega, ramp_time, start], dtype=np.float64)
+
+
+@njit(cache=True, error_model="numpy")
+def ik_solver_row(G, x, y, phi, bits, q):
+    """Inverse kinematics of one pose with the operations of :func:`solver.ik` (its compiled
+    ``ik_batch``), so the angles are that function's to the last bit; writes ``q`` (3,) and returns
+    False if a leg cannot reach (``solver.ik`` returns NaN there).  :func:`ik_row` groups the sums
+    differently (it is the dynamics kernels' own inverse kinematics)."""
+    c, s = math.cos(phi), math.sin(phi)
+    for i in range(3):
+        bx, by = G[PLAT + 2 * i], G[PLAT + 2 * i + 1]
+        dx = x + c * bx - s * by - G[MOT + 2 * i]
+        dy = y + s * bx + c * by - G[MOT + 2 * i + 1]
+        rho2 = dx * dx + dy * dy
+        rho = math.sqrt(rho2)
+        if rho == 0.0:
+            return False
+        l1, l2 = G[L1 + i], G[L2 + i]
+        ca = (l1 * l1 + rho2 - l2 * l2) / (2.0 * l1 * rho)
+        if not abs(ca) <= 1.0 + 1e-12:
+            return False
+        alpha = math.acos(min(1.0, max(-1.0, ca)))
+        sign = 1.0 - 2.0 * ((bits >> i) & 1)
+        q[i] = math.pi - ((math.pi - (math.atan2(dy, dx) - sign * alpha)) % TWO_PI) + 0.0
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def circle_task_row(C, t, X, dX, ddX):
+    """Pose, rate and acceleration of the circle at time ``t`` (finite) into ``X, dX, ddX`` (3,)."""
+    W, Tr, start = C[COMEGA], C[CRAMP], C[CSTART]
+    if Tr == 0.0:
+        theta = start + W * max(t, 0.0)
+        dth = W if t >= 0 else 0.0
+        ddth = 0.0
+    else:
+        u = min(max(t / Tr, 0.0), 1.0)
+        if t < Tr:
+            S = u ** 4.0 * (2.5 - 3.0 * u + u * u)           # integral of s
+            s = u ** 3.0 * (10.0 - 15.0 * u + 6.0 * u * u)
+            ds = 30.0 * u * u * (1.0 - u) ** 2.0
+            theta = start + W * Tr * S
+            dth = W * s
+            ddth = W * ds / Tr
+        else:
+            theta = start + W * (t - 0.5 * Tr)
+            dth = W
+            ddth = 0.0
+    c, s_ = math.cos(theta), math.sin(theta)
+    r = C[CRAD]
+    X[0] = C[CCX] + r * c
+    X[1] = C[CCY] + r * s_
+    X[2] = C[CPHI]
+    dX[0] = -r * s_ * dth
+    dX[1] = r * c * dth
+    dX[2] = 0.0
+    dth2 = dth ** 2.0
+    ddX[0] = -r * s_ * ddth - r * c * dth2
+    ddX[1] = r * c * ddth - r * s_ * dth2
+    ddX[2] = 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def circle_joint_row(G, P, C, bits, t, X, dX, ddX, q, dq, ddq, leg, Jq, beta):
+    """Task- and joint-space reference at ``t``: ``X, dX, ddX`` as :func:`circle_task_row`,
+    ``q = g_j(X)`` (solver's IK), ``dq = J_q dX``, ``ddq = J_q ddX + ddq_0(X, dX)``.
+
+    ``P`` only fills the unused centre-of-mass rows of ``beta``; ``leg, Jq, beta`` are work arrays.
+    Returns :data:`OK`, :data:`BAD_INPUT` (``t`` not finite) or :data:`OUTSIDE` (no IK solution).
+    """
+    if not math.isfinite(t):
+        return BAD_INPUT
+    circle_task_row(C, t, X, dX, ddX)
+    if not ik_solver_row(G, X[0], X[1], X[2], bits, q):
+        return OUTSIDE
+    rcx, rcy, res = _geometry(G, P, X[0], X[1], X[2], q, leg, Jq)
+    _motion(G, P, dX[0], dX[1], dX[2], rcx, rcy, leg, Jq, beta)
+    for i in range(3):
+        dq[i] = leg[DQ, i]
+        ddq[i] = (Jq[i, 0] * ddX[0] + Jq[i, 1] * ddX[1] + Jq[i, 2] * ddX[2]) + leg[DDQ0, i]
+    for i in range(3):
+        if not (math.isfinite(dq[i]) and math.isfinite(ddq[i])):
+            return SINGULAR
+    return OK
+
+
+@njit(cache=True, error_model="numpy")
+def circle_batch(G, P, C, bits, t, joint, X, dX, ddX, q, dq, ddq):
+    """The circle reference at the times ``t`` (n,) into the (n, 3) arrays; the joint-space part
+    only when ``joint``.  Returns the status of the first row refused, else :data:`OK`."""
+    ws = _workspace()
+    leg, Jq, beta = ws[0], ws[1], ws[4]
+    for k in range(t.shape[0]):
+        if not math.isfinite(t[k]):
+            return BAD_INPUT
+        if joint:
+            st = circle_joint_row(G, P, C, bits, t[k], X[k], dX[k], ddX[k], q[k], dq[k], ddq[k], leg, Jq, beta)
+            if st != OK:
+                return st
+        else:
+            circle_task_row(C, t[k], X[k], dX[k], ddX[k])
+    return OK
+
+
+# ----------------------------------------------------------------------------- FMU slave steps
+# One compiled call per communication step of the plant and the controller FMUs
+# (fmu_src/RRRPlant.py, fmu_src/ComputedTorqueController.py).  ``K`` is the slave's packed
+# constants: ``G`` (18,) then ``P`` (40,), then for the controller the gains (6,) and the circle (7,).
+KG, KP, KGAIN, KC = 0, 18, 58, 64
+
+
+@njit(cache=True, error_model="numpy")
+def _energy(G, P, x, y, phi, dx, dy, dphi, rcx, rcy, leg):
+    """Kinetic (body by body, ``1/2 sum w v^2``) plus gravitational potential energy of a
+    configuration whose per-leg table ``leg`` holds the rates ``dq`` (after :func:`_geometry`)."""
+    gx, gy = P[GRAV], P[GRAV + 1]
+    w = dphi
+    v0, v1 = dx - w * rcy, dy + w * rcx
+    ke = P[W] * v0 * v0 + P[W + 1] * v1 * v1 + P[W + 2] * w * w
+    pe = P[W] * ((x + rcx) * gx + (y + rcy) * gy)
+    for i in range(3):
+        l1, l2 = G[L1 + i], G[L2 + i]
+        rp, sd = P[RP + i], P[RD + i] / l2
+        cq, sq, rbx, rby = leg[CQ, i], leg[SQ, i], leg[RBX, i], leg[RBY, i]
+        lx, ly, dq = leg[LX, i], leg[LY, i], leg[DQ, i]
+        vdx, vdy = -l1 * sq * dq, l1 * cq * dq
+        dlx, dly = (dx - dphi * rby) - vdx, (dy + dphi * rbx) - vdy
+        px, py = -rp * sq * dq, rp * cq * dq
+        ux, uy = vdx + sd * dlx, vdy + sd * dly
+        om = (lx * dly - ly * dlx) / l2 ** 2
+        ke += (P[W + 3 + i] * px * px + P[W + 6 + i] * py * py + P[W + 9 + i] * dq * dq
+               + P[W + 12 + i] * ux * ux + P[W + 15 + i] * uy * uy + P[W + 18 + i] * om * om)
+        mx, my = G[MOT + 2 * i], G[MOT + 2 * i + 1]
+        dxp, dyp = mx + l1 * cq, my + l1 * sq                      # elbow D_i
+        pe += P[W + 3 + i] * ((mx + rp * cq) * gx + (my + rp * sq) * gy)
+        pe += P[W + 12 + i] * ((dxp + sd * lx) * gx + (dyp + sd * ly) * gy)
+    return 0.5 * ke - pe
+
+
+@njit(cache=True, error_model="numpy")
+def plant_outputs(K, bits, x, out, ws):
+    """Sensor outputs of the task-space state ``x`` (6,): ``out[6:9] = q`` (solver's IK),
+    ``out[9:12] = dq = J_q dX``, ``out[12]`` the total energy.  :data:`OUTSIDE` if the pose has no
+    inverse kinematics in the posture, :data:`SINGULAR` for a non-finite output, else :data:`OK`."""
+    G, P = K[KG:KP], K[KP:KGAIN]
+    leg, Jq = ws[0], ws[1]
+    q = out[6:9]
+    if not (_finite(x) and ik_solver_row(G, x[0], x[1], x[2], bits, q)):
+        return OUTSIDE
+    rcx, rcy, res = _geometry(G, P, x[0], x[1], x[2], q, leg, Jq)
+    for i in range(3):
+        d = Jq[i, 0] * x[3] + Jq[i, 1] * x[4] + Jq[i, 2] * x[5]
+        leg[DQ, i] = d
+        out[9 + i] = d
+    out[12] = _energy(G, P, x[0], x[1], x[2], x[3], x[4], x[5], rcx, rcy, leg)
+    for j in range(13):
+        if not math.isfinite(out[j]):
+            return SINGULAR
+    return OK
+
+
+@njit(cache=True, error_model="numpy")
+def plant_step(K, bits, tau1, tau2, tau3, h, n, x, out):
+    """The plant FMU's doStep: ``n`` RK4 steps of ``h`` of the task-space dynamics from ``x`` (6,)
+    with the torques held (as :func:`rk4_task`), then :func:`plant_outputs`.  ``out`` (13,):
+    the new state (6,), ``q``, ``dq``, energy; ``x`` is not modified (``n = 0``: the outputs of
+    ``x``).  Returns :data:`OK`, or
+    :data:`BAD_INPUT` if a Runge-Kutta stage was refused (left the tool space...), or the status of
+    :func:`plant_outputs`."""
+    G, P = K[KG:KP], K[KP:KGAIN]
+    xs = np.empty((n + 1, 6))
+    tau = np.empty(3)
+    tau[0], tau[1], tau[2] = tau1, tau2, tau3
+    for j in range(6):
+        xs[0, j] = x[j]
+    if rk4_task(G, P, bits, tau, h, xs) != n:
+        return BAD_INPUT
+    for j in range(6):
+        out[j] = xs[n, j]
+    return plant_outputs(K, bits, out[:6], out, _workspace())
+
+
+@njit(cache=True, error_model="numpy")
+def controller_step(K, bits, t, q1, q2, q3, dq1, dq2, dq3, x, y, phi, tol, out):
+    """The computed-torque FMU's doStep at ``t``: the circle reference at ``t``, ``q_X = g_j(X)``
+    unwrapped next to ``q``, and ``tau = M(q_X, X) v + C dq + G + F`` with
+    ``v = ddq_d + K_d (dq_d - dq) + K_p wrap(q_d - q)`` (:func:`joint_row`, INVERSE).
+
+    ``out`` (9,): ``tau``, ``X_d``, ``q_d``.  Returns :data:`OK` or the first refusal (the caller
+    then runs the numpy code, which raises the documented error).
+    """
+    G, P, gains, C = K[KG:KP], K[KP:KGAIN], K[KGAIN:KC], K[KC:KC + 7]
+    ws = _workspace()
+    buf = np.empty(30)
+    Xd, dXd, ddXd, qd, dqd, ddqd = buf[0:3], buf[3:6], buf[6:9], buf[9:12], buf[12:15], buf[15:18]
+    q, dq, X, v = buf[18:21], buf[21:24], buf[24:27], buf[27:30]
+    out9 = np.empty(9)
+    tau = out9[0:3]
+    st = circle_joint_row(G, P, C, bits, t, Xd, dXd, ddXd, qd, dqd, ddqd, ws[0], ws[1], ws[4])
+    if st != OK:
+        return st
+    q[0], q[1], q[2] = q1, q2, q3
+    dq[0], dq[1], dq[2] = dq1, dq2, dq3
+    X[0], X[1], X[2] = x, y, phi
+    if not (_finite(q) and _finite(dq) and _finite(X)):
+        return BAD_INPUT
+    qx = out9[3:6]
+    if not ik_solver_row(G, x, y, phi, bits, qx):
+        return OUTSIDE
+    for i in range(3):
+        qx[i] = q[i] + _wrap(qx[i] - q[i])              # q_X next to q (2 pi turns)
+        v[i] = ddqd[i] + gains[3 + i] * (dqd[i] - dq[i]) + gains[i] * _wrap(qd[i] - q[i])
+    st = joint_row(G, P, qx, dq, X, v, tol, INVERSE, out9, ws)
+    if st != OK:
+        return st
+    for i in range(3):
+        out[i] = tau[i]
+        out[3 + i] = Xd[i]
+        out[6 + i] = qd[i]
     return OK

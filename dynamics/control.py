@@ -189,6 +189,13 @@ def _gain_pack(gains) -> np.ndarray:
     return g
 
 
+def _controller_pack(params, model, gains, trajectory) -> np.ndarray:
+    """Packed constants ``K = (G, P, kp, kd, circle)`` (71,) of :func:`dynamics._kernel.controller_step`
+    (the computed-torque FMU on a :class:`CircleTrajectory`)."""
+    return np.concatenate([_kernel_model(model), _kernel_params(params), _gain_pack(gains),
+                           trajectory._kernel_pack])
+
+
 def _computed_torque_kernel(params, model, gains, q, dq, X, q_d, dq_d, ddq_d):
     """:func:`dynamics._kernel.computed_torque_batch` on arrays (..., 3) that broadcast; None if refused."""
     arrs = (q, dq, X, q_d, dq_d, ddq_d)

@@ -179,8 +179,20 @@ class FMUUnit:
         self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.unzip_dir,
                              modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
         self._logging_on = logging_on
-        self.fmu.instantiate(loggingOn=logging_on)
         self.name = name
+        self._instantiate()
+
+    def _instantiate(self):
+        """fmi2Instantiate, leaving ``sys.path`` and ``sys.modules`` as they were.
+
+        pythonfmu's wrapper puts the FMU's resources folder first on ``sys.path`` and imports the
+        slave module by name at every instantiation; left there, a later FMU with a module of the
+        same name (another build of it) would get this one.  The live instance keeps what it uses.
+        """
+        from fmu_src.fmi_build import import_hygiene
+
+        with import_hygiene():
+            self.fmu.instantiate(loggingOn=self._logging_on)
 
     def vr(self, *names) -> list[int]:
         """Value references of ``names`` (looked up once by the caller)."""
@@ -217,7 +229,7 @@ class FMUUnit:
         the heap corrupted and the process aborts at exit (reproduced; a fresh instance does not).
         """
         self.fmu.fmi2FreeInstance(self.fmu.component)
-        self.fmu.instantiate(loggingOn=self._logging_on)
+        self._instantiate()
 
     def close(self) -> None:
         """fmi2Terminate and fmi2FreeInstance; the shared library stays loaded.
@@ -256,8 +268,10 @@ def build_fmus(out_dir="build", resolution=None, force: bool = False, log=print)
     out = Path(out_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
     jobs = []
+    # every FMU bundles fmu_src/table_slave.py, and the first FMU loaded provides it to all three
+    runtime = (root / "fmu_src" / "table_slave.py").stat().st_mtime
     dk = out / "RRRDirectKinematics.fmu"
-    if force or not dk.exists():
+    if force or not dk.exists() or dk.stat().st_mtime < runtime:
         res = "None" if resolution is None else repr(tuple(float(v) for v in resolution))
         jobs.append((dk, "import sys; sys.path.insert(0, {root!r}); import build_fmu; "
                          "kw = {{}} if {res} is None else {{'resolution': {res}}}; "
@@ -266,7 +280,7 @@ def build_fmus(out_dir="build", resolution=None, force: bool = False, log=print)
     for name in ("ComputedTorqueController", "RRRPlant"):
         path = out / f"{name}.fmu"
         src = root / "fmu_src" / f"{name}.py"
-        if force or not path.exists() or path.stat().st_mtime < src.stat().st_mtime:
+        if force or not path.exists() or path.stat().st_mtime < max(src.stat().st_mtime, runtime):
             jobs.append((path, "from fmu_src.fmi_build import build_fmu; build_fmu({src!r}, {out!r}, "
                                "project_packages=[{s!r}, {d!r}])".format(src=str(src), out=str(out),
                                                                          s=str(root / "solver"),
@@ -391,33 +405,46 @@ class ClosedLoop:
                                                     "dk_status", "region", "n_real", "near_border", "ambiguous"])
         out = np.zeros((n, len(names)))
         gauss_seidel = sc.order == "gauss-seidel"
-        sens = np.array(pl.getReal(vr["pl_out"]))
-        pose = np.array(dk.getReal(vr["dk_out"]))
-        ctrl = np.array(ct.getReal(vr["ct_out"]))
+        # fmpy's getReal/setReal build two ctypes arrays per call (~1.5 us each): the value references
+        # and the value buffers are ctypes arrays made once; the fmi2* calls check the status as before
+        from fmpy.fmi2 import fmi2Boolean, fmi2Integer, fmi2Real, fmi2True, fmi2ValueReference
+
+        def refs(key):
+            return (fmi2ValueReference * len(vr[key]))(*vr[key])
+        dk_in, dk_out, dk_int, dk_bool = refs("dk_in"), refs("dk_out"), refs("dk_int"), refs("dk_bool")
+        ct_in, ct_out, pl_in, pl_out = refs("ct_in"), refs("ct_out"), refs("pl_in"), refs("pl_out")
+        sens, pose, ctrl = (fmi2Real * 9)(), (fmi2Real * 3)(), (fmi2Real * 9)()
+        x_ct, status, flags = (fmi2Real * 9)(), (fmi2Integer * 3)(), (fmi2Boolean * 2)()
+        dkc, ctc, plc = dk.component, ct.component, pl.component
+        pl.fmi2GetReal(plc, pl_out, 9, sens)
+        dk.fmi2GetReal(dkc, dk_out, 3, pose)
+        ct.fmi2GetReal(ctc, ct_out, 9, ctrl)
         wall = time.perf_counter()
         for k in range(n):
             t = t0 + k * h
-            q, dq = sens[0:3], sens[3:6]
+            x_ct[0:6] = sens[0:6]                           # q, dq
             if gauss_seidel:
-                dk.setReal(vr["dk_in"], q)
-                dk.doStep(t, h)
-                pose = np.array(dk.getReal(vr["dk_out"]))
-                ct.setReal(vr["ct_in"], np.concatenate([q, dq, pose]))
-                ct.doStep(t, h)
-                ctrl = np.array(ct.getReal(vr["ct_out"]))
-                pl.setReal(vr["pl_in"], ctrl[0:3])
-                pl.doStep(t, h)
+                dk.fmi2SetReal(dkc, dk_in, 3, sens)         # q = sens[0:3]
+                dk.fmi2DoStep(dkc, t, h, fmi2True)
+                dk.fmi2GetReal(dkc, dk_out, 3, pose)
+                x_ct[6:9] = pose[0:3]
+                ct.fmi2SetReal(ctc, ct_in, 9, x_ct)
+                ct.fmi2DoStep(ctc, t, h, fmi2True)
+                ct.fmi2GetReal(ctc, ct_out, 9, ctrl)
+                pl.fmi2SetReal(plc, pl_in, 3, ctrl)         # tau = ctrl[0:3]
+                pl.fmi2DoStep(plc, t, h, fmi2True)
             else:
-                dk.setReal(vr["dk_in"], q)
-                ct.setReal(vr["ct_in"], np.concatenate([q, dq, pose]))
-                pl.setReal(vr["pl_in"], ctrl[0:3])
-                dk.doStep(t, h)
-                ct.doStep(t, h)
-                pl.doStep(t, h)
-                pose = np.array(dk.getReal(vr["dk_out"]))
-                ctrl = np.array(ct.getReal(vr["ct_out"]))
-            status = dk.getInteger(vr["dk_int"])
-            flags = dk.getBoolean(vr["dk_bool"])
+                x_ct[6:9] = pose[0:3]
+                dk.fmi2SetReal(dkc, dk_in, 3, sens)
+                ct.fmi2SetReal(ctc, ct_in, 9, x_ct)
+                pl.fmi2SetReal(plc, pl_in, 3, ctrl)
+                dk.fmi2DoStep(dkc, t, h, fmi2True)
+                ct.fmi2DoStep(ctc, t, h, fmi2True)
+                pl.fmi2DoStep(plc, t, h, fmi2True)
+                dk.fmi2GetReal(dkc, dk_out, 3, pose)
+                ct.fmi2GetReal(ctc, ct_out, 9, ctrl)
+            dk.fmi2GetInteger(dkc, dk_int, 3, status)
+            dk.fmi2GetBoolean(dkc, dk_bool, 2, flags)
             row = out[k]
             row[0] = t
             row[1:7] = sens[0:6]
@@ -427,7 +454,7 @@ class ClosedLoop:
             row[16:22] = ctrl[3:9]
             row[22], row[23], row[24] = status[2], status[0], status[1]
             row[25], row[26] = flags
-            sens = np.array(pl.getReal(vr["pl_out"]))
+            pl.fmi2GetReal(plc, pl_out, 9, sens)
         wall = time.perf_counter() - wall
         return ClosedLoopResult(sc, {name: out[:, i] for i, name in enumerate(names)}, wall)
 

@@ -89,7 +89,10 @@ as the reference (the ``_reference_*`` functions); the kernels are tested
 against it to 1e-12 relative (``tests/test_dynamics_kernel.py``), and any input
 a kernel refuses (non-finite, outside the tool space, loop not closed, singular)
 is handed to the reference, so the errors are those documented below.  The
-energies and the kinematic helpers are numpy only.
+energies and the kinematic helpers are numpy only; the plant FMU's per-step
+outputs (``q``, ``dq = J_q dX`` and the total energy of a task-space state) have
+their own compiled kernel (:func:`dynamics._kernel.plant_outputs`, tested
+against :func:`total_energy` and :func:`joint_velocity_jacobian`).
 """
 from __future__ import annotations
 
@@ -608,6 +611,11 @@ def _kernel_params(params) -> np.ndarray:
                            params.com_platform)
         object.__setattr__(params, "_kernel_pack", P)
     return P
+
+
+def _plant_pack(params, model) -> np.ndarray:
+    """Packed constants ``K = (G, P)`` (58,) of :func:`dynamics._kernel.plant_step` (the plant FMU)."""
+    return np.concatenate([_kernel_model(model), _kernel_params(params)])
 
 
 def _out(mode, lead, n):

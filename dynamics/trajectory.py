@@ -25,6 +25,15 @@ Defaults: one revolution per 2 s (``Omega = pi`` rad/s, tool speed
 The joint-space reference is exact: ``q_d = g_j(X)`` (inverse kinematics in the
 posture), ``dq_d = J_q dX`` (eq. 3) and ``ddq_d = J_q ddX + ddq_0(X, dX)`` from
 the loop constraints differentiated twice (:func:`dynamics.model.joint_accelerations`).
+
+Implementation: :meth:`CircleTrajectory.task` and :meth:`CircleTrajectory.joint` run a compiled
+kernel (:func:`dynamics._kernel.circle_batch`: the formulas above with scalar code, in the same
+order of operations, and the inverse kinematics with the operations of :func:`solver.ik`), a
+few microseconds per call instead of ~150.  The numpy implementation is kept as the reference
+(:meth:`CircleTrajectory._reference_task`, :meth:`CircleTrajectory._reference_joint`); the
+kernel is tested against it to 1e-12 (``tests/test_dynamics_kernel.py``), and whatever it refuses
+(a non-finite time, a point outside the tool space, a singular ``J_q``) is handed to the
+reference, so the errors are the reference's.
 """
 from __future__ import annotations
 
@@ -35,7 +44,8 @@ import numpy as np
 from solver import PAPER_CIRCLE, Manipulator
 from solver._checks import SolverInputError, check_posture
 
-from .model import _geometry, _ik, _mat_vec, _motion, _KINEMATIC_ONLY
+from . import _kernel as _k
+from .model import _geometry, _ik, _kernel_model, _kernel_params, _mat_vec, _motion, _KINEMATIC_ONLY
 
 __all__ = ["CircleTrajectory"]
 
@@ -101,6 +111,9 @@ class CircleTrajectory:
                 raise SolverInputError(f"{key}: expected a finite angle in rad, got {v!r}")
             object.__setattr__(self, key, float(v))
         object.__setattr__(self, "posture", int(check_posture(self.posture)))
+        # packed constants of the compiled kernel (not a field: no part of eq, hash or repr)
+        object.__setattr__(self, "_kernel_pack", _k.pack_circle(self.center, self.radius, self.phi,
+                                                                self.angular_speed, self.ramp_time, self.start))
 
     @property
     def angular_speed(self) -> float:
@@ -150,6 +163,13 @@ class CircleTrajectory:
         X, dX, ddX : ndarray, shape (..., 3)
             Pose (m, m, rad), rate (m/s, m/s, rad/s), acceleration (m/s^2, m/s^2, rad/s^2).
         """
+        out = self._compiled(None, t)
+        if out is not None:
+            return out[0], out[1], out[2]
+        return self._reference_task(t)
+
+    def _reference_task(self, t):
+        """numpy reference of :meth:`task` (same arguments, results to rounding, same errors)."""
         th, dth, ddth = self.polar_angle(t)
         c, s, r = np.cos(th), np.sin(th), self.radius
         zero = np.zeros_like(th)
@@ -179,8 +199,40 @@ class CircleTrajectory:
         """
         if not isinstance(model, Manipulator):
             raise SolverInputError(f"model: expected a Manipulator, got {type(model).__name__}")
-        X, dX, ddX = self.task(t)
+        out = self._compiled(model, t)
+        if out is not None:
+            return out[3], out[4], out[5]
+        return self._reference_joint(model, t)
+
+    def _reference_joint(self, model: Manipulator, t):
+        """numpy reference of :meth:`joint` (same arguments, results to rounding, same errors)."""
+        if not isinstance(model, Manipulator):
+            raise SolverInputError(f"model: expected a Manipulator, got {type(model).__name__}")
+        X, dX, ddX = self._reference_task(t)
         q = _ik(model, X, self.posture)
         g = _geometry(model, (0.0, 0.0), X, q)
         mo = _motion(_KINEMATIC_ONLY, model, g, dX)
         return q, mo.dq, _mat_vec(g.Jq, ddX) + mo.ddq0
+
+    def _compiled(self, model, t):
+        """``(X, dX, ddX, q, dq, ddq)`` at the times ``t`` by the kernel (the last three only with a
+        ``model``), each of shape ``t.shape + (3,)``; None if the kernel refuses (the caller then
+        runs the reference, which raises or answers)."""
+        try:
+            tt = np.asarray(t, dtype=float)
+        except (TypeError, ValueError):
+            return None
+        shape = tt.shape
+        flat = np.ascontiguousarray(tt.reshape(-1))
+        n = flat.shape[0]
+        joint = model is not None
+        buf = np.empty((6 if joint else 3, n, 3))
+        if joint:
+            G, P = _kernel_model(model), _kernel_params(_KINEMATIC_ONLY)
+        else:
+            G = P = self._kernel_pack              # unused without the joint part
+        st = _k.circle_batch(G, P, self._kernel_pack, self.posture - 1, flat, joint, buf[0], buf[1], buf[2],
+                             buf[3 if joint else 0], buf[4 if joint else 0], buf[5 if joint else 0])
+        if st != _k.OK:
+            return None
+        return [b.reshape(shape + (3,)) for b in buf]

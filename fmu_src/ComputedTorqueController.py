@@ -15,6 +15,12 @@ circle of :class:`dynamics.trajectory.CircleTrajectory` (from rest).
 
 Outputs are the held sample (no direct feedthrough at the communication point: what is read after
 ``doStep(t, h)`` was computed from the inputs at ``t``); see ``ComputedTorqueController.md``.
+
+Speed: a step is one compiled call (:func:`dynamics._kernel.controller_step`: the reference of
+:meth:`CircleTrajectory.joint`, ``q_X`` with the operations of :func:`solver.ik` and the law of
+:func:`dynamics.model.inverse_dynamics`).  Whatever it refuses (a pose outside the tool space, a
+pose that does not close the loops of ``q_X``...) is redone by the numpy code
+(``_reference_step``), which raises the documented refusal.
 """
 import numpy as np
 
@@ -62,14 +68,18 @@ class ComputedTorqueController(TableSlave):
         Var("q2_ref", "Real", "output", unit="rad", depends_on=(), description="reference angle, leg 2"),
         Var("q3_ref", "Real", "output", unit="rad", depends_on=(), description="reference angle, leg 3"),
     )
-    CONSTANT = ("_model", "_params", "_gains", "_traj")
+    # _kpack, _bits, _tol: packed constants, elbow bits and loop tolerance of the compiled step;
+    # _kstep: its entry point; _out: its result buffer (scratch, read right after every call)
+    CONSTANT = ("_model", "_params", "_gains", "_traj", "_kpack", "_bits", "_tol", "_kstep", "_out")
 
     def setup(self):
         self._model = self._params = self._gains = self._traj = None
+        self._kpack = self._bits = self._tol = self._kstep = self._out = None
 
     def on_initialized(self):
-        from dynamics.control import ComputedTorqueGains
-        from dynamics.model import DynamicParameters
+        from dynamics import _kernel
+        from dynamics.control import ComputedTorqueGains, _controller_pack
+        from dynamics.model import ASSEMBLY_TOL, DynamicParameters
         from dynamics.trajectory import CircleTrajectory
         from solver import Manipulator
 
@@ -80,24 +90,44 @@ class ComputedTorqueController(TableSlave):
                                       radius=float(self.radius), phi=float(self.phi_ref),
                                       posture=int(self.posture), period=float(self.period),
                                       ramp_time=float(self.ramp_time))
+        self._kpack = _controller_pack(self._params, self._model, self._gains, self._traj)
+        self._bits, self._tol = int(self.posture) - 1, ASSEMBLY_TOL
+        self._kstep, self._out = _kernel.controller_step, np.empty(9)
         self._reference(self.time_start())
+        # load the compiled step's machine code now, not in the first doStep (result unused: the
+        # outputs at initialization are the reference only, as before)
+        self._kstep(self._kpack, self._bits, self.time_start(), self.q1, self.q2, self.q3, self.dq1, self.dq2,
+                    self.dq3, self.x, self.y, self.phi, self._tol, self._out)
 
     def time_start(self):
         return float(getattr(self, "_time", 0.0) or 0.0)
 
-    def _reference(self, t):
-        X_d, _, _ = self._traj.task(t)
-        q_d, dq_d, ddq_d = self._traj.joint(self._model, t)
+    def _reference(self, t, numpy=False):
+        """Set the reference outputs at ``t`` (compiled, or by the numpy reference); returns
+        ``q_d, dq_d, ddq_d``."""
+        traj = self._traj
+        task, joint = (traj._reference_task, traj._reference_joint) if numpy else (traj.task, traj.joint)
+        X_d, _, _ = task(t)
+        q_d, dq_d, ddq_d = joint(self._model, t)
         self.x_ref, self.y_ref, self.phi_ref_out = (float(v) for v in X_d)
         self.q1_ref, self.q2_ref, self.q3_ref = (float(v) for v in q_d)
         return q_d, dq_d, ddq_d
 
     def step(self, t, dt):
+        out = self._out
+        if self._kstep(self._kpack, self._bits, t, self.q1, self.q2, self.q3, self.dq1, self.dq2, self.dq3,
+                       self.x, self.y, self.phi, self._tol, out):
+            return self._reference_step(t, dt)          # refused: the numpy code raises (or answers)
+        (self.tau1, self.tau2, self.tau3, self.x_ref, self.y_ref, self.phi_ref_out,
+         self.q1_ref, self.q2_ref, self.q3_ref) = out.tolist()
+
+    # numpy reference of the step (what the compiled step replaced; it raises the refusals)
+    def _reference_step(self, t, dt):
         from dynamics.control import wrap
         from dynamics.model import inverse_dynamics
         from solver import ik
 
-        q_d, dq_d, ddq_d = self._reference(t)
+        q_d, dq_d, ddq_d = self._reference(t, numpy=True)
         q = np.array([self.q1, self.q2, self.q3])
         dq = np.array([self.dq1, self.dq2, self.dq3])
         X = np.array([self.x, self.y, self.phi])

@@ -10,6 +10,13 @@ with ``q = g_j(X)`` (inverse kinematics in the posture) and ``dq = J_q dX``.
 
 Outputs depend on the state only (no direct feedthrough): a master may read ``q`` before it
 knows ``tau``, and the closed loop DK -> controller -> plant has no algebraic loop.
+
+Speed: a communication step is one compiled call (:func:`dynamics._kernel.plant_step`: the RK4
+substeps of :func:`dynamics._kernel.rk4_task`, the same operations as
+:func:`dynamics.integrate.rk4_step`, then ``q`` with the operations of :func:`solver.ik`,
+``dq = J_q dX`` and the energy).  Whatever it refuses (the platform leaves the tool space, a
+non-finite value) is redone by the numpy code (``_reference_step`` / ``_reference_outputs``),
+which raises the documented refusal.
 """
 from dataclasses import replace
 
@@ -54,15 +61,18 @@ class RRRPlant(TableSlave):
     )
     UNITS = {"J": {"kg": 1, "m": 2, "s": -2}}
     STATE = ("_x",)
-    CONSTANT = ("_model", "_params", "_rhs")
+    # _kpack, _bits: packed constants and elbow bits of the compiled step; _kstep: its entry point
+    CONSTANT = ("_model", "_params", "_rhs", "_kpack", "_bits", "_kstep")
 
     def setup(self):
         self._x = None
         self._model = self._params = self._rhs = None
+        self._kpack = self._bits = self._kstep = None
 
     def on_initialized(self):
+        from dynamics import _kernel
         from dynamics.integrate import task_space_rhs
-        from dynamics.model import DynamicParameters
+        from dynamics.model import DynamicParameters, _plant_pack
         from solver import Manipulator
 
         self._model = Manipulator.paper()
@@ -72,6 +82,9 @@ class RRRPlant(TableSlave):
             changes.update(friction_active=0.0, friction_elbow=0.0, friction_platform=0.0)
         self._params = replace(params, **changes)
         self._rhs = task_space_rhs(self._params, self._model, int(self.posture), self._torque)
+        self._kpack = _plant_pack(self._params, self._model)
+        self._bits = int(self.posture) - 1
+        self._kstep = _kernel.plant_step
         self._x = np.array([self.x0, self.y0, self.phi0, 0.0, 0.0, 0.0])
         self._outputs()
 
@@ -79,6 +92,28 @@ class RRRPlant(TableSlave):
         return np.array([self.tau1, self.tau2, self.tau3])
 
     def step(self, t, dt):
+        n = int(self.substeps)
+        out = np.empty(13)
+        if self._kstep(self._kpack, self._bits, self.tau1, self.tau2, self.tau3, dt / n, n, self._x, out):
+            return self._reference_step(t, dt)          # refused: the numpy code raises (or answers)
+        self._publish(out)
+
+    def _outputs(self):
+        # the compiled step with no substep: the outputs of the state (and its machine code is loaded
+        # now, at initialization, not in the first doStep)
+        out = np.empty(13)
+        if self._kstep(self._kpack, self._bits, self.tau1, self.tau2, self.tau3, 0.0, 0, self._x, out):
+            return self._reference_outputs()
+        self._publish(out)
+
+    def _publish(self, out):
+        """New state ``out[:6]`` and the outputs ``q = out[6:9]``, ``dq = out[9:12]``, energy ``out[12]``."""
+        self._x = out[:6]
+        (self.x_true, self.y_true, self.phi_true, _, _, _, self.q1, self.q2, self.q3,
+         self.dq1, self.dq2, self.dq3, self.energy) = out.tolist()
+
+    # numpy reference of the step (what the compiled step replaced; it raises the refusals)
+    def _reference_step(self, t, dt):
         from dynamics.integrate import rk4_step
 
         n = int(self.substeps)
@@ -90,9 +125,9 @@ class RRRPlant(TableSlave):
         except ValueError as exc:
             raise StepRefused(f"the platform left the tool space of posture {self.posture}: {exc}") from None
         self._x = np.asarray(x, dtype=float)
-        self._outputs()
+        self._reference_outputs()
 
-    def _outputs(self):
+    def _reference_outputs(self):
         from dynamics.model import joint_velocity_jacobian, total_energy
         from solver import ik
 

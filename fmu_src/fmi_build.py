@@ -457,6 +457,10 @@ def _fmu_hygiene():
                     del sys.modules[name]
 
 
+#: Public name of the context manager, for masters that instantiate FMUs themselves.
+import_hygiene = _fmu_hygiene
+
+
 @contextlib.contextmanager
 def _captured_slave_log():
     """Collect the messages TableSlave instances of this process send to Python logging."""

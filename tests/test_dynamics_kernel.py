@@ -5,7 +5,12 @@ kept as ``_reference_<name>``.  Here the two are compared on many random
 configurations in all eight postures (away from singularities, where both are
 accurate), with parameters that exercise every term; the single-configuration
 path must equal the batch path to the last bit (it is a batch of one), the
-compiled RK4 loop the generic one, and the errors the reference's.
+compiled RK4 loop the generic one, and the errors the reference's.  The same
+for the compiled circle reference (:class:`dynamics.trajectory.CircleTrajectory`
+against its numpy ``_reference_task`` / ``_reference_joint``) and the compiled
+steps of the plant and controller FMU slaves (``fmu_src/RRRPlant.py``,
+``fmu_src/ComputedTorqueController.py``, run in process against their numpy
+``_reference_step``).
 """
 import numpy as np
 import pytest
@@ -16,6 +21,7 @@ from dynamics import model as dm
 from dynamics.control import (ComputedTorqueGains, _computed_torque, _reference__computed_torque,
                               _reference_computed_torque, computed_torque, wrap)
 from dynamics.integrate import NearestPoseDK, joint_space_rhs, rk4, rk4_step, task_space_rhs
+from dynamics.trajectory import CircleTrajectory
 
 #: kernel vs reference, relative to the largest entry of each result
 REL = 1e-12
@@ -307,3 +313,264 @@ def test_other_input_forms_take_the_checked_route(model):
     # a posture whose tool space does not hold the pose
     with pytest.raises(SolverInputError, match="tool space of posture"):
         dm.forward_dynamics_task(p, model, np.array([[0.45, 0.3, -0.7], [3.0, 3.0, 0.0]]), dX, tau)
+
+
+# ---------------------------------------------------------------------------- circle reference
+#: compiled circle reference vs its numpy reference: absolute for poses and angles (m, rad),
+#: relative to the largest entry for rates and accelerations
+CIRCLE_TOL = 1e-12
+
+
+def _circles(model):
+    """The default circle, one without a ramp, and smaller circles in other postures, with a start
+    angle and a different time law (every branch of the time law and of the kernel)."""
+    out = [CircleTrajectory(), CircleTrajectory(ramp_time=0.0), CircleTrajectory(period=0.7, ramp_time=0.2, start=2.0)]
+    for posture in range(2, 9):
+        traj = CircleTrajectory(center=(0.5, 0.3), radius=0.05, phi=0.3, posture=posture, period=1.1,
+                                ramp_time=0.3, start=-1.0)
+        try:
+            traj._reference_joint(model, np.linspace(0.0, 1.5, 16))
+        except SolverInputError:
+            continue                                    # the circle is not in this posture's tool space
+        out.append(traj)
+    assert len(out) >= 5
+    return out
+
+
+def _circle_diff(fast, ref):
+    """(abs diff of X or q, rel diff of the rates and accelerations) of two (X|q, d, dd) triples;
+    angles that differ by 2 pi turns are the same (not ``wrap``: it rounds tiny differences to 0)."""
+    d = fast[0] - ref[0]
+    a = float(np.max(np.abs(d - 2 * np.pi * np.round(d / (2 * np.pi)))))
+    r = max(float(np.max(np.abs(f - g)) / max(np.max(np.abs(g)), 1e-300)) for f, g in zip(fast[1:], ref[1:]))
+    return a, r
+
+
+def test_circle_kernel_equals_reference(model):
+    """CircleTrajectory.task/joint (compiled) against _reference_task/_reference_joint (numpy)."""
+    t = np.concatenate([[-0.3, 0.0], np.linspace(1e-4, 3.0, 3001)])
+    report = []
+    for traj in _circles(model):
+        fast_t, ref_t = traj.task(t), traj._reference_task(t)
+        fast_j, ref_j = traj.joint(model, t), traj._reference_joint(model, t)
+        for f, g in zip(fast_t + fast_j, ref_t + ref_j):
+            assert f.shape == g.shape == t.shape + (3,) and f.dtype == g.dtype == np.float64
+        dt, dj = _circle_diff(fast_t, ref_t), _circle_diff(fast_j, ref_j)
+        report.append(f"posture {traj.posture} ramp {traj.ramp_time:g}: X {dt[0]:.1e}, dX/ddX {dt[1]:.1e} rel, "
+                      f"q {dj[0]:.1e}, dq/ddq {dj[1]:.1e} rel")
+        assert max(dt + dj) <= CIRCLE_TOL, report[-1]
+        # the inverse kinematics is solver.ik's, operation for operation
+        np.testing.assert_array_equal(fast_j[0], ik(model, fast_t[0], traj.posture))
+        # scalars, 0-d and n-d times: the same numbers as the batch
+        for k in (0, 1, 2, 700, 2999):
+            for tk in (float(t[k]), np.float64(t[k]), np.array(t[k])):
+                for f, g in zip(traj.task(tk) + traj.joint(model, tk), fast_t + fast_j):
+                    assert f.shape == (3,)
+                    np.testing.assert_array_equal(f, g[k])
+        grid = traj.joint(model, t[:600].reshape(20, 30))
+        np.testing.assert_array_equal(grid[2], fast_j[2][:600].reshape(20, 30, 3))
+    print("\n[circle reference, compiled vs numpy] " + "; ".join(report))
+
+
+def test_circle_kernel_refusals_are_the_reference_errors(model):
+    traj = CircleTrajectory()
+    for t in (np.nan, [0.1, np.inf]):
+        _same_error(lambda: traj.task(t), lambda: traj._reference_task(t))
+        _same_error(lambda: traj.joint(model, t), lambda: traj._reference_joint(model, t))
+    big = CircleTrajectory(radius=0.8)                  # leaves the tool space of posture 1
+    err = _same_error(lambda: big.joint(model, np.linspace(0, 2, 50)),
+                      lambda: big._reference_joint(model, np.linspace(0, 2, 50)))
+    assert isinstance(err, SolverInputError) and "tool space of posture 1" in str(err)
+    _same_error(lambda: traj.joint("paper", 0.1), lambda: traj._reference_joint("paper", 0.1))
+    np.testing.assert_array_equal(traj.task([])[0], np.zeros((0, 3)))
+
+
+# ---------------------------------------------------------------------------- the FMU slaves' steps
+def _slave(cls, **values):
+    """An initialized instance of a project FMU slave class, run in process (no FMU)."""
+    import sys
+    from pathlib import Path
+    root = str(Path(__file__).resolve().parents[1])
+    if root not in sys.path:
+        sys.path.insert(0, root)
+    inst = cls(instance_name="test", resources=root)
+    inst.setup_experiment(0.0)
+    for k, v in values.items():
+        setattr(inst, k, v)
+    inst.exit_initialization_mode()
+    assert inst._init_error is None
+    return inst
+
+
+OUT_PLANT = ("q1", "q2", "q3", "dq1", "dq2", "dq3", "x_true", "y_true", "phi_true", "energy")
+
+
+@pytest.mark.parametrize("case", ["default", "gravity+substeps", "no-friction+heavy"])
+def test_plant_step_equals_the_numpy_step(model, case):
+    """RRRPlant: the compiled step against the numpy one (the slave's _reference_step), step by step."""
+    from fmu_src.RRRPlant import RRRPlant
+    X0 = np.array([0.45, 0.30, -0.7])
+    params = {"default": {}, "gravity+substeps": dict(gravity_y=-0.5, gravity_x=0.2, substeps=3),
+              "no-friction+heavy": dict(friction=False, mass_scale=1.3)}[case]
+    fast = _slave(RRRPlant, x0=X0[0], y0=X0[1], phi0=X0[2], **params)
+    ref = _slave(RRRPlant, x0=X0[0], y0=X0[1], phi0=X0[2], **params)
+    ref._reference_outputs()
+    rng = np.random.default_rng(11)
+    for k in range(200):
+        tau = (0.3 * np.sin(0.05 * k + np.arange(3)) + 0.02 * rng.normal(size=3)).tolist()
+        for inst in (fast, ref):
+            inst.tau1, inst.tau2, inst.tau3 = tau
+        assert fast.do_step(k * 1e-3, 1e-3)
+        ref._reference_step(k * 1e-3, 1e-3)
+        # RK4 and the inverse kinematics: the same operations, the same bits
+        np.testing.assert_array_equal(fast._x, ref._x)
+        assert [getattr(fast, n) for n in OUT_PLANT[:3]] == [getattr(ref, n) for n in OUT_PLANT[:3]]
+        got = np.array([getattr(fast, n) for n in OUT_PLANT])
+        want = np.array([getattr(ref, n) for n in OUT_PLANT])
+        np.testing.assert_allclose(got[3:6], want[3:6], rtol=0, atol=1e-13 * max(1.0, np.abs(want[3:6]).max()))
+        assert abs(got[9] - want[9]) <= 1e-12 * max(abs(want[9]), 1e-3)
+        assert all(type(getattr(fast, n)) is float for n in OUT_PLANT)
+    assert np.ptp([fast.x_true, X0[0]]) > 1e-4                         # it moved
+
+
+def test_plant_energy_kernel_equals_total_energy(model, params, configs):
+    from dynamics.model import _plant_pack
+    K = _plant_pack(params, model)
+    out = np.empty(13)
+    for posture in (1, 5):
+        c = configs[posture]
+        ref = dm.total_energy(params, model, c["X"], c["dX"], posture)
+        dq = np.einsum("...ij,...j->...i", dm.joint_velocity_jacobian(model, c["X"], c["q"]), c["dX"])
+        for k in range(len(ref)):
+            x = np.concatenate([c["X"][k], c["dX"][k]])
+            assert _kernel.plant_step(K, posture - 1, 0.0, 0.0, 0.0, 0.0, 0, x, out) == _kernel.OK
+            np.testing.assert_array_equal(out[:6], x)
+            np.testing.assert_array_equal(out[6:9], ik(model, c["X"][k], posture))
+            np.testing.assert_allclose(out[9:12], dq[k], rtol=1e-13, atol=1e-13)
+            assert abs(out[12] - ref[k]) <= REL * max(abs(ref[k]), 1e-6)
+
+
+def test_plant_refused_step_rolls_back(model):
+    """A torque that throws the platform out of the tool space: the step is refused with the numpy
+    code's message and the state (the array _x) and outputs are those of the start of the step."""
+    from fmu_src.RRRPlant import RRRPlant
+    inst = _slave(RRRPlant, x0=0.45, y0=0.30, phi0=-0.7)
+    inst.tau1, inst.tau2, inst.tau3 = 0.2, -0.1, 0.05
+    for k in range(5):
+        assert inst.do_step(k * 1e-3, 1e-3)
+    x_before = inst._x.copy()
+    outs = [getattr(inst, n) for n in OUT_PLANT]
+    inst.tau1, inst.tau2, inst.tau3 = 4e4, -4e4, 4e4
+    assert not inst.do_step(5e-3, 0.1)
+    assert "left the tool space of posture 1" in inst.last_refusal
+    np.testing.assert_array_equal(inst._x, x_before)
+    assert [getattr(inst, n) for n in OUT_PLANT] == outs and inst._time == pytest.approx(5e-3)
+    inst.tau1, inst.tau2, inst.tau3 = 0.2, -0.1, 0.05                # and it goes on from there
+    assert inst.do_step(5e-3, 1e-3) and not np.array_equal(inst._x, x_before)
+
+
+OUT_CTRL = ("tau1", "tau2", "tau3", "x_ref", "y_ref", "phi_ref_out", "q1_ref", "q2_ref", "q3_ref")
+
+
+@pytest.mark.parametrize("mass_scale", [1.0, 1.2])
+def test_controller_step_equals_the_numpy_step(model, mass_scale):
+    """ComputedTorqueController: the compiled step against the numpy one (_reference_step) on
+    measurements around the reference (joints off by up to 2 pi turns, poses of the joints)."""
+    from fmu_src.ComputedTorqueController import ComputedTorqueController
+    traj = CircleTrajectory()
+    q0 = traj.joint(model, 0.0)[0]
+    X0 = traj.task(0.0)[0]
+    start = dict(q1=q0[0], q2=q0[1], q3=q0[2], x=X0[0], y=X0[1], phi=X0[2], mass_scale=mass_scale, bandwidth=40.0)
+    fast, ref = _slave(ComputedTorqueController, **start), _slave(ComputedTorqueController, **start)
+    assert [getattr(fast, n) for n in OUT_CTRL] == [getattr(ref, n) for n in OUT_CTRL]
+    rng = np.random.default_rng(5)
+    t = np.linspace(0.0, 2.5, 150)
+    X = traj.task(t)[0] + rng.normal(size=(len(t), 3)) * [2e-3, 2e-3, 1e-2]
+    q = ik(model, X, 1) + 2 * np.pi * rng.integers(-1, 2, size=(len(t), 3))
+    dq = traj.joint(model, t)[1] + rng.normal(size=(len(t), 3)) * 0.05
+    worst = 0.0
+    for k in range(len(t)):
+        for inst in (fast, ref):
+            inst.q1, inst.q2, inst.q3 = q[k].tolist()
+            inst.dq1, inst.dq2, inst.dq3 = dq[k].tolist()
+            inst.x, inst.y, inst.phi = X[k].tolist()
+        assert fast.do_step(float(t[k]), 1e-3)
+        ref._reference_step(float(t[k]), 1e-3)
+        got = np.array([getattr(fast, n) for n in OUT_CTRL])
+        want = np.array([getattr(ref, n) for n in OUT_CTRL])
+        assert all(type(getattr(fast, n)) is float for n in OUT_CTRL)
+        np.testing.assert_array_equal(got[6:], want[6:])                      # q_d: solver.ik's bits
+        np.testing.assert_allclose(got[3:6], want[3:6], rtol=0, atol=CIRCLE_TOL)
+        worst = max(worst, float(np.max(np.abs(got[:3] - want[:3])) / np.max(np.abs(want[:3]))))
+    print(f"\n[controller step, compiled vs numpy] largest torque difference {worst:.1e} relative")
+    assert worst <= REL
+
+
+def test_controller_refusals_are_the_numpy_step_refusals(model):
+    from fmu_src.ComputedTorqueController import ComputedTorqueController
+    traj = CircleTrajectory()
+    q0, X0 = traj.joint(model, 0.0)[0], traj.task(0.0)[0]
+    inst = _slave(ComputedTorqueController, q1=q0[0], q2=q0[1], q3=q0[2], x=X0[0], y=X0[1], phi=X0[2])
+    before = [getattr(inst, n) for n in OUT_CTRL]
+    inst.x = 3.0                                          # the DK pose is outside the tool space
+    assert not inst.do_step(0.1, 1e-3)
+    assert "from the DK is outside the tool space of posture 1" in inst.last_refusal
+    assert [getattr(inst, n) for n in OUT_CTRL] == before and inst._time == 0.0
+    # a reference that leaves the tool space (a circle too large for the robot): the numpy code's error
+    big = _slave(ComputedTorqueController, q1=q0[0], q2=q0[1], q3=q0[2], x=X0[0], y=X0[1], phi=X0[2])
+    object.__setattr__(big, "_traj", CircleTrajectory(radius=0.8))
+    from dynamics.control import _controller_pack
+    big._kpack = _controller_pack(big._params, big._model, big._gains, big._traj)
+    assert not big.do_step(0.6, 1e-3)
+    assert "SolverInputError" in big.last_refusal and "tool space of posture 1" in big.last_refusal
+    inst.x = X0[0]
+    assert inst.do_step(0.0, 1e-3)
+
+
+def test_rollback_snapshot_is_as_deep_as_the_pickle():
+    """fmu_src.table_slave's in-memory rollback snapshot (what each doStep of the plant and controller
+    FMUs takes) restores what the pickle it replaced restored: arrays and lists copied, sharing
+    between them kept, other objects pickled, unpicklable states refused."""
+    import threading
+    from fmu_src.table_slave import StepRefused, TableSlave, Var
+
+    class Probe(TableSlave):
+        VARIABLES = (Var("u", "Real", "input", start=0.0), Var("y", "Real", "output", depends_on=()),
+                     Var("n", "Integer", "parameter", start=1, min=1, max=5))
+        STATE = ("_a", "_b", "_lst", "_obj", "_tup")
+
+        def setup(self):
+            self._a = np.arange(3.0)
+            self._b, self._lst, self._obj, self._tup = self._a, [1.0, 2.0], None, (1, (2.0, "x"))
+
+        def step(self, t, dt):
+            self._a += 1.0                      # in place, then maybe refuse: the rollback must undo it
+            self._lst.append(3.0)
+            self.y += 1.0
+            if self.u > 0:
+                raise StepRefused("refused")
+
+    s = _slave(Probe)
+    assert s.do_step(0.0, 0.1) and s._a is s._b and s._a[0] == 1.0
+    s.u = 1.0
+    assert not s.do_step(0.1, 0.1)
+    assert s._a is s._b and list(s._a) == [1.0, 2.0, 3.0] and s._lst == [1.0, 2.0, 3.0] and s.y == 1.0
+    s._b = np.zeros(2)                          # no sharing: copies, restorable twice
+    snap = s._capture()
+    for _ in range(2):
+        s._a[:] = 7.0
+        s._lst.append(9.0)
+        s._restore(snap)
+        assert list(s._a) == [1.0, 2.0, 3.0] and s._lst == [1.0, 2.0, 3.0] and s._tup == (1, (2.0, "x"))
+    s._obj = {"ref": s._a}                      # an object that refers to an array of the state
+    s._restore(s._capture())
+    assert s._obj["ref"] is s._a
+    s._obj, s.u = threading.Lock(), 0.0
+    assert not s.do_step(0.1, 0.1) and "the state does not pickle" in s.last_refusal
+    s._obj = None
+    s.u = float("nan")
+    assert not s.do_step(0.1, 0.1) and "'u' = nan" in s.last_refusal
+    s.u, s.n = 0.0, 7
+    assert not s.do_step(0.1, 0.1) and "outside [1, 5]" in s.last_refusal
+    s.n = 1
+    assert s.do_step(0.1, 0.1) and s.y == 2.0

@@ -1,0 +1,249 @@
+"""Speed of the closed loop of issue 6 (``python -m dynamics.cosim``): where each 1 ms step goes.
+
+    python bench/bench_cosim.py [--build-dir build] [--rebuild] [--repeat 5] [--t-end 2.5]
+
+The FMUs are built once into ``--build-dir`` by :func:`dynamics.cosim.build_fmus` (reused when
+present; ``--rebuild`` forces it).  Then, in one process (FMUs extracted and instantiated once):
+
+1. the default scenario (2.5 s at h = 1 ms, Gauss-Seidel, three FMUs) is run ``--repeat`` times by
+   the master itself (:meth:`dynamics.cosim.ClosedLoop.run`, timed as ``python -m dynamics.cosim``
+   times it: the step loop, FMUs initialized); prints the wall time and real-time factor of each
+   run, their median and best, and the wall time per 1 ms step (target: real-time factor >= 5,
+   i.e. < 200 us per step);
+2. one more run of the same loop (the same fmpy calls in the same order as ``ClosedLoop.run``) with
+   a clock around every FMU call, and a clock inside every slave's ``do_step``, ``get_*`` and
+   ``set_real`` (the Python code of the slave, what the FMU's C wrapper calls); prints per call
+   the median and mean over the steps, split into the slave's Python and the call overhead
+   (fmpy's ctypes wrapper + pythonfmu's C wrapper + taking the GIL), the master's own overhead
+   (its numpy arrays and bookkeeping between the calls) and "where the time goes" as a table
+   (mean us per step and share; the means include the machine's noise, the medians do not).
+
+The slaves import the host's ``dynamics`` and ``solver`` (imported first, as the master does);
+``fmu_src.table_slave`` (the FMUs' base class) is bundled in every FMU and the first FMU loaded
+(the DK FMU) provides it: the script says whether that copy is the working tree's, and if not the
+DK FMU predates the last change of ``fmu_src/table_slave.py`` (``--rebuild``).
+
+The machine is shared (2 cores): the load average is printed; compare medians.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+import dynamics  # noqa: E402,F401  (before any FMU, as the master does)
+from dynamics.cosim import FMU_NAMES, ClosedLoop, Scenario, build_fmus  # noqa: E402
+
+SHORT = {"RRRDirectKinematics": "DK", "ComputedTorqueController": "controller", "RRRPlant": "plant"}
+#: the fmpy calls of one Gauss-Seidel step of ClosedLoop.run, in order: (label, FMU, kind)
+CALLS = (("DK setReal q", "RRRDirectKinematics", "set_real"),
+         ("DK doStep", "RRRDirectKinematics", "do_step"),
+         ("DK getReal pose", "RRRDirectKinematics", "get_real"),
+         ("controller setReal q, dq, X", "ComputedTorqueController", "set_real"),
+         ("controller doStep", "ComputedTorqueController", "do_step"),
+         ("controller getReal tau, refs", "ComputedTorqueController", "get_real"),
+         ("plant setReal tau", "RRRPlant", "set_real"),
+         ("plant doStep", "RRRPlant", "do_step"),
+         ("DK getInteger status", "RRRDirectKinematics", "get_integer"),
+         ("DK getBoolean flags", "RRRDirectKinematics", "get_boolean"),
+         ("plant getReal q, dq, X", "RRRPlant", "get_real"))
+
+
+def _bundled_table_slave(dk_fmu: Path) -> str:
+    with zipfile.ZipFile(dk_fmu) as z:
+        bundled = z.read("resources/fmu_src/table_slave.py")
+    return "same as" if bundled == (ROOT / "fmu_src" / "table_slave.py").read_bytes() else "OLDER than"
+
+
+class _SlaveClock:
+    """Wraps methods of the slave classes loaded by the FMUs with a clock (per class and method)."""
+
+    def __init__(self, loop: ClosedLoop):
+        self.times: dict = {}
+        self._saved = []
+        for name in FMU_NAMES:
+            cls = sys.modules[name].__dict__[name]          # the module the FMU's C wrapper imported
+            for meth in ("do_step", "get_real", "get_integer", "get_boolean", "set_real"):
+                self._wrap(cls, name, meth)
+
+    def _wrap(self, cls, name, meth):
+        orig = getattr(cls, meth)
+        bucket = self.times.setdefault((name, meth), [])
+        clock = time.perf_counter
+
+        def timed(slave, *args):
+            t0 = clock()
+            out = orig(slave, *args)
+            bucket.append(clock() - t0)
+            return out
+        self._saved.append((cls, meth, cls.__dict__.get(meth)))
+        setattr(cls, meth, timed)
+
+    def clear(self):
+        for v in self.times.values():
+            v.clear()
+
+    def restore(self):
+        for cls, meth, old in reversed(self._saved):
+            if old is None:
+                delattr(cls, meth)
+            else:
+                setattr(cls, meth, old)
+
+
+def instrumented_run(loop: ClosedLoop, sc: Scenario, on_start=None):
+    """The loop of ClosedLoop.run (Gauss-Seidel) with a clock around every FMU call; ``on_start()``
+    is called right before the first step.
+
+    Returns (calls (n, 11) s, step (n,) s): the duration of each call and of each whole step.
+    """
+    loop._initialize(sc, 0.0)
+    dk, ct, pl = (loop.units[n].fmu for n in FMU_NAMES)
+    vr = loop.vr
+    n, h = sc.n_steps, sc.h
+    out = np.zeros((n, 27))
+    calls = np.zeros((n, len(CALLS)))
+    step = np.zeros(n)
+    clock = time.perf_counter
+    sens = np.array(pl.getReal(vr["pl_out"]))
+    if on_start is not None:
+        on_start()
+    for k in range(n):
+        c = calls[k]
+        t = k * h
+        s0 = clock()
+        q, dq = sens[0:3], sens[3:6]
+        a = clock(); dk.setReal(vr["dk_in"], q)
+        b = clock(); dk.doStep(t, h)
+        d = clock(); pose = np.array(dk.getReal(vr["dk_out"]))
+        e = clock(); c[0], c[1], c[2] = b - a, d - b, e - d
+        x = np.concatenate([q, dq, pose])
+        a = clock(); ct.setReal(vr["ct_in"], x)
+        b = clock(); ct.doStep(t, h)
+        d = clock(); ctrl = np.array(ct.getReal(vr["ct_out"]))
+        e = clock(); c[3], c[4], c[5] = b - a, d - b, e - d
+        a = clock(); pl.setReal(vr["pl_in"], ctrl[0:3])
+        b = clock(); pl.doStep(t, h)
+        d = clock(); status = dk.getInteger(vr["dk_int"])
+        e = clock(); flags = dk.getBoolean(vr["dk_bool"])
+        f = clock(); c[6], c[7], c[8], c[9] = b - a, d - b, e - d, f - e
+        row = out[k]
+        row[0] = t
+        row[1:7] = sens[0:6]
+        row[7:10] = ctrl[0:3]
+        row[10:13] = pose
+        row[13:16] = sens[6:9]
+        row[16:22] = ctrl[3:9]
+        row[22], row[23], row[24] = status[2], status[0], status[1]
+        row[25], row[26] = flags
+        a = clock(); sens = np.array(pl.getReal(vr["pl_out"]))
+        b = clock(); c[10] = b - a
+        step[k] = b - s0
+    return calls, step
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--build-dir", default=str(ROOT / "build"))
+    ap.add_argument("--rebuild", action="store_true", help="rebuild the three FMUs")
+    ap.add_argument("--repeat", type=int, default=5, help="timed runs of the default scenario")
+    ap.add_argument("--t-end", type=float, default=Scenario.t_end)
+    args = ap.parse_args(argv)
+
+    paths = build_fmus(args.build_dir, force=args.rebuild, log=lambda m: print(m, flush=True))
+    sc = Scenario(t_end=args.t_end)
+    print(f"python {platform.python_version()}, numpy {np.__version__}, {os.cpu_count()} cores, "
+          f"load average {os.getloadavg()[0]:.2f}")
+    print(f"scenario: {sc.t_end:g} s at h = {sc.h * 1e3:g} ms, {sc.order}, {sc.n_steps} steps; FMUs in "
+          f"{Path(args.build_dir)}; the DK FMU's fmu_src/table_slave.py is "
+          f"{_bundled_table_slave(paths['RRRDirectKinematics'])} the working tree's")
+
+    with ClosedLoop(paths) as loop:
+        t0 = time.perf_counter()
+        loop.run(Scenario(t_end=0.05))                       # numba caches loaded, first calls done
+        print(f"warm-up (instantiate + first steps): {time.perf_counter() - t0:.2f} s")
+        print(f"\n1. the master's loop (ClosedLoop.run, as `python -m dynamics.cosim`), {args.repeat} runs:")
+        walls = []
+        for r in range(args.repeat):
+            res = loop.run(sc)
+            walls.append(res.wall_seconds)
+            m = res.metrics()
+            print(f"   run {r + 1}: {res.wall_seconds:.3f} s wall, {res.realtime_factor:.2f}x real time, "
+                  f"{1e6 * res.wall_seconds / sc.n_steps:.0f} us per step  (RMS joint error after 0.5 s "
+                  f"{m['rms_joint_error_after_0.5s']:.3e} rad, max |DK - true| {m['max_dk_vs_true']:.1e})")
+        med, best = float(np.median(walls)), float(np.min(walls))
+        print(f"   median {med:.3f} s = {sc.t_end / med:.2f}x real time ({1e6 * med / sc.n_steps:.0f} us per "
+              f"step); best {best:.3f} s = {sc.t_end / best:.2f}x; target >= 5x (< 200 us per step)")
+
+        clock = _SlaveClock(loop)
+        try:
+            instrumented_run(loop, Scenario(t_end=0.05))
+            calls, step = instrumented_run(loop, sc, on_start=clock.clear)
+        finally:
+            clock.restore()
+
+    us = 1e6
+    calls, step = calls * us, step * us
+    inner = {k: np.array(v) * us for k, v in clock.times.items()}
+    print(f"\n2. one instrumented run: {step.sum() / us:.3f} s of steps, per step median {np.median(step):.0f} us, "
+          f"mean {step.mean():.0f} us, p90 {np.percentile(step, 90):.0f} us, max {step.max():.0f} us")
+    print(f"\n   {'fmpy call':30s} {'median':>8s} {'mean':>8s}   {'slave Python':>12s} {'(mean)':>8s}   "
+          f"{'call overhead':>13s}")
+    counted = {}
+    rows = []
+    for j, (label, fmu, meth) in enumerate(CALLS):
+        # per-call slave time: the k-th slave call of this (fmu, meth) in step order
+        key = (fmu, meth)
+        times = inner.get(key, np.zeros(0))
+        per_step = sum(1 for _, f2, m2 in CALLS if (f2, m2) == key)
+        i0 = counted.get(key, 0)
+        counted[key] = i0 + 1
+        mine = times[i0::per_step][:len(calls)] if per_step and len(times) else np.zeros(len(calls))
+        if len(mine) < len(calls):
+            mine = np.zeros(len(calls))
+        over = calls[:, j] - mine
+        rows.append((label, fmu, meth, calls[:, j], mine, over))
+        print(f"   {label:30s} {np.median(calls[:, j]):7.1f}  {calls[:, j].mean():7.1f}   {np.median(mine):11.1f} "
+              f"{mine.mean():8.1f}   {np.median(over):12.1f}")
+    master = step - calls.sum(axis=1)
+    print(f"   {'master (numpy, bookkeeping)':30s} {np.median(master):7.1f}  {master.mean():7.1f}")
+
+    print("\n   per-step median of each FMU's doStep (the whole fmpy call):")
+    for label, fmu, meth, c, mine, over in rows:
+        if meth == "do_step":
+            print(f"     {SHORT[fmu]:10s} {np.median(c):6.1f} us   (slave's do_step {np.median(mine):5.1f} us, "
+                  f"fmpy + C wrapper {np.median(over):4.1f} us)")
+
+    # where the time goes (means: they add up to the wall time)
+    total = step.mean()
+    groups = [("DK doStep: slave (tracker, checks, snapshot)", [r for r in rows if r[2] == "do_step" and r[1] == FMU_NAMES[0]], 4),
+              ("controller doStep: slave (compiled law + reference)", [r for r in rows if r[2] == "do_step" and r[1] == FMU_NAMES[1]], 4),
+              ("plant doStep: slave (compiled RK4 + outputs)", [r for r in rows if r[2] == "do_step" and r[1] == FMU_NAMES[2]], 4),
+              ("8 get/set calls: slave Python", [r for r in rows if r[2] != "do_step"], 4),
+              ("11 fmpy calls: fmpy + ctypes + pythonfmu C wrapper", rows, 5)]
+    print(f"\n   where the time goes (mean per 1 ms step; wall budget for 5x real time: 200 us)")
+    print(f"   | {'part':55s} | {'us/step':>7s} | {'share':>6s} |")
+    print(f"   |{'-' * 57}|{'-' * 9}|{'-' * 8}|")
+    acc = 0.0
+    for name, sel, col in groups:
+        v = float(sum(r[col].mean() for r in sel))
+        acc += v
+        print(f"   | {name:55s} | {v:7.1f} | {100 * v / total:5.1f}% |")
+    v = float(master.mean())
+    acc += v
+    print(f"   | {'master: numpy arrays, concatenate, result rows':55s} | {v:7.1f} | {100 * v / total:5.1f}% |")
+    print(f"   | {'total (instrumented; clocks add ~2 us)':55s} | {total:7.1f} | {100 * acc / total:5.1f}% |")
+
+
+if __name__ == "__main__":
+    main()
