@@ -66,27 +66,32 @@ def _bundled_table_slave(dk_fmu: Path) -> str:
 
 
 class _SlaveClock:
-    """Wraps methods of the slave classes loaded by the FMUs with a clock (per class and method)."""
+    """Wraps methods of the slaves' shared base classes with a clock, bucketed per slave class name.
+
+    The master re-instantiates the FMUs for every run (new slave class objects each time), so the
+    clock goes where the methods are defined: ``TableSlave`` and pythonfmu's ``Fmi2Slave``.
+    """
 
     def __init__(self, loop: ClosedLoop):
+        from fmu_src.table_slave import TableSlave
+
         self.times: dict = {}
         self._saved = []
-        for name in FMU_NAMES:
-            cls = sys.modules[name].__dict__[name]          # the module the FMU's C wrapper imported
-            for meth in ("do_step", "get_real", "get_integer", "get_boolean", "set_real"):
-                self._wrap(cls, name, meth)
+        for meth in ("do_step", "get_real", "get_integer", "get_boolean", "set_real"):
+            owner = next(c for c in TableSlave.__mro__ if meth in c.__dict__)
+            self._wrap(owner, meth)
 
-    def _wrap(self, cls, name, meth):
-        orig = getattr(cls, meth)
-        bucket = self.times.setdefault((name, meth), [])
+    def _wrap(self, cls, meth):
+        orig = cls.__dict__[meth]
+        times = self.times
         clock = time.perf_counter
 
         def timed(slave, *args):
             t0 = clock()
             out = orig(slave, *args)
-            bucket.append(clock() - t0)
+            times.setdefault((type(slave).__name__, meth), []).append(clock() - t0)
             return out
-        self._saved.append((cls, meth, cls.__dict__.get(meth)))
+        self._saved.append((cls, meth, orig))
         setattr(cls, meth, timed)
 
     def clear(self):
@@ -95,10 +100,7 @@ class _SlaveClock:
 
     def restore(self):
         for cls, meth, old in reversed(self._saved):
-            if old is None:
-                delattr(cls, meth)
-            else:
-                setattr(cls, meth, old)
+            setattr(cls, meth, old)
 
 
 def instrumented_run(loop: ClosedLoop, sc: Scenario, on_start=None):
