@@ -56,7 +56,8 @@ import solver
 from solver import PAPER_CIRCLE, Manipulator, ik
 
 __all__ = ["Scenario", "FMUUnit", "ClosedLoop", "ClosedLoopResult", "build_fmus", "simulate_fig3",
-           "start_values", "write_osp_system", "CONNECTIONS", "write_csv", "plot_closed_loop", "main"]
+           "start_values", "write_osp_system", "CONNECTIONS", "write_csv", "plot_closed_loop", "main",
+           "exit_process", "fmus_loaded", "remove_extracted"]
 
 FMU_NAMES = ("RRRDirectKinematics", "ComputedTorqueController", "RRRPlant")
 DK_STATUS = {0: "ok", 1: "unreachable", 2: "singular", 3: "rejected", 4: "diverged"}
@@ -135,14 +136,48 @@ class Scenario:
 _EXTRACTED: dict = {}
 
 
-def _remove_extracted():
+def remove_extracted() -> None:
+    """Delete the folders this process extracted FMUs into (also done at exit)."""
     for folder in _EXTRACTED.values():
         shutil.rmtree(folder, ignore_errors=True)
 
 
+_remove_extracted = remove_extracted   # the name batch.py used first
+
+
+def fmus_loaded() -> bool:
+    """Whether this process has loaded a pythonfmu FMU (see :func:`exit_process`)."""
+    try:
+        with open("/proc/self/maps") as f:
+            return any("/binaries/linux64/" in line for line in f)
+    except OSError:
+        return bool(_EXTRACTED)
+
+
+def exit_process(code: int = 0):
+    """End a process that ran pythonfmu FMUs: clean up, flush, and ``os._exit(code)``.
+
+    pythonfmu 0.7's shared library finalizes its Python state when it is unloaded at process
+    exit; with several of its FMUs loaded in one process that finalizer reads freed memory and
+    the process may abort ("corrupted double-linked list", NTNU-IHB/PythonFMU#228, fixed
+    upstream but unreleased).  Everything is written by then, but the exit status would say
+    134.  ``os._exit`` skips the libraries' finalizers.  The project's command lines and its
+    test session end this way when FMUs were loaded.
+    """
+    import os
+
+    remove_extracted()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:  # noqa: BLE001 - a closed stream must not change the exit status
+            pass
+    os._exit(int(code))
+
+
 import atexit  # noqa: E402
 
-atexit.register(_remove_extracted)
+atexit.register(remove_extracted)
 
 
 class FMUUnit:
@@ -697,4 +732,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_process(main())

@@ -30,3 +30,21 @@ def pose_distance(a, b):
     d = np.abs(np.asarray(a) - np.asarray(b))
     d[..., 2] = np.abs(np.angle(np.exp(1j * (np.asarray(a)[..., 2] - np.asarray(b)[..., 2]))))
     return d.max(axis=-1)
+
+
+# pythonfmu 0.7's libraries may abort the process at exit once several of its FMUs were loaded
+# (NTNU-IHB/PythonFMU#228; see dynamics.cosim.exit_process).  The session's outcome is known and
+# printed by then: end the process with that status, skipping the libraries' finalizers.
+_SESSION = {}
+
+
+def pytest_sessionfinish(session, exitstatus):
+    _SESSION["status"] = int(exitstatus)
+
+
+def pytest_unconfigure(config):
+    if "status" in _SESSION:
+        from dynamics.cosim import exit_process, fmus_loaded
+
+        if fmus_loaded():
+            exit_process(_SESSION["status"])
