@@ -42,7 +42,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 import dynamics  # noqa: E402,F401  (before any FMU, as the master does)
-from dynamics.cosim import FMU_NAMES, ClosedLoop, Scenario, build_fmus  # noqa: E402
+from dynamics.cosim import FMU_NAMES, ClosedLoop, Scenario, build_fmus, fill_row  # noqa: E402
 
 SHORT = {"RRRDirectKinematics": "DK", "ComputedTorqueController": "controller", "RRRPlant": "plant"}
 #: the fmpy calls of one Gauss-Seidel step of ClosedLoop.run, in order: (label, FMU, kind)
@@ -139,15 +139,7 @@ def instrumented_run(loop: ClosedLoop, sc: Scenario, on_start=None):
         d = clock(); status = dk.getInteger(vr["dk_int"])
         e = clock(); flags = dk.getBoolean(vr["dk_bool"])
         f = clock(); c[6], c[7], c[8], c[9] = b - a, d - b, e - d, f - e
-        row = out[k]
-        row[0] = t
-        row[1:7] = sens[0:6]
-        row[7:10] = ctrl[0:3]
-        row[10:13] = pose
-        row[13:16] = sens[6:9]
-        row[16:22] = ctrl[3:9]
-        row[22], row[23], row[24] = status[2], status[0], status[1]
-        row[25], row[26] = flags
+        fill_row(out[k], t, sens, ctrl, pose, status, flags)
         a = clock(); sens = np.array(pl.getReal(vr["pl_out"]))
         b = clock(); c[10] = b - a
         step[k] = b - s0

@@ -484,25 +484,11 @@ def _in_dask_worker():
         return None
 
 
-@contextmanager
 def _fmu_log():
     """Collect what the FMU slaves log (logger ``fmu_src.<Model>``) during a run."""
-    records: list[str] = []
+    from fmu_src.fmi_build import captured_slave_log
 
-    class _Collect(logging.Handler):
-        def emit(self, record):
-            try:
-                records.append(record.getMessage().split("\nTraceback", 1)[0])
-            except Exception:  # noqa: BLE001
-                pass
-
-    handler = _Collect(level=logging.WARNING)
-    target = logging.getLogger("fmu_src")
-    target.addHandler(handler)
-    try:
-        yield records
-    finally:
-        target.removeHandler(handler)
+    return captured_slave_log(strip_traceback=True)
 
 
 def _scenario_columns(params: dict) -> dict:

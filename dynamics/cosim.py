@@ -372,6 +372,27 @@ class ClosedLoopResult:
                 "wall_seconds": self.wall_seconds, "realtime_factor": self.realtime_factor}
 
 
+#: Columns of :meth:`ClosedLoop.run`'s result, in the order of :func:`fill_row`.
+COLUMNS = (["time"] + [f"q{i}" for i in (1, 2, 3)] + [f"dq{i}" for i in (1, 2, 3)]
+           + [f"tau{i}" for i in (1, 2, 3)] + ["x", "y", "phi", "x_true", "y_true", "phi_true",
+                                              "x_ref", "y_ref", "phi_ref", "q1_ref", "q2_ref", "q3_ref",
+                                              "dk_status", "region", "n_real", "near_border", "ambiguous"])
+
+
+def fill_row(row, t, sens, ctrl, pose, status, flags) -> None:
+    """One result row (:data:`COLUMNS`) from the values read at ``t``: plant outputs ``sens`` (q, dq,
+    true pose), controller outputs ``ctrl`` (tau, references), DK ``pose``, ``status`` (region,
+    n_real, status) and ``flags`` (near_border, ambiguous)."""
+    row[0] = t
+    row[1:7] = sens[0:6]
+    row[7:10] = ctrl[0:3]
+    row[10:13] = pose[0:3]
+    row[13:16] = sens[6:9]
+    row[16:22] = ctrl[3:9]
+    row[22], row[23], row[24] = status[2], status[0], status[1]
+    row[25], row[26] = flags[0], flags[1]
+
+
 class ClosedLoop:
     """The Fig. 2 loop of three FMUs driven by fmpy (see the module docstring).
 
@@ -434,10 +455,7 @@ class ClosedLoop:
         vr = self.vr
         n = sc.n_steps
         h = sc.h
-        names = (["time"] + [f"q{i}" for i in (1, 2, 3)] + [f"dq{i}" for i in (1, 2, 3)]
-                 + [f"tau{i}" for i in (1, 2, 3)] + ["x", "y", "phi", "x_true", "y_true", "phi_true",
-                                                    "x_ref", "y_ref", "phi_ref", "q1_ref", "q2_ref", "q3_ref",
-                                                    "dk_status", "region", "n_real", "near_border", "ambiguous"])
+        names = COLUMNS
         out = np.zeros((n, len(names)))
         gauss_seidel = sc.order == "gauss-seidel"
         # fmpy's getReal/setReal build two ctypes arrays per call (~1.5 us each): the value references
@@ -480,15 +498,7 @@ class ClosedLoop:
                 ct.fmi2GetReal(ctc, ct_out, 9, ctrl)
             dk.fmi2GetInteger(dkc, dk_int, 3, status)
             dk.fmi2GetBoolean(dkc, dk_bool, 2, flags)
-            row = out[k]
-            row[0] = t
-            row[1:7] = sens[0:6]
-            row[7:10] = ctrl[0:3]
-            row[10:13] = pose
-            row[13:16] = sens[6:9]
-            row[16:22] = ctrl[3:9]
-            row[22], row[23], row[24] = status[2], status[0], status[1]
-            row[25], row[26] = flags
+            fill_row(out[k], t, sens, ctrl, pose, status, flags)
             pl.fmi2GetReal(plc, pl_out, 9, sens)
         wall = time.perf_counter() - wall
         return ClosedLoopResult(sc, {name: out[:, i] for i, name in enumerate(names)}, wall)

@@ -466,13 +466,18 @@ import_hygiene = _fmu_hygiene
 
 
 @contextlib.contextmanager
-def _captured_slave_log():
-    """Collect the messages TableSlave instances of this process send to Python logging."""
+def captured_slave_log(strip_traceback: bool = False):
+    """Collect the warnings and errors TableSlave instances of this process send to Python logging
+    (logger ``fmu_src.<Model>``); ``strip_traceback`` keeps only each message's first part."""
     records: list[str] = []
 
     class _Collect(logging.Handler):
         def emit(self, record):
-            records.append(record.getMessage())
+            try:
+                msg = record.getMessage()
+            except Exception:  # noqa: BLE001 - a malformed record must not break the run
+                return
+            records.append(msg.split("\nTraceback", 1)[0] if strip_traceback else msg)
 
     handler = _Collect(level=logging.WARNING)
     target = logging.getLogger("fmu_src")
@@ -727,7 +732,7 @@ def simulate(fmu_path: str | os.PathLike, *, stop_time: float, step_size: float,
     def logger(_component, _instance, status, _category, message):
         captured.append((int(status), message.decode("utf-8", "replace") if message else ""))
 
-    with _fmu_hygiene(), _captured_slave_log() as records:
+    with _fmu_hygiene(), captured_slave_log() as records:
         result = fmpy.simulate_fmu(str(fmu_path), start_time=start_time, stop_time=stop_time,
                                    step_size=step_size, output_interval=step_size, input=inputs,
                                    start_values=dict(start_values or {}), output=outputs,
@@ -816,7 +821,7 @@ def run_libcosim(fmu_path: str | os.PathLike, *, step_size: float, n_steps: int,
     step_ns = int(round(step_size * 1e9))
     if step_ns <= 0 or abs(step_ns - step_size * 1e9) > 1e-3:
         raise ValueError("step_size must be a positive multiple of 1 ns")
-    with _fmu_hygiene(), _captured_slave_log() as records:
+    with _fmu_hygiene(), captured_slave_log() as records:
         return _run_libcosim(fmu_path, step_ns, n_steps, inputs, start_values, outputs, instance_name, records)
 
 
@@ -921,7 +926,7 @@ def run_osp_system(osp_path: str | os.PathLike, *, n_steps: int, observe: Sequen
     """
     CosimExecution, _, _, CosimObserver, _, last_error = _cosim_modules()
     _set_cosim_log_level(log_level)
-    with _fmu_hygiene(), _captured_slave_log() as records:
+    with _fmu_hygiene(), captured_slave_log() as records:
         try:
             if Path(osp_path).suffix in (".ssd", ".ssp"):
                 execution = CosimExecution.CosimExecution.from_ssp_file(
