@@ -224,14 +224,7 @@ def tracker_step(mode, q, Xp, qp, X2, hist, dq_scale, ext_scale, M, l1, l2sq, b,
             chosen = region - 1
         else:
             ambiguous = True                       # procedure 3 has no answer: nearest to the prediction
-            best = np.inf
-            for k in range(6):
-                if real[k]:
-                    for i in range(3):
-                        Xr[i] = poses[k, i].real
-                    d = wdist(Xr, X_lin, w)
-                    if d < best:
-                        best, chosen = d, k
+            chosen, _ = _nearest(poses, real, X_lin, w, near_prev, near_prev, near_prev, False)
     else:
         # continuation predictor along the joint segment, guarded near singularities
         nsub = int(min(params[P_MAX_SUB], max(1.0, math.ceil(dqn / params[P_SUB_DQ]))))
