@@ -26,19 +26,15 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
-
-import solver  # noqa: E402,F401  (first: the FMUs then use this copy of the package)
-from dynamics import batch  # noqa: E402
-from dynamics.cosim import build_fmus  # noqa: E402
+import solver  # noqa: F401  (first: the FMUs then use this copy of the package)
+from dynamics import batch
+from dynamics.cosim import build_fmus
+from fmu_src.unit import exit_process
 
 METRICS = ("rms_joint_error", "max_joint_error", "max_dk_vs_true", "dk_branch_errors", "dk_status_ok", "n_steps")
 
@@ -124,11 +120,8 @@ def main(argv=None) -> int:
           f"{t_serial / (t_serial / args.workers + (s1['load'] + s1['warmup']) * (1 - 1 / args.workers)):.2f}x")
     print(f"same metrics bit for bit, serial vs workers: {same}")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
-    sys.stdout.flush()
-    # FMUs were loaded in this process: skip the pythonfmu libraries' exit code (see dynamics.batch)
-    from dynamics import cosim
-    getattr(cosim, "_remove_extracted", lambda: None)()
-    os._exit(0)
+    # FMUs were loaded in this process: skip the pythonfmu libraries' exit code (see fmu_src.unit)
+    exit_process(0)
 
 
 if __name__ == "__main__":

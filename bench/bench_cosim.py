@@ -18,10 +18,9 @@ present; ``--rebuild`` forces it).  Then, in one process (FMUs extracted and ins
    (its numpy arrays and bookkeeping between the calls) and "where the time goes" as a table
    (mean us per step and share; the means include the machine's noise, the medians do not).
 
-The slaves import the host's ``dynamics`` and ``solver`` (imported first, as the master does);
-``fmu_src.table_slave`` (the FMUs' base class) is bundled in every FMU and the first FMU loaded
-(the DK FMU) provides it: the script says whether that copy is the working tree's, and if not the
-DK FMU predates the last change of ``fmu_src/table_slave.py`` (``--rebuild``).
+The slaves import the host's ``dynamics``, ``solver`` and ``fmu_src`` runtime (imported first, as
+the master does); the script also says whether the DK FMU's bundled copy of that runtime is the
+working tree's (if not, the FMU predates its last change: ``--rebuild``).
 
 The machine is shared (2 cores): the load average is printed; compare medians.
 """
@@ -30,39 +29,42 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import sys
 import time
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+import dynamics  # noqa: F401  (before any FMU, as the master does)
+from dynamics.cosim import FMU_NAMES, INSTANCES, ClosedLoop, Scenario, build_fmus
+from fmu_src.packaging import bundled_files
+from fmu_src.table_slave import TableSlave
 
-import dynamics  # noqa: E402,F401  (before any FMU, as the master does)
-from dynamics.cosim import FMU_NAMES, ClosedLoop, Scenario, build_fmus, fill_row  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 SHORT = {"RRRDirectKinematics": "DK", "ComputedTorqueController": "controller", "RRRPlant": "plant"}
 #: the fmpy calls of one Gauss-Seidel step of ClosedLoop.run, in order: (label, FMU, kind)
 CALLS = (("DK setReal q", "RRRDirectKinematics", "set_real"),
          ("DK doStep", "RRRDirectKinematics", "do_step"),
          ("DK getReal pose", "RRRDirectKinematics", "get_real"),
+         ("DK getInteger status", "RRRDirectKinematics", "get_integer"),
+         ("DK getBoolean flags", "RRRDirectKinematics", "get_boolean"),
          ("controller setReal q, dq, X", "ComputedTorqueController", "set_real"),
          ("controller doStep", "ComputedTorqueController", "do_step"),
          ("controller getReal tau, refs", "ComputedTorqueController", "get_real"),
          ("plant setReal tau", "RRRPlant", "set_real"),
          ("plant doStep", "RRRPlant", "do_step"),
-         ("DK getInteger status", "RRRDirectKinematics", "get_integer"),
-         ("DK getBoolean flags", "RRRDirectKinematics", "get_boolean"),
          ("plant getReal q, dq, X", "RRRPlant", "get_real"))
+_KIND = {"Real": "get_real", "Integer": "get_integer", "Boolean": "get_boolean"}
 
 
-def _bundled_table_slave(dk_fmu: Path) -> str:
+def _bundled_runtime(dk_fmu: Path) -> str:
+    """Whether the DK FMU's copy of the fmu_src runtime is the working tree's."""
+    here = ROOT / "fmu_src"
+    files = bundled_files(ROOT / "fmu_src" / "RRRDirectKinematics.py", {"fmu_src": here})
     with zipfile.ZipFile(dk_fmu) as z:
-        bundled = z.read("resources/fmu_src/table_slave.py")
-    return "same as" if bundled == (ROOT / "fmu_src" / "table_slave.py").read_bytes() else "OLDER than"
+        same = all(z.read(f"resources/{rel}") == src.read_bytes() for rel, src in files.items())
+    return "same as" if same else "OLDER than"
 
 
 class _SlaveClock:
@@ -73,8 +75,6 @@ class _SlaveClock:
     """
 
     def __init__(self, loop: ClosedLoop):
-        from fmu_src.table_slave import TableSlave
-
         self.times: dict = {}
         self._saved = []
         for meth in ("do_step", "get_real", "get_integer", "get_boolean", "set_real"):
@@ -109,38 +109,41 @@ def instrumented_run(loop: ClosedLoop, sc: Scenario, on_start=None):
 
     Returns (calls (n, 11) s, step (n,) s): the duration of each call and of each whole step.
     """
-    loop._initialize(sc, 0.0)
-    dk, ct, pl = (loop.units[n].fmu for n in FMU_NAMES)
-    vr = loop.vr
+    loop.initialize(sc, 0.0)
+    steps = [loop.ports[inst].calls()[:2] for inst in INSTANCES]        # set_inputs, doStep
+    reads = [[call for _, call in loop.ports[inst].read_calls()] for inst in INSTANCES]
+    (dk_set, dk_step), (ct_set, ct_step), (pl_set, pl_step) = steps
+    (dk_real, dk_int, dk_bool), (ct_real,), (pl_real,) = reads
+    assert [_KIND[k] for k, _ in loop.ports["dk"].read_calls()] == [m for _, _, m in CALLS[2:5]]
     n, h = sc.n_steps, sc.h
     out = np.zeros((n, 27))
     calls = np.zeros((n, len(CALLS)))
     step = np.zeros(n)
     clock = time.perf_counter
-    sens = np.array(pl.getReal(vr["pl_out"]))
+    for group in reads:
+        for read in group:
+            read()
     if on_start is not None:
         on_start()
     for k in range(n):
         c = calls[k]
         t = k * h
         s0 = clock()
-        q, dq = sens[0:3], sens[3:6]
-        a = clock(); dk.setReal(vr["dk_in"], q)
-        b = clock(); dk.doStep(t, h)
-        d = clock(); pose = np.array(dk.getReal(vr["dk_out"]))
-        e = clock(); c[0], c[1], c[2] = b - a, d - b, e - d
-        x = np.concatenate([q, dq, pose])
-        a = clock(); ct.setReal(vr["ct_in"], x)
-        b = clock(); ct.doStep(t, h)
-        d = clock(); ctrl = np.array(ct.getReal(vr["ct_out"]))
-        e = clock(); c[3], c[4], c[5] = b - a, d - b, e - d
-        a = clock(); pl.setReal(vr["pl_in"], ctrl[0:3])
-        b = clock(); pl.doStep(t, h)
-        d = clock(); status = dk.getInteger(vr["dk_int"])
-        e = clock(); flags = dk.getBoolean(vr["dk_bool"])
-        f = clock(); c[6], c[7], c[8], c[9] = b - a, d - b, e - d, f - e
-        fill_row(out[k], t, sens, ctrl, pose, status, flags)
-        a = clock(); sens = np.array(pl.getReal(vr["pl_out"]))
+        a = clock(); dk_set()
+        b = clock(); dk_step(t, h, 1)
+        d = clock(); dk_real()
+        e = clock(); dk_int()
+        f = clock(); dk_bool()
+        g = clock(); c[0], c[1], c[2], c[3], c[4] = b - a, d - b, e - d, f - e, g - f
+        a = clock(); ct_set()
+        b = clock(); ct_step(t, h, 1)
+        d = clock(); ct_real()
+        e = clock(); c[5], c[6], c[7] = b - a, d - b, e - d
+        a = clock(); pl_set()
+        b = clock(); pl_step(t, h, 1)
+        d = clock(); c[8], c[9] = b - a, d - b
+        loop.fill_row(out[k], t)
+        a = clock(); pl_real()
         b = clock(); c[10] = b - a
         step[k] = b - s0
     return calls, step
@@ -159,8 +162,8 @@ def main(argv=None):
     print(f"python {platform.python_version()}, numpy {np.__version__}, {os.cpu_count()} cores, "
           f"load average {os.getloadavg()[0]:.2f}")
     print(f"scenario: {sc.t_end:g} s at h = {sc.h * 1e3:g} ms, {sc.order}, {sc.n_steps} steps; FMUs in "
-          f"{Path(args.build_dir)}; the DK FMU's fmu_src/table_slave.py is "
-          f"{_bundled_table_slave(paths['RRRDirectKinematics'])} the working tree's")
+          f"{Path(args.build_dir)}; the DK FMU's fmu_src runtime is "
+          f"{_bundled_runtime(paths['RRRDirectKinematics'])} the working tree's")
 
     with ClosedLoop(paths) as loop:
         t0 = time.perf_counter()

@@ -12,9 +12,11 @@ along the paper's circle) of
   (what a controller period costs);
 * the task-space form (no DK): one ``forward_dynamics_task`` evaluation, one
   ``rk4_step`` of ``task_space_rhs`` with constant torques, and the cost per
-  step of ``rk4`` over ``--steps`` steps of free motion.
+  step of ``rk4`` over ``--steps`` steps of free motion;
+* what the FMU slaves run at every communication step: one ``PlantStepper.step``
+  (one RK4 step and the outputs) and one ``ControllerStepper.step``.
 
-The dynamics run compiled kernels (``dynamics/_kernel.py``); they are compiled
+The dynamics run compiled kernels (``dynamics/_kernels/``); they are compiled
 (or loaded from numba's cache) before the timing starts.
 """
 from __future__ import annotations
@@ -27,10 +29,9 @@ import time
 import numpy as np
 
 from solver import Manipulator
-from dynamics.control import ComputedTorqueGains, computed_torque
-from dynamics.integrate import NearestPoseDK, joint_space_rhs, rk4, rk4_step, task_space_rhs
-from dynamics.model import DynamicParameters, forward_dynamics, forward_dynamics_task
-from dynamics.trajectory import CircleTrajectory
+from dynamics import (CircleTrajectory, ComputedTorqueGains, ControllerStepper, DynamicParameters, NearestPoseDK,
+                      PlantStepper, computed_torque, forward_dynamics, forward_dynamics_task, joint_space_rhs, rk4,
+                      rk4_step, task_space_rhs)
 
 
 def _median_us(fn, n, repeat):
@@ -101,6 +102,13 @@ def main(argv=None):
         rk4(free, 0.0, x_start, 1e-3, args.steps)
         runs.append((time.perf_counter() - t0) / args.steps)
     us_task_loop = 1e6 * float(np.median(runs))
+    # the FMU slaves' steps: the plant from the circle's states, the controller on the reference
+    plant, controller = PlantStepper(params, model, traj.posture), ControllerStepper(params, model, gains, traj)
+    out_p, out_c = np.empty(PlantStepper.OUT_SIZE), np.empty(ControllerStepper.OUT_SIZE)
+    us_plant = _median_us(lambda k: plant.step(0.1, -0.2, 0.05, 1e-3, 1, task_states[k], out_p), args.steps,
+                          args.repeat)
+    inputs = np.concatenate([t[:, None], q_des, dq, X], axis=1).tolist()    # Python floats, as a slave passes
+    us_ctrl = _median_us(lambda k: controller.step(*inputs[k], out_c), args.steps, args.repeat)
     print(f"states: {args.steps} along the circle, median of {args.repeat} runs")
     print(f"RK4 step, joint-space dynamics with DK at 4 stages : {us_step:8.1f} us")
     print(f"  DK pose supplier call (dk_all + nearest)        : {us_dk:8.1f} us")
@@ -110,6 +118,8 @@ def main(argv=None):
     print(f"task space: forward_dynamics_task, q by IK        : {us_fdt:8.1f} us")
     print(f"task space: rk4_step of task_space_rhs            : {us_task_step:8.1f} us")
     print(f"task space: rk4, per step (of {args.steps:5d} steps)      : {us_task_loop:8.1f} us")
+    print(f"FMU plant step: PlantStepper.step (1 RK4 step)    : {us_plant:8.1f} us")
+    print(f"FMU controller step: ControllerStepper.step       : {us_ctrl:8.1f} us")
 
 
 if __name__ == "__main__":

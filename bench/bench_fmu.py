@@ -2,7 +2,7 @@
 
     python bench/bench_fmu.py [--fmu build/RRRDirectKinematics.fmu] [--n 1000] [--repeat 5]
 
-Builds the FMU with the default options first if ``--fmu`` does not exist (``build_fmu.build``).
+Builds the FMU with the default options first if ``--fmu`` does not exist (``fmu_src.builds.build_dk``).
 Prints:
 
 - the FMU file size;
@@ -26,51 +26,20 @@ import argparse
 import os
 import platform
 import shutil
-import sys
 import time
-from ctypes import byref
 from pathlib import Path
 
 import numpy as np
 
+import solver  # noqa: F401  (first: the FMU then uses this copy of the package)
+from fmu_src.unit import FMUUnit, exit_process, import_hygiene
+from solver import Manipulator, MapTensor, Tracker, circle_path
+
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
-
-import solver  # noqa: E402,F401  (first: the FMU then uses this copy of the package)
-from solver import Manipulator, circle_path  # noqa: E402
-from solver.maptensor import MapTensor  # noqa: E402
-from solver.tracker import Tracker  # noqa: E402
 
 
-def _instance(md, unzipdir, name):
-    import fmpy
-    from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-    from fmpy.logging import addLoggerProxy
-
-    messages = []
-
-    def logger(_c, _n, status, _cat, message):
-        messages.append((int(status), message.decode("utf-8", "replace")))
-
-    cb = fmi2CallbackFunctions()
-    cb.logger = fmi2CallbackLoggerTYPE(logger)
-    cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
-    cb.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
-    addLoggerProxy(byref(cb))
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier,
-                    instanceName=name)
-    fmu._bench_keep = (cb, logger, messages)     # keep the callbacks alive as long as the instance
-    return fmu
-
-
-def _initialize(fmu, vr, X0, q0):
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.setReal([vr["x0"], vr["y0"], vr["phi0"]], list(map(float, X0)))
-    fmu.setReal([vr["q1"], vr["q2"], vr["q3"]], list(map(float, q0)))
-    fmu.exitInitializationMode()
+def _initialize(unit, X0, q0):
+    unit.initialize(0.0, {"x0": X0[0], "y0": X0[1], "phi0": X0[2], "q1": q0[0], "q2": q0[1], "q3": q0[2]})
 
 
 def main(argv=None):
@@ -83,13 +52,12 @@ def main(argv=None):
 
     from fmpy import extract, read_model_description
 
-    from fmu_src.fmi_build import _fmu_hygiene
-
     fmu_path = Path(args.fmu)
     if not fmu_path.is_file():
-        import build_fmu
+        from fmu_src.builds import build_dk
+
         print(f"{fmu_path} missing: building it with the default options")
-        fmu_path = build_fmu.build(fmu_path.parent).fmu
+        fmu_path = build_dk(fmu_path.parent).fmu
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"python {platform.python_version()}, numpy {np.__version__}")
     size = fmu_path.stat().st_size
@@ -105,26 +73,25 @@ def main(argv=None):
     t0 = time.perf_counter()
     unzipdir = extract(str(fmu_path))
     t_extract = time.perf_counter() - t0
-    hygiene = _fmu_hygiene()
+    hygiene = import_hygiene()
     hygiene.__enter__()
     instances = []
     try:
         times = []
         for k in range(args.instances):
             t0 = time.perf_counter()
-            fmu = _instance(md, unzipdir, f"bench{k}")
-            fmu.instantiate(loggingOn=False, callbacks=fmu._bench_keep[0])
-            _initialize(fmu, vr, X[0], q[0])
+            unit = FMUUnit(fmu_path, f"bench{k}", unzip_dir=unzipdir)
+            _initialize(unit, X[0], q[0])
             times.append(time.perf_counter() - t0)
-            instances.append(fmu)
+            instances.append(unit)
         later = np.array(times[1:]) * 1e3
         print(f"instantiation + initialization: extract {t_extract * 1e3:.1f} ms, first {times[0] * 1e3:.1f} ms "
               f"(imports, map read and check), later median {np.median(later):.1f} ms")
-        for fmu in instances[1:]:
-            fmu.terminate()
-            fmu.freeInstance()
-        fmu = instances[0]
-        instances = [fmu]
+        for unit in instances[1:]:
+            unit.close()
+        unit = instances[0]
+        instances = [unit]
+        fmu = unit.fmu
 
         q_vr = [vr["q1"], vr["q2"], vr["q3"]]
         pose_vr = [vr["x"], vr["y"], vr["phi"]]
@@ -136,8 +103,8 @@ def main(argv=None):
         pc = time.perf_counter
         poses_fmu = np.empty((args.n, 3))
         for rep in range(args.repeat):
-            fmu.reset()
-            _initialize(fmu, vr, X[0], q[0])
+            unit.reset()
+            _initialize(unit, X[0], q[0])
             t = 0.0
             for k, qk in enumerate(rows):
                 t0 = pc()
@@ -149,8 +116,8 @@ def main(argv=None):
                 full.append(pc() - t0)
                 poses_fmu[k] = out[:3]
                 t += h
-            fmu.reset()
-            _initialize(fmu, vr, X[0], q[0])
+            unit.reset()
+            _initialize(unit, X[0], q[0])
             t = 0.0
             for qk in rows:
                 t0 = pc()
@@ -183,16 +150,12 @@ def main(argv=None):
         print(f"  in-process Tracker.step (same map, same joints):   {med_t:6.1f} / {np.percentile(tracker_t, 90):6.1f} us")
         print(f"  FMU poses identical to the in-process tracker's: {same}")
     finally:
-        for fmu in instances:
-            try:
-                fmu.terminate()
-                fmu.freeInstance()
-            except Exception:
-                pass
+        for unit in instances:
+            unit.close()
         hygiene.__exit__(None, None, None)
         shutil.rmtree(unzipdir, ignore_errors=True)
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_process(main())         # FMUs were loaded: skip the pythonfmu libraries' finalizers

@@ -16,8 +16,7 @@ import time
 
 import numpy as np
 
-from solver import DEFAULT_RULE, Manipulator, dk_all
-from solver.maptensor import DEFAULT_STEP, MapTensor
+from solver import DEFAULT_RULE, DEFAULT_STEP, Manipulator, MapTensor, dk_all
 
 
 def main(argv=None):

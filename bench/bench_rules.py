@@ -15,8 +15,7 @@ import time
 
 import numpy as np
 
-from solver import ORDERING_RULES, Manipulator
-from solver.maptensor import MapTensor, default_bounds
+from solver import ORDERING_RULES, Manipulator, MapTensor, default_bounds
 
 
 def main(argv=None):

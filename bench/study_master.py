@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 
 from dynamics.cosim import ClosedLoop, Scenario, build_fmus
+from fmu_src.unit import exit_process
 
 
 def main(argv=None):
@@ -32,3 +33,4 @@ def main(argv=None):
 
 if __name__ == "__main__":
     main()
+    exit_process(0)              # FMUs were loaded: skip the pythonfmu libraries' finalizers

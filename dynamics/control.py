@@ -9,33 +9,32 @@ desired acceleration plus PD, plus the rest of the inverse dynamics):
    \qquad e = q_d - q,
 
 with ``M, C, G, F`` evaluated at the pose ``X`` the direct kinematics returns
-for the measured joints (:func:`dynamics.model.inverse_dynamics`).  ``e`` is
+for the measured joints (:func:`dynamics.inverse_dynamics`).  ``e`` is
 wrapped to (-pi, pi]: motor angles that differ by 2 pi are the same input.
 With an exact model the error obeys ``de'' + K_d de' + K_p e = 0`` per joint,
 a double integrator ``[0 1; 0 0]`` under state feedback ``[K_p K_d]``; the
 gains come from pole placement with python-control on that model
 (:meth:`ComputedTorqueGains.design`).
 
-The law is evaluated by a compiled kernel (:func:`dynamics._kernel.computed_torque_batch`,
-the inverse dynamics of :mod:`dynamics.model` with the PD terms in front); its
-numpy form is kept as :func:`_reference_computed_torque`, which also handles
-(and raises on) whatever input the kernel refuses.
+The law is built from the lower-level terms: ``v = ddq_d + K_d de + K_p e`` is the commanded
+acceleration and ``tau`` the inverse dynamics at ``v``, ``M v + (C dq + G + F)``
+(:func:`dynamics.inverse_dynamics`); one compiled kernel evaluates both
+(:func:`dynamics._kernels.rows.computed_torque_batch`).  The FMU controller runs the same law
+through :class:`dynamics.ControllerStepper`.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Callable, NamedTuple
 
 import numpy as np
 
-from solver import Manipulator
-from solver._checks import SolverInputError, as_array
+from solver import Manipulator, SolverInputError, as_array
 
-from . import _kernel as _k
+from ._checks import broadcast, check_pair, is_single
+from ._evaluate import evaluate_computed_torque
 from .integrate import NearestPoseDK, joint_space_rhs, rk4_step
-from .model import (ASSEMBLY_TOL, DynamicParameters, _broadcast, _check, _kernel_model, _kernel_params, _rows,
-                    _single, _reference_inverse_joint)
+from .parameters import DynamicParameters
 from .trajectory import CircleTrajectory
 
 __all__ = ["ComputedTorqueGains", "ComputedTorqueController", "computed_torque", "TrackingResult",
@@ -161,78 +160,18 @@ def computed_torque(params: DynamicParameters, model: Manipulator, gains: Comput
     ndarray, shape (..., 3)
         ``tau`` in N m.
     """
-    _check(params, model)
+    check_pair(params, model)
+    _check_gains(gains)
+    arrays = {"q": q, "dq": dq, "X": X, "q_d": q_d, "dq_d": dq_d, "ddq_d": ddq_d}
+    single = is_single(arrays.values())
+    if not single:
+        arrays = dict(zip(arrays, broadcast(**{k: as_array(k, v) for k, v in arrays.items()})))
+    return evaluate_computed_torque(params, model, gains, arrays, single)
+
+
+def _check_gains(gains):
     if not isinstance(gains, ComputedTorqueGains):
         raise SolverInputError(f"gains: expected a ComputedTorqueGains, got {type(gains).__name__}")
-    if not _single((q, dq, X, q_d, dq_d, ddq_d)):
-        q, dq, X, q_d, dq_d, ddq_d = _broadcast(
-            q=as_array("q", q), dq=as_array("dq", dq), X=as_array("X", X), q_d=as_array("q_d", q_d),
-            dq_d=as_array("dq_d", dq_d), ddq_d=as_array("ddq_d", ddq_d))
-    out = _computed_torque_kernel(params, model, gains, q, dq, X, q_d, dq_d, ddq_d)
-    if out is None:      # refused by the kernel: the numpy reference raises or answers
-        return _reference_computed_torque(params, model, gains, q, dq, X, q_d, dq_d, ddq_d)
-    return out
-
-
-def _computed_torque(params, model, gains, q, dq, X, q_d, dq_d, ddq_d):
-    """The law on arrays that broadcast, compiled; the numpy reference where the kernel refuses."""
-    out = _computed_torque_kernel(params, model, gains, q, dq, X, q_d, dq_d, ddq_d)
-    return _reference__computed_torque(params, model, gains, q, dq, X, q_d, dq_d, ddq_d) if out is None else out
-
-
-def _gain_pack(gains) -> np.ndarray:
-    """``(kp, kd)`` (6,) for the kernel, cached on the (frozen) gains."""
-    g = gains.__dict__.get("_kernel_pack")
-    if g is None:
-        g = np.concatenate([gains.kp, gains.kd]).astype(np.float64)
-        object.__setattr__(gains, "_kernel_pack", g)
-    return g
-
-
-def _controller_pack(params, model, gains, trajectory) -> np.ndarray:
-    """Packed constants ``K = (G, P, kp, kd, circle)`` (71,) of :func:`dynamics._kernel.controller_step`
-    (the computed-torque FMU on a :class:`CircleTrajectory`)."""
-    return np.concatenate([_kernel_model(model), _kernel_params(params), _gain_pack(gains),
-                           trajectory._kernel_pack])
-
-
-def _computed_torque_kernel(params, model, gains, q, dq, X, q_d, dq_d, ddq_d):
-    """:func:`dynamics._kernel.computed_torque_batch` on arrays (..., 3) that broadcast; None if refused."""
-    arrs = (q, dq, X, q_d, dq_d, ddq_d)
-    if _single(arrs):
-        lead, n = (), 1
-        rows = [a.reshape(1, 3) for a in arrs]
-    else:
-        try:
-            b = np.broadcast_arrays(*arrs)
-        except ValueError:
-            return None
-        if b[0].shape[-1:] != (3,):
-            return None
-        lead = b[0].shape[:-1]
-        n = math.prod(lead)
-        rows = [_rows(a, n) for a in b]
-    out = np.empty(lead + (3,))
-    st = _k.computed_torque_batch(_kernel_model(model), _kernel_params(params), _gain_pack(gains), *rows,
-                                  ASSEMBLY_TOL, out.reshape(n, 3))
-    return out if st == _k.OK else None
-
-
-def _reference_computed_torque(params, model, gains, q, dq, X, q_d, dq_d, ddq_d):
-    """numpy reference of :func:`computed_torque` (same arguments, checks and errors)."""
-    _check(params, model)
-    if not isinstance(gains, ComputedTorqueGains):
-        raise SolverInputError(f"gains: expected a ComputedTorqueGains, got {type(gains).__name__}")
-    q, dq, X, q_d, dq_d, ddq_d = _broadcast(
-        q=as_array("q", q), dq=as_array("dq", dq), X=as_array("X", X), q_d=as_array("q_d", q_d),
-        dq_d=as_array("dq_d", dq_d), ddq_d=as_array("ddq_d", ddq_d))
-    return _reference__computed_torque(params, model, gains, q, dq, X, q_d, dq_d, ddq_d)
-
-
-def _reference__computed_torque(params, model, gains, q, dq, X, q_d, dq_d, ddq_d):
-    """numpy reference of :func:`_computed_torque`."""
-    v = ddq_d + gains.kd * (dq_d - dq) + gains.kp * wrap(q_d - q)
-    return _reference_inverse_joint(params, model, q, dq, v, X)
 
 
 @dataclass(frozen=True, eq=False)
@@ -255,9 +194,8 @@ class ComputedTorqueController:
     gains: ComputedTorqueGains
 
     def __post_init__(self):
-        _check(self.params, self.model)
-        if not isinstance(self.gains, ComputedTorqueGains):
-            raise SolverInputError(f"gains: expected a ComputedTorqueGains, got {type(self.gains).__name__}")
+        check_pair(self.params, self.model)
+        _check_gains(self.gains)
 
     def __call__(self, q, dq, X, q_d, dq_d, ddq_d) -> np.ndarray:
         """Motor torques (..., 3), N m; arguments as in :func:`computed_torque`."""
@@ -339,7 +277,7 @@ def simulate_tracking(controller: ComputedTorqueController, plant: DynamicParame
         raise SolverInputError(f"controller: expected a ComputedTorqueController, got "
                                f"{type(controller).__name__}")
     model = controller.model
-    _check(plant, model)
+    check_pair(plant, model)
     if not isinstance(trajectory, CircleTrajectory):
         raise SolverInputError(f"trajectory: expected a CircleTrajectory, got {type(trajectory).__name__}")
     for key, v in (("t_end", t_end), ("h", h)):
@@ -362,7 +300,8 @@ def simulate_tracking(controller: ComputedTorqueController, plant: DynamicParame
     for k in range(n + 1):
         q, dq = x[:3], x[3:]
         X = np.asarray(dk_controller(q), dtype=float)
-        tau = _computed_torque(ctrl.params, model, ctrl.gains, q, dq, X, q_d[k], dq_d[k], ddq_d[k])
+        tau = evaluate_computed_torque(ctrl.params, model, ctrl.gains, {"q": q, "dq": dq, "X": X, "q_d": q_d[k],
+                                                                        "dq_d": dq_d[k], "ddq_d": ddq_d[k]})
         qs[k], dqs[k], Xs[k], taus[k] = q, dq, X, tau
         if k < n:
             held[0] = tau

@@ -1,25 +1,25 @@
 """Time integration of the 3-RRR dynamics: fixed-step RK4, a DOP853 reference, the state-space forms.
 
-Integrators share one calling convention: ``f(t, x) -> dx/dt`` with ``x`` a
-1-D state array; they return the times ``t0 + k h`` (k = 0..n_steps, computed
-from ``k``, never accumulated) and the states at those times.
+Integrators share one calling convention: ``f(t, x) -> dx/dt`` with ``x`` a 1-D state array;
+they return the times ``t0 + k h`` (k = 0..n_steps, computed from ``k``, never accumulated) and
+the states at those times.
+
+RK4 is written once (:func:`dynamics._kernels.rk4.make_rk4_step`).  :func:`rk4_step` and
+:func:`rk4` run it as Python around any ``f``; on the task-space right-hand side with constant
+torques (and a single state (6,)) they run the same step compiled, the whole loop in one call,
+with the same operations in the same order (the results are the same to the last bit).
 
 State-space right-hand sides
 ----------------------------
-* task space, state ``x = (X, dX)`` (6,): the validation reference; needs no
-  direct kinematics (``q`` follows from ``X`` by inverse kinematics in a posture);
-* joint space, state ``x = (q, dq)`` (6,): paper Fig. 3 / eq. 7; needs a pose
-  supplier ``dk(q) -> X``.  In the co-simulation that supplier is the DK FMU;
-  here :class:`NearestPoseDK` (all DK solutions by :func:`solver.dk_all`, keep
-  the real one nearest to the previous pose) plays its part.
+* task space, state ``x = (X, dX)`` (6,): the validation reference; needs no direct kinematics
+  (``q`` follows from ``X`` by inverse kinematics in a posture);
+* joint space, state ``x = (q, dq)`` (6,): paper Fig. 3 / eq. 7; needs a pose supplier
+  ``dk(q) -> X``.  In the co-simulation that supplier is the DK FMU; here :class:`NearestPoseDK`
+  (all DK solutions by :func:`solver.dk_all`, keep the real one nearest to the previous pose)
+  plays its part.
 
-Speed
------
-The right-hand sides are callable objects that evaluate the compiled kernels
-of :mod:`dynamics._kernel` for a single state (6,).  :func:`rk4_step` and
-:func:`rk4` recognise the task-space right-hand side with constant torques and
-then run the whole RK4 loop in one compiled call, with the same operations in
-the same order as the generic loop (the results are the same to the last bit).
+Both evaluate a compiled kernel for a single state (6,) and the checked batch route otherwise; a
+refusal (the pose left the tool space...) raises :class:`dynamics.DynamicsError`.
 """
 from __future__ import annotations
 
@@ -27,14 +27,26 @@ from typing import Callable
 
 import numpy as np
 
-from solver import Manipulator, dk_all
-from solver._checks import SolverInputError, as_array
+from solver import Manipulator, SolverInputError, as_array, dk_all
 
-from . import _kernel as _k
-from .model import (ASSEMBLY_TOL, DynamicParameters, _check, _forward_joint, _forward_task, _ik, _kernel_model,
-                    _kernel_params, _posture_bits, _single)
+from ._checks import broadcast, check_model, check_pair, ik_or_raise, is_single, posture_bits
+from ._evaluate import arm_pack, bodies_pack, evaluate_joint, evaluate_task
+from ._kernels import rows as _rows
+from ._kernels.layout import FORWARD, refusal
+from ._kernels.rk4 import PYTHON_STAGES, make_rk4_step, rk4_task
+from .errors import refused
+from .geometry import ASSEMBLY_TOL
+from .parameters import DynamicParameters
 
 __all__ = ["rk4_step", "rk4", "solve_reference", "task_space_rhs", "joint_space_rhs", "NearestPoseDK"]
+
+
+def _call(f, t, x, slot):
+    return 0, f(t, x)
+
+
+#: the RK4 step around a Python ``f(t, x)`` (``ctx`` is ``f``)
+_rk4_python = make_rk4_step(_call)
 
 
 def _check_step(h, n_steps=None):
@@ -63,16 +75,9 @@ def rk4_step(f: Callable, t: float, x, h: float) -> np.ndarray:
     ndarray, shape (n,)
         State at ``t + h``.
     """
-    fast = _compiled_rk4(f, t, x, h, 1)
-    return _rk4_generic(f, t, x, h) if fast is None else fast[1]
-
-
-def _rk4_generic(f, t, x, h):
-    k1 = f(t, x)
-    k2 = f(t + 0.5 * h, x + (0.5 * h) * k1)
-    k3 = f(t + 0.5 * h, x + (0.5 * h) * k2)
-    k4 = f(t + h, x + h * k3)
-    return x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    if _compiled(f, x, h):
+        return _rk4_task(f, x, h, 1)[1]
+    return _rk4_python(f, t, np.asarray(x), h, None, PYTHON_STAGES)[1]
 
 
 def _initial(f, t0, x0):
@@ -110,41 +115,40 @@ def rk4(f: Callable, t0: float, x0, h: float, n_steps: int) -> tuple[np.ndarray,
     Raises
     ------
     SolverInputError
-        Non-positive step, negative step count, a 1-D ``x0`` not given, or ``f``
-        returning the wrong shape.
+        Non-positive step, negative step count, a 1-D ``x0`` not given, or ``f`` returning the
+        wrong shape.
+    DynamicsError
+        The right-hand side refused a state (e.g. the pose left the tool space).
     """
     _check_step(h, n_steps)
     if np.ndim(x0) != 1:
         raise SolverInputError(f"x0: expected a state of shape (n,), got {np.shape(x0)}")
     x0 = _initial(f, t0, x0)
     t = t0 + h * np.arange(n_steps + 1)
-    fast = _compiled_rk4(f, t0, x0, h, n_steps)
-    if fast is not None:
-        return t, fast
+    if _compiled(f, x0, h):
+        return t, _rk4_task(f, x0, h, n_steps)
     xs = np.empty((n_steps + 1,) + x0.shape)
     xs[0] = x0
     for k in range(n_steps):
-        xs[k + 1] = rk4_step(f, t[k], xs[k], h)
+        _rk4_python(f, t[k], xs[k], h, xs[k + 1], PYTHON_STAGES)
     return t, xs
 
 
-def _compiled_rk4(f, t0, x0, h, n_steps):
-    """States (n_steps + 1, 6) by the compiled RK4 loop, or None where it does not apply.
+def _compiled(f, x, h) -> bool:
+    """Whether the compiled RK4 applies: the task-space right-hand side with constant torques, a
+    single float64 state (6,) and a real step."""
+    return (type(f) is _TaskSpaceRHS and f.tau is not None and f.bits >= 0 and is_single((x,), 6)
+            and isinstance(h, (int, float, np.floating, np.integer)) and not isinstance(h, bool))
 
-    It applies to the task-space right-hand side with constant torques, a
-    single float64 state (6,) and a float step.  If a right-hand side is
-    refused on the way (the pose left the tool space...), the generic loop
-    redoes that step from the last state computed, and raises as it does.
-    """
-    if type(f) is not _TaskSpaceRHS or f.tau is None or f.bits < 0 or not _single((x0,), 6):
-        return None
-    if not (isinstance(h, (int, float, np.floating, np.integer)) and not isinstance(h, bool)):
-        return None
+
+def _rk4_task(f, x0, h, n_steps):
+    """States (n_steps + 1, 6) by the compiled RK4 loop; a refused step raises."""
     xs = np.empty((n_steps + 1, 6))
     xs[0] = x0
-    done = _k.rk4_task(_kernel_model(f.model), _kernel_params(f.params), f.bits, f.tau, float(h), xs)
-    for k in range(done, n_steps):      # the generic step raises (or, at an edge of the kernel, goes on)
-        xs[k + 1] = _rk4_generic(f, t0 + h * k, xs[k], h)
+    code = rk4_task(arm_pack(f.model), bodies_pack(f.params), f.bits, f.tau, float(h), xs)
+    if code:
+        status, k = refusal(code)
+        raise f.refused(status, xs[k + 1], f.tau)      # row k + 1 holds the stage state refused
     return xs
 
 
@@ -152,8 +156,8 @@ def solve_reference(f: Callable, t0: float, x0, h: float, n_steps: int, *, rtol:
                     atol: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
     """Reference solution by :func:`scipy.integrate.solve_ivp` (DOP853, adaptive, tight tolerances).
 
-    Same calling convention and outputs as :func:`rk4`: the states are reported
-    at ``t0 + k h`` (dense output of the adaptive method, not its steps).
+    Same calling convention and outputs as :func:`rk4`: the states are reported at ``t0 + k h``
+    (dense output of the adaptive method, not its steps).
 
     Parameters
     ----------
@@ -161,11 +165,6 @@ def solve_reference(f: Callable, t0: float, x0, h: float, n_steps: int, *, rtol:
         As in :func:`rk4`.
     rtol, atol : float
         Tolerances of DOP853.
-
-    Returns
-    -------
-    t : ndarray, shape (n_steps + 1,)
-    x : ndarray, shape (n_steps + 1, n)
 
     Raises
     ------
@@ -216,10 +215,10 @@ def task_space_rhs(params: DynamicParameters, model: Manipulator, posture=1, tau
     -------
     callable ``f(t, x) -> dx/dt``
         ``x`` of shape (..., 6): ``(x, y, phi, dx, dy, dphi)`` in m, rad and per s;
-        ``dx/dt = (dX, ddX)``.  Raises :class:`SolverInputError` if the pose
-        leaves the posture's tool space.
+        ``dx/dt = (dX, ddX)``.  Raises :class:`DynamicsError` if the pose leaves the posture's
+        tool space.
     """
-    _check(params, model)
+    check_pair(params, model)
     return _TaskSpaceRHS(params, model, posture, tau)
 
 
@@ -240,7 +239,7 @@ def joint_space_rhs(params: DynamicParameters, model: Manipulator, dk: Callable,
     callable ``f(t, x) -> dx/dt``
         ``x`` = ``(q, dq)`` (6,) in rad and rad/s; ``dx/dt = (dq, ddq)``.
     """
-    _check(params, model)
+    check_pair(params, model)
     if not callable(dk):
         raise SolverInputError(f"dk: expected a callable dk(q) -> X, got {type(dk).__name__}")
     return _JointSpaceRHS(params, model, dk, tau)
@@ -249,9 +248,8 @@ def joint_space_rhs(params: DynamicParameters, model: Manipulator, dk: Callable,
 class _TaskSpaceRHS:
     """``f(t, x)`` of :func:`task_space_rhs`: compiled for a single state (6,) and an integer posture.
 
-    ``tau`` is the constant torque (3,) (zeros for None) or None for a
-    callable torque; ``bits`` the posture's elbow bits (-1: not a plain integer
-    posture, the numpy route checks it at each call).
+    ``tau`` is the constant torque (3,) (zeros for None) or None for a callable torque; ``bits``
+    the posture's elbow bits (-1: not a plain integer posture, checked at each call).
     """
 
     __slots__ = ("params", "model", "posture", "torque", "tau", "bits")
@@ -259,25 +257,25 @@ class _TaskSpaceRHS:
     def __init__(self, params, model, posture, tau):
         self.params, self.model, self.posture = params, model, posture
         self.torque = _torque_source(tau)
-        self.tau = None if callable(tau) else self.torque(0.0, None)    # the checked array itself, as before
-        self.bits = _posture_bits(posture)
+        self.tau = None if callable(tau) else self.torque(0.0, None)    # the checked array itself
+        self.bits = posture_bits(posture)
+
+    def refused(self, code, x, tau):
+        return refused(code, {"X": x[:3], "dX": x[3:], "tau": tau}, model=self.model, posture=self.posture)
 
     def __call__(self, t, x):
-        tau = self.tau
-        if self.bits >= 0 and _single((x,), 6):
-            if tau is None:
-                tau = np.asarray(self.torque(t, x))
-            if _single((tau,)):
-                out = np.empty(6)
-                st = _k.task_rhs_batch(_kernel_model(self.model), _kernel_params(self.params), x.reshape(1, 6),
-                                       tau.reshape(1, 3), self.bits, out.reshape(1, 6))
-                if st == _k.OK:
-                    return out
-        X, dX = x[..., :3], x[..., 3:]
-        q = _ik(self.model, X, self.posture)
-        if tau is None:
-            tau = np.asarray(self.torque(t, x))
-        ddX = _forward_task(self.params, self.model, X, q, dX, tau)
+        tau = self.tau if self.tau is not None else np.asarray(self.torque(t, x))
+        if self.bits >= 0 and is_single((x,), 6) and is_single((tau,)):
+            out = np.empty(6)
+            code = _rows.task_rhs_batch(arm_pack(self.model), bodies_pack(self.params), x.reshape(1, 6),
+                                        tau.reshape(1, 3), self.bits, out.reshape(1, 6))
+            if code:
+                raise self.refused(code, x, tau)
+            return out
+        X, dX, tau = broadcast(X=as_array("X", x[..., :3]), dX=as_array("dX", x[..., 3:]),
+                               tau=as_array("tau", tau))
+        q = ik_or_raise(self.model, X, self.posture)
+        ddX = evaluate_task(self.params, self.model, FORWARD, self.posture, {"X": X, "dX": dX, "tau": tau}, q)
         return np.concatenate([dX, ddX], axis=-1)
 
 
@@ -294,25 +292,27 @@ class _JointSpaceRHS:
         q, dq = x[..., :3], x[..., 3:]
         X = np.asarray(self.dk(q), dtype=float)
         tau = np.asarray(self.torque(t, x))
-        if _single((x,), 6) and _single((X, tau)):
+        if is_single((x,), 6) and is_single((X, tau)):
             out = np.empty(6)
-            st = _k.joint_rhs_batch(_kernel_model(self.model), _kernel_params(self.params), x.reshape(1, 6),
-                                    X.reshape(1, 3), tau.reshape(1, 3), ASSEMBLY_TOL, out.reshape(1, 6))
-            if st == _k.OK:
-                return out
-        ddq = _forward_joint(self.params, self.model, q, dq, X, tau)
-        return np.concatenate([dq, ddq], axis=-1)
+            code = _rows.joint_rhs_batch(arm_pack(self.model), bodies_pack(self.params), x.reshape(1, 6),
+                                         X.reshape(1, 3), tau.reshape(1, 3), ASSEMBLY_TOL, out.reshape(1, 6))
+            if code:
+                raise refused(code, {"q": q, "dq": dq, "X": X, "tau": tau}, model=self.model)
+            return out
+        arrays = dict(q=as_array("q", q), dq=as_array("dq", dq), X=as_array("X", X), tau=as_array("tau", tau))
+        arrays = dict(zip(arrays, broadcast(**arrays)))
+        ddq = evaluate_joint(self.params, self.model, FORWARD, arrays)
+        return np.concatenate([arrays["dq"], ddq], axis=-1)
 
 
 class NearestPoseDK:
     """Pose supplier ``q -> X``: the real DK solution nearest to the previous pose.
 
-    Stands in for the DK FMU.  Every call solves all six DK solutions
-    (:func:`solver.dk_all`) and returns the real one nearest to the pose
-    returned last (distance ``|dP|^2 + (r dphi)^2`` with ``r`` the mean platform
-    radius and ``dphi`` wrapped), then remembers it.  Valid while the steps are
-    small compared with the distance between assembly modes, i.e. away from
-    type-1 singularities.
+    Stands in for the DK FMU.  Every call solves all six DK solutions (:func:`solver.dk_all`) and
+    returns the real one nearest to the pose returned last (distance ``|dP|^2 + (r dphi)^2`` with
+    ``r`` the mean platform radius and ``dphi`` wrapped), then remembers it.  Valid while the
+    steps are small compared with the distance between assembly modes, i.e. away from type-1
+    singularities.
 
     Parameters
     ----------
@@ -327,8 +327,7 @@ class NearestPoseDK:
     """
 
     def __init__(self, model: Manipulator, X0):
-        if not isinstance(model, Manipulator):
-            raise SolverInputError(f"model: expected a Manipulator, got {type(model).__name__}")
+        check_model(model)
         X0 = as_array("X0", X0)
         if X0.shape != (3,):
             raise SolverInputError(f"X0: expected shape (3,), got {X0.shape}")

@@ -24,16 +24,12 @@ Defaults: one revolution per 2 s (``Omega = pi`` rad/s, tool speed
 
 The joint-space reference is exact: ``q_d = g_j(X)`` (inverse kinematics in the
 posture), ``dq_d = J_q dX`` (eq. 3) and ``ddq_d = J_q ddX + ddq_0(X, dX)`` from
-the loop constraints differentiated twice (:func:`dynamics.model.joint_accelerations`).
+the loop constraints differentiated twice (:func:`dynamics.joint_accelerations`).
 
 Implementation: :meth:`CircleTrajectory.task` and :meth:`CircleTrajectory.joint` run a compiled
-kernel (:func:`dynamics._kernel.circle_batch`: the formulas above with scalar code, in the same
-order of operations, and the inverse kinematics with the operations of :func:`solver.ik`), a
-few microseconds per call instead of ~150.  The numpy implementation is kept as the reference
-(:meth:`CircleTrajectory._reference_task`, :meth:`CircleTrajectory._reference_joint`); the
-kernel is tested against it to 1e-12 (``tests/test_dynamics_kernel.py``), and whatever it refuses
-(a non-finite time, a point outside the tool space, a singular ``J_q``) is handed to the
-reference, so the errors are the reference's.
+kernel (:func:`dynamics._kernels.circle.circle_batch`: the formulas above with scalar code, and the
+inverse kinematics with the operations of :func:`solver.ik`), a few microseconds per call.  A time
+that is not finite, or a point outside the tool space, raises :class:`dynamics.DynamicsError`.
 """
 from __future__ import annotations
 
@@ -41,11 +37,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from solver import PAPER_CIRCLE, Manipulator
-from solver._checks import SolverInputError, check_posture
+from solver import PAPER_CIRCLE, Manipulator, SolverInputError, check_posture
 
-from . import _kernel as _k
-from .model import _geometry, _ik, _kernel_model, _kernel_params, _mat_vec, _motion, _KINEMATIC_ONLY
+from ._checks import check_model
+from ._evaluate import arm_pack, bodies_pack
+from ._kernels.circle import circle_batch
+from ._kernels.layout import BAD_INPUT, pack_circle, refusal
+from .errors import DynamicsError, refused
+from .geometry import KINEMATIC_ONLY
 
 __all__ = ["CircleTrajectory"]
 
@@ -112,8 +111,8 @@ class CircleTrajectory:
             object.__setattr__(self, key, float(v))
         object.__setattr__(self, "posture", int(check_posture(self.posture)))
         # packed constants of the compiled kernel (not a field: no part of eq, hash or repr)
-        object.__setattr__(self, "_kernel_pack", _k.pack_circle(self.center, self.radius, self.phi,
-                                                                self.angular_speed, self.ramp_time, self.start))
+        object.__setattr__(self, "_kernel_pack", pack_circle(self.center, self.radius, self.phi,
+                                                             self.angular_speed, self.ramp_time, self.start))
 
     @property
     def angular_speed(self) -> float:
@@ -163,19 +162,7 @@ class CircleTrajectory:
         X, dX, ddX : ndarray, shape (..., 3)
             Pose (m, m, rad), rate (m/s, m/s, rad/s), acceleration (m/s^2, m/s^2, rad/s^2).
         """
-        out = self._compiled(None, t)
-        if out is not None:
-            return out[0], out[1], out[2]
-        return self._reference_task(t)
-
-    def _reference_task(self, t):
-        """numpy reference of :meth:`task` (same arguments, results to rounding, same errors)."""
-        th, dth, ddth = self.polar_angle(t)
-        c, s, r = np.cos(th), np.sin(th), self.radius
-        zero = np.zeros_like(th)
-        X = np.stack([self.center[0] + r * c, self.center[1] + r * s, np.full_like(th, self.phi)], -1)
-        dX = np.stack([-r * s * dth, r * c * dth, zero], -1)
-        ddX = np.stack([-r * s * ddth - r * c * dth ** 2, r * c * ddth - r * s * dth ** 2, zero], -1)
+        X, dX, ddX = self._compiled(None, t)
         return X, dX, ddX
 
     def joint(self, model: Manipulator, t):
@@ -197,42 +184,31 @@ class CircleTrajectory:
         SolverInputError
             If the circle leaves the posture's tool space for this geometry.
         """
-        if not isinstance(model, Manipulator):
-            raise SolverInputError(f"model: expected a Manipulator, got {type(model).__name__}")
-        out = self._compiled(model, t)
-        if out is not None:
-            return out[3], out[4], out[5]
-        return self._reference_joint(model, t)
-
-    def _reference_joint(self, model: Manipulator, t):
-        """numpy reference of :meth:`joint` (same arguments, results to rounding, same errors)."""
-        if not isinstance(model, Manipulator):
-            raise SolverInputError(f"model: expected a Manipulator, got {type(model).__name__}")
-        X, dX, ddX = self._reference_task(t)
-        q = _ik(model, X, self.posture)
-        g = _geometry(model, (0.0, 0.0), X, q)
-        mo = _motion(_KINEMATIC_ONLY, model, g, dX)
-        return q, mo.dq, _mat_vec(g.Jq, ddX) + mo.ddq0
+        check_model(model)
+        return tuple(self._compiled(model, t)[3:])
 
     def _compiled(self, model, t):
-        """``(X, dX, ddX, q, dq, ddq)`` at the times ``t`` by the kernel (the last three only with a
-        ``model``), each of shape ``t.shape + (3,)``; None if the kernel refuses (the caller then
-        runs the reference, which raises or answers)."""
-        try:
-            tt = np.asarray(t, dtype=float)
-        except (TypeError, ValueError):
-            return None
+        """``[X, dX, ddX, q, dq, ddq]`` at the times ``t`` by the kernel (the last three only with
+        a ``model``), each of shape ``t.shape + (3,)``."""
+        tt = np.asarray(t, dtype=float)
         shape = tt.shape
         flat = np.ascontiguousarray(tt.reshape(-1))
-        n = flat.shape[0]
         joint = model is not None
-        buf = np.empty((6 if joint else 3, n, 3))
+        buf = np.empty((6 if joint else 3, flat.shape[0], 3))
         if joint:
-            G, P = _kernel_model(model), _kernel_params(_KINEMATIC_ONLY)
+            arm, bodies = arm_pack(model), bodies_pack(KINEMATIC_ONLY)
         else:
-            G = P = self._kernel_pack              # unused without the joint part
-        st = _k.circle_batch(G, P, self._kernel_pack, self.posture - 1, flat, joint, buf[0], buf[1], buf[2],
-                             buf[3 if joint else 0], buf[4 if joint else 0], buf[5 if joint else 0])
-        if st != _k.OK:
-            return None
+            arm = bodies = self._kernel_pack              # unused without the joint part
+        code = circle_batch(arm, bodies, self._kernel_pack, self.posture - 1, flat, joint, buf[0], buf[1], buf[2],
+                            buf[3 if joint else 0], buf[4 if joint else 0], buf[5 if joint else 0])
+        if code:
+            raise self._refused(code, model, tt)
         return [b.reshape(shape + (3,)) for b in buf]
+
+    def _refused(self, code, model, t):
+        status, index = refusal(code)
+        where = tuple(int(i) for i in np.unravel_index(index, t.shape)) if t.shape else None
+        if status == BAD_INPUT:
+            return DynamicsError(f"t: expected finite times in s, got {t!r}", "non-finite", where)
+        X = self._compiled(None, t)[0]
+        return refused(code, {"X": X}, model=model, posture=self.posture, lead=t.shape)

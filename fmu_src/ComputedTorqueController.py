@@ -16,11 +16,10 @@ circle of :class:`dynamics.trajectory.CircleTrajectory` (from rest).
 Outputs are the held sample (no direct feedthrough at the communication point: what is read after
 ``doStep(t, h)`` was computed from the inputs at ``t``); see ``ComputedTorqueController.md``.
 
-Speed: a step is one compiled call (:func:`dynamics._kernel.controller_step`: the reference of
+Speed: a step is one compiled call (:class:`dynamics.ControllerStepper`: the reference of
 :meth:`CircleTrajectory.joint`, ``q_X`` with the operations of :func:`solver.ik` and the law of
-:func:`dynamics.model.inverse_dynamics`).  Whatever it refuses (a pose outside the tool space, a
-pose that does not close the loops of ``q_X``...) is redone by the numpy code
-(``_reference_step``), which raises the documented refusal.
+:func:`dynamics.computed_torque`).  What it refuses (a pose outside the tool space, a reference
+outside it...) raises :class:`dynamics.DynamicsError`, refused here as a step.
 """
 import numpy as np
 
@@ -68,19 +67,16 @@ class ComputedTorqueController(TableSlave):
         Var("q2_ref", "Real", "output", unit="rad", depends_on=(), description="reference angle, leg 2"),
         Var("q3_ref", "Real", "output", unit="rad", depends_on=(), description="reference angle, leg 3"),
     )
-    # _kpack, _bits, _tol: packed constants, elbow bits and loop tolerance of the compiled step;
-    # _kstep: its entry point; _out: its result buffer (scratch, read right after every call)
-    CONSTANT = ("_model", "_params", "_gains", "_traj", "_kpack", "_bits", "_tol", "_kstep", "_out")
+    # _stepper: the compiled step (dynamics.ControllerStepper); _out: its result buffer (scratch,
+    # read right after every call)
+    CONSTANT = ("_model", "_params", "_gains", "_traj", "_stepper", "_out")
 
     def setup(self):
         self._model = self._params = self._gains = self._traj = None
-        self._kpack = self._bits = self._tol = self._kstep = self._out = None
+        self._stepper = self._out = None
 
     def on_initialized(self):
-        from dynamics import _kernel
-        from dynamics.control import ComputedTorqueGains, _controller_pack
-        from dynamics.model import ASSEMBLY_TOL, DynamicParameters
-        from dynamics.trajectory import CircleTrajectory
+        from dynamics import CircleTrajectory, ComputedTorqueGains, ControllerStepper, DynamicParameters
         from solver import Manipulator
 
         self._model = Manipulator.paper()
@@ -90,53 +86,30 @@ class ComputedTorqueController(TableSlave):
                                       radius=float(self.radius), phi=float(self.phi_ref),
                                       posture=int(self.posture), period=float(self.period),
                                       ramp_time=float(self.ramp_time))
-        self._kpack = _controller_pack(self._params, self._model, self._gains, self._traj)
-        self._bits, self._tol = int(self.posture) - 1, ASSEMBLY_TOL
-        self._kstep, self._out = _kernel.controller_step, np.empty(9)
-        self._reference(self.time_start())
-        # load the compiled step's machine code now, not in the first doStep (result unused: the
-        # outputs at initialization are the reference only, as before)
-        self._kstep(self._kpack, self._bits, self.time_start(), self.q1, self.q2, self.q3, self.dq1, self.dq2,
-                    self.dq3, self.x, self.y, self.phi, self._tol, self._out)
+        # (the stepper loads its compiled step now, not in the first doStep)
+        self._stepper = ControllerStepper(self._params, self._model, self._gains, self._traj)
+        self._out = np.empty(self._stepper.OUT_SIZE)
+        self._reference(self.time_start())       # the outputs at initialization are the reference only
 
     def time_start(self):
         return float(getattr(self, "_time", 0.0) or 0.0)
 
-    def _reference(self, t, numpy=False):
-        """Set the reference outputs at ``t`` (compiled, or by the numpy reference); returns
-        ``q_d, dq_d, ddq_d``."""
-        traj = self._traj
-        task, joint = (traj._reference_task, traj._reference_joint) if numpy else (traj.task, traj.joint)
-        X_d, _, _ = task(t)
-        q_d, dq_d, ddq_d = joint(self._model, t)
+    def _reference(self, t):
+        """Set the reference outputs at ``t``."""
+        X_d, _, _ = self._traj.task(t)
+        q_d, _, _ = self._traj.joint(self._model, t)
         self.x_ref, self.y_ref, self.phi_ref_out = (float(v) for v in X_d)
         self.q1_ref, self.q2_ref, self.q3_ref = (float(v) for v in q_d)
-        return q_d, dq_d, ddq_d
 
     def step(self, t, dt):
         out = self._out
-        if self._kstep(self._kpack, self._bits, t, self.q1, self.q2, self.q3, self.dq1, self.dq2, self.dq3,
-                       self.x, self.y, self.phi, self._tol, out):
-            return self._reference_step(t, dt)          # refused: the numpy code raises (or answers)
+        try:
+            self._stepper.step(t, self.q1, self.q2, self.q3, self.dq1, self.dq2, self.dq3, self.x, self.y,
+                               self.phi, out)
+        except ValueError as exc:                       # dynamics.DynamicsError: the step is refused
+            if getattr(exc, "where", None) == "measurement" and getattr(exc, "reason", None) == "outside":
+                raise StepRefused(f"pose (x, y, phi) = {[float(self.x), float(self.y), float(self.phi)]} from "
+                                  f"the DK is outside the tool space of posture {self.posture}") from None
+            raise StepRefused(str(exc)) from None
         (self.tau1, self.tau2, self.tau3, self.x_ref, self.y_ref, self.phi_ref_out,
          self.q1_ref, self.q2_ref, self.q3_ref) = out.tolist()
-
-    # numpy reference of the step (what the compiled step replaced; it raises the refusals)
-    def _reference_step(self, t, dt):
-        from dynamics.control import wrap
-        from dynamics.model import inverse_dynamics
-        from solver import ik
-
-        q_d, dq_d, ddq_d = self._reference(t, numpy=True)
-        q = np.array([self.q1, self.q2, self.q3])
-        dq = np.array([self.dq1, self.dq2, self.dq3])
-        X = np.array([self.x, self.y, self.phi])
-        q_X = ik(self._model, X, int(self.posture))
-        if np.isnan(q_X[0]):
-            raise StepRefused(f"pose (x, y, phi) = {X.tolist()} from the DK is outside the tool space of "
-                              f"posture {self.posture}")
-        # q_X equals q up to 2 pi turns when the pose belongs to the measured joints
-        q_X = q + wrap(q_X - q)
-        ddq = ddq_d + self._gains.kd * (dq_d - dq) + self._gains.kp * wrap(q_d - q)
-        tau = inverse_dynamics(self._params, self._model, q_X, dq, ddq, X)
-        self.tau1, self.tau2, self.tau3 = (float(v) for v in tau)

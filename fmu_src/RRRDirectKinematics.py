@@ -18,10 +18,8 @@ from pythonfmu import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 
 from fmu_src.table_slave import TableSlave, Var
-from solver import Manipulator, dk_all, ik, jacobians, wrap_angle
-from solver.__main__ import HOME_POSE
-from solver.maptensor import MapTensor, MapTensorFileError
-from solver.tracker import STATUS, Tracker, TrackerState
+from solver import (HOME_POSE, STATUS, Manipulator, MapTensor, MapTensorFileError, Tracker, TrackerState, dk_all,
+                    ik, jacobians, wrap_angle)
 
 # Build constants: start values of the parameters ``posture`` and ``mode`` (build_fmu.py --posture/--mode).
 BUILD_POSTURE = 1
@@ -85,18 +83,26 @@ class RRRDirectKinematics(TableSlave):
                         "4 diverged"),
         Var("cond", "Real", "output", unit="1", depends_on=("q1", "q2", "q3"),
             description="|det J| / prod |rows of J| at the pose (0 singular, 1 best)"),
+        Var("certain", "Boolean", "output", initial="exact", start=True, depends_on=("q1", "q2", "q3"),
+            description="the tracker vouches for the pose (certificates back to the initial pose)"),
+        Var("uncertain_since", "Real", "output", "discrete", initial="exact", start=-1.0, unit="s",
+            depends_on=("q1", "q2", "q3"),
+            description="time of the step since which the tracker cannot vouch for the pose; -1 while certain"),
     )
     # _track: the TrackerState (the tracker's whole mutable data: previous pose and joints, the pose
     # before, the joint-step scale, the step count); _committed: (q, outputs) of the last doStep (or of
     # the initialization), what the outputs are whenever the inputs equal that q; _episode: status of the
-    # last logged change (unreachable / singular episodes are logged once, at their start and end)
-    STATE = ("_track", "_committed", "_episode")
+    # last logged change (unreachable / singular episodes are logged once, at their start and end);
+    # _since: (tracker step index, time) of the step since which the tracker cannot vouch, None while
+    # it can (the time is that step's communication point, t + dt of its doStep)
+    STATE = ("_track", "_committed", "_episode", "_since")
     # _maps/_model: read and verified at instantiation; _tracker: built at initialization for
     # (posture, mode), rebuilt by set_state if a state of other parameters is set; _cache: the last
     # tentative step, keyed by the q and the TrackerState object it started from (never stale)
     CONSTANT = ("_maps", "_model", "_tracker", "_cache")
     SINGULAR_TOL = 1e-4                           # cond below this: status 2 (the tracker's default)
-    OUTPUTS = ("x", "y", "phi", "region", "near_border", "n_real", "ambiguous", "status", "cond")
+    OUTPUTS = ("x", "y", "phi", "region", "near_border", "n_real", "ambiguous", "status", "cond", "certain",
+               "uncertain_since")
 
     # ------------------------------------------------------------------ instantiation
     def setup(self):
@@ -111,6 +117,7 @@ class RRRDirectKinematics(TableSlave):
         self._track = None
         self._committed = None
         self._episode = 0
+        self._since = None
         self._cache = None
 
     @classmethod
@@ -218,6 +225,7 @@ class RRRDirectKinematics(TableSlave):
         self.ambiguous = False
         self.status = 2 if cond < self.SINGULAR_TOL else 0
         self.cond = cond
+        self.certain, self.uncertain_since, self._since = True, -1.0, None       # the initial pose is given
         self._episode = self.status
         if self.status:
             self._report(f"initialization: the initial pose is {STATUS[self.status]} (cond {cond:.3g})",
@@ -248,7 +256,8 @@ class RRRDirectKinematics(TableSlave):
         self._cache = (q, st, X, info, after, dt)
         return X, info, after
 
-    def _publish(self, X, info):
+    def _publish(self, X, info, t):
+        """Set the outputs of a step whose sample is at time ``t``; returns ``_since`` after that step."""
         self.x, self.y, self.phi = float(X[0]), float(X[1]), float(X[2])
         self.region = int(info.label)
         self.near_border = bool(info.near_border)
@@ -256,6 +265,15 @@ class RRRDirectKinematics(TableSlave):
         self.ambiguous = bool(info.ambiguous)
         self.status = int(info.status)
         self.cond = float(info.cond)
+        if info.certain:
+            since = None
+        elif self._since is not None and self._since[0] == info.uncertain_since:
+            since = self._since                   # the same episode: it began at that step's time
+        else:
+            since = (int(info.uncertain_since), float(t))
+        self.certain = bool(info.certain)
+        self.uncertain_since = -1.0 if since is None else since[1]
+        return since
 
     def step(self, t, dt):
         q = (self.q1, self.q2, self.q3)
@@ -263,7 +281,7 @@ class RRRDirectKinematics(TableSlave):
         # rolls back and evaluates Runge-Kutta stages steps by h/2 and h from the same state)
         X, info, after = self._solve(q, dt if dt > 0 else None)
         self._track = after                       # the only place the tracker state advances
-        self._publish(X, info)
+        self._since = self._publish(X, info, t + dt)
         self._committed = (q, self._outputs())
         if info.status != self._episode:
             self._log_episode(t + dt, info)
@@ -282,7 +300,7 @@ class RRRDirectKinematics(TableSlave):
                 setattr(self, name, value)
             return
         X, info, _ = self._solve(q)
-        self._publish(X, info)
+        self._publish(X, info, self._time)        # tentative: the episode is not committed
 
     def _log_episode(self, t, info):
         q = f"(q1, q2, q3) = ({self.q1!r}, {self.q2!r}, {self.q3!r})"

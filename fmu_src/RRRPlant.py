@@ -11,12 +11,10 @@ with ``q = g_j(X)`` (inverse kinematics in the posture) and ``dq = J_q dX``.
 Outputs depend on the state only (no direct feedthrough): a master may read ``q`` before it
 knows ``tau``, and the closed loop DK -> controller -> plant has no algebraic loop.
 
-Speed: a communication step is one compiled call (:func:`dynamics._kernel.plant_step`: the RK4
-substeps of :func:`dynamics._kernel.rk4_task`, the same operations as
-:func:`dynamics.integrate.rk4_step`, then ``q`` with the operations of :func:`solver.ik`,
-``dq = J_q dX`` and the energy).  Whatever it refuses (the platform leaves the tool space, a
-non-finite value) is redone by the numpy code (``_reference_step`` / ``_reference_outputs``),
-which raises the documented refusal.
+Speed: a communication step is one compiled call (:class:`dynamics.PlantStepper`: the RK4
+substeps, the same operations as :func:`dynamics.rk4_step`, then ``q`` with the operations of
+:func:`solver.ik`, ``dq = J_q dX`` and the energy).  What it refuses (the platform leaves the tool
+space, a non-finite value) raises :class:`dynamics.DynamicsError`, refused here as a step.
 """
 from dataclasses import replace
 
@@ -61,18 +59,15 @@ class RRRPlant(TableSlave):
     )
     UNITS = {"J": {"kg": 1, "m": 2, "s": -2}}
     STATE = ("_x",)
-    # _kpack, _bits: packed constants and elbow bits of the compiled step; _kstep: its entry point
-    CONSTANT = ("_model", "_params", "_rhs", "_kpack", "_bits", "_kstep")
+    # _stepper: the compiled step (dynamics.PlantStepper)
+    CONSTANT = ("_model", "_params", "_stepper")
 
     def setup(self):
         self._x = None
-        self._model = self._params = self._rhs = None
-        self._kpack = self._bits = self._kstep = None
+        self._model = self._params = self._stepper = None
 
     def on_initialized(self):
-        from dynamics import _kernel
-        from dynamics.integrate import task_space_rhs
-        from dynamics.model import DynamicParameters, _plant_pack
+        from dynamics import DynamicParameters, PlantStepper
         from solver import Manipulator
 
         self._model = Manipulator.paper()
@@ -81,29 +76,30 @@ class RRRPlant(TableSlave):
         if not self.friction:
             changes.update(friction_active=0.0, friction_elbow=0.0, friction_platform=0.0)
         self._params = replace(params, **changes)
-        self._rhs = task_space_rhs(self._params, self._model, int(self.posture), self._torque)
-        self._kpack = _plant_pack(self._params, self._model)
-        self._bits = int(self.posture) - 1
-        self._kstep = _kernel.plant_step
+        self._stepper = PlantStepper(self._params, self._model, int(self.posture))
         self._x = np.array([self.x0, self.y0, self.phi0, 0.0, 0.0, 0.0])
         self._outputs()
 
-    def _torque(self, t, x):
-        return np.array([self.tau1, self.tau2, self.tau3])
-
     def step(self, t, dt):
         n = int(self.substeps)
-        out = np.empty(13)
-        if self._kstep(self._kpack, self._bits, self.tau1, self.tau2, self.tau3, dt / n, n, self._x, out):
-            return self._reference_step(t, dt)          # refused: the numpy code raises (or answers)
+        out = np.empty(self._stepper.OUT_SIZE)
+        try:
+            self._stepper.step(self.tau1, self.tau2, self.tau3, dt / n, n, self._x, out)
+        except ValueError as exc:                       # dynamics.DynamicsError: the step is refused
+            raise StepRefused(f"the platform left the tool space of posture {self.posture}: {exc}") from None
         self._publish(out)
 
     def _outputs(self):
         # the compiled step with no substep: the outputs of the state (and its machine code is loaded
         # now, at initialization, not in the first doStep)
-        out = np.empty(13)
-        if self._kstep(self._kpack, self._bits, self.tau1, self.tau2, self.tau3, 0.0, 0, self._x, out):
-            return self._reference_outputs()
+        out = np.empty(self._stepper.OUT_SIZE)
+        try:
+            self._stepper.outputs(self._x, out)
+        except ValueError as exc:                       # dynamics.DynamicsError
+            if getattr(exc, "reason", None) != "outside":
+                raise StepRefused(f"the outputs of the state {self._x.tolist()} are refused: {exc}") from None
+            raise StepRefused(f"pose {self._x[:3].tolist()} is outside the tool space of posture "
+                              f"{self.posture}") from None
         self._publish(out)
 
     def _publish(self, out):
@@ -111,32 +107,3 @@ class RRRPlant(TableSlave):
         self._x = out[:6]
         (self.x_true, self.y_true, self.phi_true, _, _, _, self.q1, self.q2, self.q3,
          self.dq1, self.dq2, self.dq3, self.energy) = out.tolist()
-
-    # numpy reference of the step (what the compiled step replaced; it raises the refusals)
-    def _reference_step(self, t, dt):
-        from dynamics.integrate import rk4_step
-
-        n = int(self.substeps)
-        h = dt / n
-        x = self._x
-        try:
-            for k in range(n):
-                x = rk4_step(self._rhs, t + k * h, x, h)
-        except ValueError as exc:
-            raise StepRefused(f"the platform left the tool space of posture {self.posture}: {exc}") from None
-        self._x = np.asarray(x, dtype=float)
-        self._reference_outputs()
-
-    def _reference_outputs(self):
-        from dynamics.model import joint_velocity_jacobian, total_energy
-        from solver import ik
-
-        X, dX = self._x[:3], self._x[3:]
-        q = ik(self._model, X, int(self.posture))
-        if np.isnan(q[0]):
-            raise StepRefused(f"pose {X.tolist()} is outside the tool space of posture {self.posture}")
-        dq = joint_velocity_jacobian(self._model, X, q) @ dX
-        self.q1, self.q2, self.q3 = (float(v) for v in q)
-        self.dq1, self.dq2, self.dq3 = (float(v) for v in dq)
-        self.x_true, self.y_true, self.phi_true = (float(v) for v in X)
-        self.energy = float(total_energy(self._params, self._model, X, dX, int(self.posture)))

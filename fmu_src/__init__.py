@@ -1,11 +1,22 @@
-"""FMI 2.0 Co-Simulation slaves of the project and the machinery to build and check them.
+"""FMI 2.0 Co-Simulation slaves of the project and the host-side machinery to build, check and run them.
 
-``fmu_src.table_slave``  runtime base class (a slave = a variable table + ``step``); it is bundled
-                         into every FMU, so it imports nothing but the standard library and pythonfmu.
-``fmu_src.fmi_build``    build-time and host-side tools: ``build_fmu`` (pythonfmu + post-processing of
-                         modelDescription.xml + deterministic zip), ``validate``, ``simulate``,
-                         ``run_libcosim``, ``write_osp_system_structure``, ``run_osp_system``.
+The slaves: ``RRRDirectKinematics`` (the tracker on the embedded map tensor), ``RRRPlant`` (the
+robot's dynamics) and ``ComputedTorqueController``, one script and one readme each.
 
-This ``__init__`` stays import-free on purpose: it is also bundled into the FMUs, where fmpy and
-libcosimpy need not exist.
+The runtime, bundled into every FMU (standard library and pythonfmu only): ``table_slave`` (the base
+class: a slave = a variable table + ``step``; the FMI adapter), ``variables`` (the table rows and
+their FMI rules), ``slave_state`` (FMU state and rollback snapshots).
+
+The host side, never bundled: ``model_description`` (modelDescription.xml from the table),
+``packaging`` (``build_fmu``: pythonfmu, only the modules the slave imports, deterministic zip),
+``checks`` (``validate``, ``smoke_check``), ``unit`` (``FMUUnit``: the one FMU2Slave driver, and the
+process rules of pythonfmu FMUs), ``simulation`` (``simulate``: fmpy.simulate_fmu that raises),
+``libcosim`` (DNV libcosim runner, OSP system files), ``builds`` (the project's three FMUs,
+``build_fmus``), ``references`` (their reference runs and CSVs), ``cli`` (``python build_fmu.py``).
+
+Import direction: the slaves and the runtime import only the runtime, :mod:`solver` and the math of
+:mod:`dynamics` (its public top-level names); the host side imports those, fmpy, pythonfmu and
+libcosimpy.  Nothing here imports the co-simulation side (:mod:`dynamics.cosim`,
+:mod:`dynamics.batch`), which imports the host side.  This ``__init__`` stays import-free: it is
+also bundled into the FMUs, where fmpy and libcosimpy need not exist.
 """

@@ -1,29 +1,43 @@
 """Direct kinematics of the planar 3-RRR parallel manipulator with basic regions.
 
-The package implements the paper's kinematics (section 2 and 5), procedure 1
-(the map tensor), procedures 2-3 (the tracker) and the baselines.  It depends
-on numpy and scipy only: no FMI code lives here.
+The package holds the paper's kinematics (inverse kinematics in 8 postures, all six
+direct-kinematics solutions, the Jacobians J and K, singularity measures), procedure 1
+(the map tensor, its file and its cache), procedures 2-3 (the tracker) and the baselines
+it must beat; the experiments (:mod:`solver.suite`, :mod:`solver.figures`) and the
+command line (``python -m solver``) sit apart and nothing else imports them, so an FMU
+that carries this package needs none of them.  It may import numpy, scipy and numba only:
+never fmpy, pythonfmu, dask, :mod:`dynamics` or :mod:`fmu_src`.  Compiled kernels live in
+the private :mod:`solver._kernels`; other packages use the names below.
 
-Public entry points
--------------------
-Manipulator                    frozen geometry; ``Manipulator.paper()`` is Table 1
-ik, posture_of                 inverse kinematics in 8 postures
-dk_all                         all six direct-kinematics solutions (the sextic)
-jacobians, singularity_measures  J and K of eq. 3, closeness to eq. 4's singularities
+Modules, one concept each: ``checks`` (argument checking), ``manipulator`` (geometry),
+``kinematics`` (IK, J and K, singularity measures), ``direct_kinematics`` (all six DK
+solutions), ``ordering`` (their numbering rules), ``grid`` (the map grid over the tool
+space), ``maptensor`` (procedures 1 and 2), ``mapfile`` (the map file format),
+``mapcache`` (the one map cache), ``tracker`` (procedure 3), ``baselines``,
+``trajectories`` (shared tool-space paths).
 """
-from ._checks import GeometryError, SolverInputError
-from .kinematics import (DEFAULT_RULE, ORDERING_RULES, DKSolutions, SingularityMeasures,
-                         constraints, dk_all, elbow_points, ik, jacobians, order_solutions,
-                         platform_points, posture_of, singularity_measures, wrap_angle)
-from .manipulator import Manipulator
+from .checks import GeometryError, SolverInputError, as_array, check_posture
+from .direct_kinematics import DKSolutions, dk_all, order_solutions
+from .grid import DEFAULT_STEP, default_bounds, default_grid, grid_shape
+from .kinematics import (SingularityMeasures, constraints, elbow_points, ik, ik_pose, jacobians, platform_points,
+                         posture_of, singularity_measures, wrap_angle)
+from .manipulator import HOME_POSE, Manipulator
+from .mapcache import cached_map, map_path
+from .mapfile import FORMAT_VERSION, MapTensorFileError
+from .maptensor import MapTensor, label_poses
+from .ordering import DEFAULT_RULE, ORDERING_RULES
+from .tracker import Tracker
+from .tracker_state import CERTIFICATES, STATUS, StepInfo, TrackerError, TrackerState, TrackResult
 from .trajectories import PAPER_CIRCLE, circle_path
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "Manipulator", "GeometryError", "SolverInputError",
-    "ik", "posture_of", "dk_all", "DKSolutions", "order_solutions", "ORDERING_RULES",
-    "DEFAULT_RULE", "jacobians", "singularity_measures", "SingularityMeasures",
-    "constraints", "elbow_points", "platform_points", "wrap_angle", "__version__",
-    "PAPER_CIRCLE", "circle_path",
+    "Manipulator", "HOME_POSE", "GeometryError", "SolverInputError", "as_array", "check_posture",
+    "ik", "ik_pose", "posture_of", "dk_all", "DKSolutions", "order_solutions", "ORDERING_RULES", "DEFAULT_RULE",
+    "jacobians", "singularity_measures", "SingularityMeasures", "constraints", "elbow_points", "platform_points",
+    "wrap_angle", "PAPER_CIRCLE", "circle_path",
+    "MapTensor", "MapTensorFileError", "FORMAT_VERSION", "label_poses", "default_bounds", "default_grid",
+    "grid_shape", "DEFAULT_STEP", "cached_map", "map_path",
+    "Tracker", "TrackerState", "StepInfo", "TrackResult", "TrackerError", "STATUS", "CERTIFICATES", "__version__",
 ]

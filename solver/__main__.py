@@ -5,7 +5,7 @@ Subcommands
 dk Q1 Q2 Q3        all six direct-kinematics solutions of one joint vector (rad)
 ik X Y PHI         the motor angles in each of the 8 postures
 example            the paper's Fig. 11 experiment: a pose, its joints, all DK solutions back
-build              procedure 1: build map tensors (one file per posture)
+build              procedure 1: map tensors into the map cache (built, or reused if there)
 inspect FILE       what a map tensor file holds (regions, counts, size)
 plot FILE          slices of a map tensor file as PNG
 figures            the paper's Figs 13-18 as PNG (cross-sections with singular curves, the circle)
@@ -14,16 +14,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
 
-from pathlib import Path
+from . import (DEFAULT_RULE, DEFAULT_STEP, ORDERING_RULES, Manipulator, MapTensor, cached_map, dk_all, ik,
+               posture_of, singularity_measures)
+from .mapcache import DEFAULT_CACHE_DIR
 
-from . import DEFAULT_RULE, ORDERING_RULES, Manipulator, dk_all, ik, posture_of, singularity_measures
-from .maptensor import DEFAULT_STEP, MapTensor, default_bounds, load_or_build
-
-#: The home pose (FMU start values): the centroid of the motor triangle, phi = 0.
-HOME_POSE = (0.5, float(np.sqrt(3.0) / 6.0), 0.0)
 #: A pose of posture 1 whose joint vector has six real DK solutions (Fig. 11 style example).
 EXAMPLE_POSE = (0.8, 0.0, float(np.deg2rad(15.0)))
 
@@ -60,12 +58,13 @@ def main(argv=None) -> int:
     p.add_argument("q", nargs=3, type=float, metavar="Q")
     p = sub.add_parser("ik", help="IK of a pose in all 8 postures")
     p.add_argument("X", nargs=3, type=float, metavar="X")
-    p = sub.add_parser("build", help="procedure 1: build map tensors")
+    p = sub.add_parser("build", help="procedure 1: map tensors into the map cache")
     p.add_argument("--posture", type=int, nargs="+", default=[1], help="postures 1..8 (default 1)")
     p.add_argument("--step-mm", type=float, default=DEFAULT_STEP[0] * 1e3, help="x/y node spacing, mm")
     p.add_argument("--step-deg", type=float, default=float(np.rad2deg(DEFAULT_STEP[2])),
                    help="phi node spacing, degrees")
-    p.add_argument("--out", default="build/maps", help="output folder (map_posture<j>.npz)")
+    p.add_argument("--out", default=str(DEFAULT_CACHE_DIR),
+                   help=f"the map cache folder (default {DEFAULT_CACHE_DIR}; file names: solver.mapcache)")
     p = sub.add_parser("inspect", help="describe a map tensor file")
     p.add_argument("file")
     p = sub.add_parser("plot", help="plot slices of a map tensor file")
@@ -91,16 +90,9 @@ def main(argv=None) -> int:
                 print(f"posture {j}: q = {np.array2string(q, precision=9)} rad")
         elif args.cmd == "build":
             step = (args.step_mm / 1e3, args.step_mm / 1e3, float(np.deg2rad(args.step_deg)))
-            bounds = default_bounds(model, step)
-            span = bounds[:, 1] - bounds[:, 0]
-            shape = (int(round(span[0] / step[0])) + 1, int(round(span[1] / step[1])) + 1,
-                     int(round(span[2] / step[2])))
             for j in args.posture:
-                mt = MapTensor.build(model, j, bounds=bounds, shape=shape, rule=args.rule,
-                                     progress=sys.stderr.isatty())
-                path = mt.save(Path(args.out) / f"map_posture{j}.npz")
-                print(f"{path}: {path.stat().st_size / 1e6:.2f} MB, {mt.stats['nodes']:,} nodes in "
-                      f"{mt.stats['build_seconds']:.1f} s "
+                mt = cached_map(model, j, args.rule, step, args.out, progress=sys.stderr.isatty(), log=print)
+                print(f"  {mt.stats['nodes']:,} nodes built in {mt.stats['build_seconds']:.1f} s "
                       f"({mt.stats['nodes'] / mt.stats['build_seconds']:,.0f} nodes/s)")
         elif args.cmd == "inspect":
             mt = MapTensor.load(args.file)
@@ -122,12 +114,12 @@ def main(argv=None) -> int:
                 print(f"{path}: singular nodes within one cell of a border "
                       f"{100 * st['singular_near_border']:.1f} %, border nodes singular "
                       f"{100 * st['border_singular']:.1f} %")
-            mt = load_or_build(model, 1, args.rule, progress=sys.stderr.isatty())
+            mt = cached_map(model, 1, args.rule, progress=sys.stderr.isatty())
             post, centre, phd = NEAR_SINGULAR_SEEDS[0]
             radius, _ = near_singular_circle(model, post, centre, phd, 0.005)
             hard = make_path(model, f"p{post}-near-sing-5mm", post,
                              circle_path(300, centre, radius, float(np.deg2rad(phd))))
-            hard_map = mt if post == 1 else load_or_build(model, post, args.rule)
+            hard_map = mt if post == 1 else cached_map(model, post, args.rule)
             for path in plot_circle_experiment(model, mt, args.out, hard_path=hard, hard_map=hard_map):
                 print(path)
         else:

@@ -9,23 +9,32 @@
   ``lambda h = 0.5`` until the constraint error is at rounding level, so that
   its errors are branch errors and not lag.
 * :class:`NearestTracker`: all six DK solutions, the real one nearest the previous pose.
+* :class:`NewtonSeparationTracker`: Newton from the previous pose, flagged ``certain``
+  when every other real DK solution is more than :data:`SEPARATION` times farther
+  from the result than the step it made: a separation margin, the usual heuristic
+  a certificate is compared with (it can be wrong and certain).
+
+The other baselines never vouch (``certain`` is False): a benchmark counts all
+their errors as silent.
 
 All use the compiled primitives of the tracker (same residual, Jacobian and
 DK code), so their times compare like with like.
 """
 from __future__ import annotations
 
-import numpy as np
-
-from . import _track_kernel as _tk
-from .kinematics import _RULE_CODES, DEFAULT_RULE
+from ._kernels import layout as _lay
+from ._kernels.baselines import baseline_step
 from .manipulator import Manipulator
+from .ordering import DEFAULT_RULE, rule_code
 from .tracker import _TrackerBase
 
-__all__ = ["NewtonTracker", "PredictorNewtonTracker", "CLDKTracker", "NearestTracker", "BASELINES"]
+__all__ = ["NewtonTracker", "PredictorNewtonTracker", "CLDKTracker", "NearestTracker", "NewtonSeparationTracker",
+           "BASELINES", "SEPARATION"]
 
 #: Newton and CLDK stop at this residual max|F_i| (m^2).
 NEWTON_TOL = 1e-14
+#: NewtonSeparationTracker: certain when the nearest other real solution is this many steps away.
+SEPARATION = 3.0
 
 
 class _Baseline(_TrackerBase):
@@ -33,41 +42,49 @@ class _Baseline(_TrackerBase):
 
     def __init__(self, model: Manipulator, rule: str = DEFAULT_RULE):
         super().__init__(model)
-        self._rule = _RULE_CODES[rule]
-        self._bpar = np.concatenate([self._w, [NEWTON_TOL]])
+        self._rule = rule_code(rule)
+        self._params = _lay.pack_baseline_params(self._w, NEWTON_TOL, SEPARATION)
 
-    def _kernel(self, q, st):
-        _tk.baseline_step_packed(self.kind, self._rule, q, st, self._geo, self._T, self._bpar, self._out_f,
-                                 self._ii)
+    def _kernel(self, q, state_pack):
+        baseline_step(self.kind, self._rule, q, state_pack, self._model_pack, self._sample_to_sextic, self._params,
+                      self._out_real, self._out_int)
 
 
 class NewtonTracker(_Baseline):
     """Newton-Raphson on F(X, q) = 0 started at the previous pose (at most 50 iterations)."""
 
-    kind = 0
+    kind = _lay.BASELINE_NEWTON
     name = "newton"
 
 
 class PredictorNewtonTracker(_Baseline):
     """Newton-Raphson started at the eq. 22 prediction ``X_prev - J^-1 K dq``."""
 
-    kind = 1
+    kind = _lay.BASELINE_PREDICTOR_NEWTON
     name = "newton-predictor"
 
 
 class CLDKTracker(_Baseline):
     """Closed-loop direct kinematics (Siciliano): feed-forward + damped closed-loop correction."""
 
-    kind = 2
+    kind = _lay.BASELINE_CLDK
     name = "cldk"
 
 
 class NearestTracker(_Baseline):
     """The real DK solution nearest (eq. 19 distance) to the previous pose."""
 
-    kind = 3
+    kind = _lay.BASELINE_NEAREST
     name = "nearest"
 
 
+class NewtonSeparationTracker(_Baseline):
+    """Newton from the previous pose with a separation flag (see the module docstring)."""
+
+    kind = _lay.BASELINE_NEWTON_SEPARATION
+    name = "newton-separation"
+
+
 #: The baseline classes by name.
-BASELINES = {c.name: c for c in (NewtonTracker, PredictorNewtonTracker, CLDKTracker, NearestTracker)}
+BASELINES = {c.name: c for c in (NewtonTracker, PredictorNewtonTracker, CLDKTracker, NearestTracker,
+                                 NewtonSeparationTracker)}

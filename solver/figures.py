@@ -8,9 +8,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .kinematics import DEFAULT_RULE, ik, jacobians, wrap_angle
+from .direct_kinematics import dk_all
+from .grid import default_bounds
+from .kinematics import ik, jacobians, wrap_angle
 from .manipulator import Manipulator
-from .maptensor import default_bounds, label_poses
+from .maptensor import label_poses
+from .ordering import DEFAULT_RULE
+from .tracker import Tracker
+from .trajectories import PAPER_CIRCLE, circle_path
 
 #: One colour per label 0..6 (0: outside the tool space).
 LABEL_COLOURS = ["#ffffff", "#4e79a7", "#f28e2b", "#59a14f", "#e15759", "#b07aa1", "#edc948"]
@@ -22,6 +27,14 @@ def _mpl():
     import matplotlib.pyplot as plt
     from matplotlib.colors import BoundaryNorm, ListedColormap
     return plt, ListedColormap(LABEL_COLOURS), BoundaryNorm(np.arange(-0.5, 7.5), 7)
+
+
+def _save(plt, fig, path) -> Path:
+    """Lay out, write and close a figure; returns ``path``."""
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path
 
 
 def cross_section(model: Manipulator, posture: int, phi: float, step: float = 0.004,
@@ -39,7 +52,7 @@ def cross_section(model: Manipulator, posture: int, phi: float, step: float = 0.
     rule : str
         Ordering rule.
     bounds : array_like, shape (3, 2), optional
-        x and y ranges (m); default :func:`solver.maptensor.default_bounds`.
+        x and y ranges (m); default :func:`solver.default_bounds`.
 
     Returns
     -------
@@ -131,10 +144,7 @@ def plot_cross_sections(model: Manipulator, posture: int = 1, phis_deg=(-60.0, 0
                      f"rule {rule!r}; singular nodes on a border: "
                      f"{100 * stats['singular_near_border']:.0f} %, border nodes singular: "
                      f"{100 * stats['border_singular']:.0f} %", fontsize=9)
-        fig.tight_layout()
-        path = out_dir / f"fig{13 + k}_regions_phi{int(phd):+d}.png"
-        fig.savefig(path)
-        plt.close(fig)
+        path = _save(plt, fig, out_dir / f"fig{13 + k}_regions_phi{int(phd):+d}.png")
         result[phd] = (path, stats)
     return result
 
@@ -161,13 +171,9 @@ def plot_map_slice(mt, phi_deg: float, out_dir="results/figures"):
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title(f"map tensor posture {mt.posture}, rule {mt.rule!r}, phi = {np.rad2deg(ps[k]):.1f} deg")
-    fig.tight_layout()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    path = out / f"map_posture{mt.posture}_phi{np.rad2deg(ps[k]):+.0f}.png"
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, out / f"map_posture{mt.posture}_phi{np.rad2deg(ps[k]):+.0f}.png")
 
 
 def plot_circle_experiment(model: Manipulator, map_tensor, out_dir="results/figures", n: int = 1000,
@@ -192,9 +198,6 @@ def plot_circle_experiment(model: Manipulator, map_tensor, out_dir="results/figu
     list of Path
         The three PNG files.
     """
-    from .kinematics import dk_all
-    from .trajectories import PAPER_CIRCLE, circle_path
-    from .tracker import Tracker
 
     plt, cmap, norm = _mpl()
     out = Path(out_dir)
@@ -218,10 +221,7 @@ def plot_circle_experiment(model: Manipulator, map_tensor, out_dir="results/figu
     ax.set_title(f"Fig. 16: the discretised circle (posture {posture}, phi = "
                  f"{np.rad2deg(PAPER_CIRCLE['phi']):g} deg)\nbackground: basic regions, rule "
                  f"{map_tensor.rule!r}", fontsize=9)
-    fig.tight_layout()
-    paths.append(out / "fig16_circle.png")
-    fig.savefig(paths[-1])
-    plt.close(fig)
+    paths.append(_save(plt, fig, out / "fig16_circle.png"))
 
     # Fig. 17: every real DK solution of every joint vector, coloured by solution number
     sol = dk_all(model, q, rule=map_tensor.rule)
@@ -242,10 +242,7 @@ def plot_circle_experiment(model: Manipulator, map_tensor, out_dir="results/figu
     fig.suptitle(f"Fig. 17: all real DK solutions of the circle's joint path, coloured by solution number "
                  f"(rule {map_tensor.rule!r}); the true path is phi = {np.rad2deg(PAPER_CIRCLE['phi']):g} deg",
                  fontsize=9)
-    fig.tight_layout()
-    paths.append(out / "fig17_all_branches.png")
-    fig.savefig(paths[-1])
-    plt.close(fig)
+    paths.append(_save(plt, fig, out / "fig17_all_branches.png"))
 
     # Fig. 18: the tracked result, near-border steps marked
     panels = [("paper circle", X, q, map_tensor)]
@@ -274,8 +271,5 @@ def plot_circle_experiment(model: Manipulator, map_tensor, out_dir="results/figu
     fig.suptitle("Fig. 18: procedures 2-3 at work (map rule "
                  f"{map_tensor.rule!r}, {map_tensor.step[0] * 1e3:g} mm / "
                  f"{np.rad2deg(map_tensor.step[2]):g} deg)", fontsize=10)
-    fig.tight_layout()
-    paths.append(out / "fig18_tracked.png")
-    fig.savefig(paths[-1])
-    plt.close(fig)
+    paths.append(_save(plt, fig, out / "fig18_tracked.png"))
     return paths

@@ -20,12 +20,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._checks import GeometryError
+from .checks import GeometryError
 
-__all__ = ["Manipulator"]
+__all__ = ["Manipulator", "HOME_POSE"]
 
 #: Platform joint angles g_i of the paper's manipulator (CONVENTIONS.md), degrees.
 PAPER_PLATFORM_ANGLES_DEG = (210.0, 330.0, 90.0)
+#: The home pose of the paper's manipulator (x, y, phi; m, m, rad): the centroid of the motor
+#: triangle, phi = 0 (the DK FMU's start values).
+HOME_POSE = (0.5, float(np.sqrt(3.0) / 6.0), 0.0)
 
 
 def _frozen(name: str, value, shape: tuple[int, ...]) -> np.ndarray:

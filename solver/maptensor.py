@@ -11,106 +11,31 @@ Procedure 2 (section 4.1): the labels of the nodes within a weighted distance
 from its border; several: near a border.  Computed by grid index arithmetic
 over a precomputed stencil of node offsets: O(1) per pose, no scan.
 
-The grid
---------
-Axis ``a`` has ``shape[a]`` nodes at ``origin[a] + i * step[a]``.  The x and y
-axes run from ``bounds[a][0]`` to ``bounds[a][1]`` inclusive (``u_a = shape[a] - 1``
-increments, eq. 13-14).  The phi axis covers the circle (-pi, pi]: ``shape[2]``
-nodes at ``-pi + (k + 1) * 2 pi / shape[2]`` with index arithmetic modulo
-``shape[2]`` (a pose at phi = -pi is at the node phi = pi).
-
-The file
---------
-``save`` writes a compressed ``.npz`` holding the int8 labels and a JSON
-metadata record: format version, geometry (and its SHA-256 digest), posture,
-bounds, shape, ordering rule, library version, build statistics and the
-SHA-256 of the labels.  ``load`` refuses an unknown format version, a
-checksum mismatch, a truncated or foreign file, and a geometry or posture
-other than the expected one, with a message that says which.
+The grid is described in :mod:`solver.grid`, the file format in :mod:`solver.mapfile`, the
+cache shared by every command in :mod:`solver.mapcache`.
 """
 from __future__ import annotations
 
-import hashlib
-import io
-import json
 import sys
 import time
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from . import _map_kernel as _mk
-from ._checks import SolverInputError, as_array, check_posture
-from .kinematics import DEFAULT_RULE, ORDERING_RULES, dk_all, ik, wrap_angle
+from . import mapfile
+from ._kernels import maptensor as _mk
+from .checks import SolverInputError, as_array, check_posture
+from .direct_kinematics import dk_all
+from .grid import DEFAULT_STEP, default_bounds, grid_shape
+from .kinematics import check_model, ik, wrap_angle
 from .manipulator import Manipulator
+from .ordering import DEFAULT_RULE, rule_code
 
-__all__ = ["MapTensor", "MapTensorFileError", "FORMAT_VERSION", "DEFAULT_STEP",
-           "default_bounds", "label_poses", "grid_shape", "load_or_build"]
+__all__ = ["MapTensor", "label_poses", "MATCH_TOL"]
 
-#: Version of the map file format; the loader refuses any other.
-FORMAT_VERSION = 1
-#: Default node spacing: 10 mm in x and y, 2 degrees in phi.
-DEFAULT_STEP = (0.01, 0.01, float(np.deg2rad(2.0)))
 #: A node is labelled with the DK solution within this distance of it (m, m, rad).
 MATCH_TOL = 1e-6
-
-
-class MapTensorFileError(ValueError):
-    """A map tensor file cannot be used: unreadable, tampered, foreign geometry, wrong version."""
-
-
-def default_bounds(model: Manipulator, step=DEFAULT_STEP) -> np.ndarray:
-    """Bounds that cover the whole reachable tool space, computed from the geometry.
-
-    For an orientation phi the platform centre must lie in the three discs of
-    radius ``l1_i + l2_i`` centred at ``M_i - R(phi) b_i`` (and outside the
-    discs of radius ``|l1_i - l2_i|``, which cannot move an extreme point of the
-    set outward).  The extreme x and y of an intersection of discs lie at an
-    extreme point of one disc or at an intersection point of two circles; the
-    candidates inside all discs give the exact bounding box per phi.  Its union
-    over phi (sampled at 0.05 degrees, plus the largest motion of a platform
-    joint between samples), rounded outward to whole steps, contains every
-    reachable pose of every posture.
-
-    Parameters
-    ----------
-    model : Manipulator
-    step : (float, float, float)
-        Node spacing (m, m, rad); x and y bounds are rounded outward to it.
-
-    Returns
-    -------
-    ndarray, shape (3, 2)
-        ``[[x_min, x_max], [y_min, y_max], [-pi, pi]]``, m, m, rad.
-    """
-    phis = np.linspace(-np.pi, np.pi, 7201)
-    c, s = np.cos(phis)[:, None], np.sin(phis)[:, None]
-    b = model.platform
-    Rb = np.stack([c * b[:, 0] - s * b[:, 1], s * b[:, 0] + c * b[:, 1]], axis=-1)
-    C = model.motors - Rb                                                 # (n, 3, 2) disc centres
-    R = model.l1 + model.l2                                               # (3,) radii
-    cands = [C + R[:, None] * np.array(e) for e in ((1, 0), (-1, 0), (0, 1), (0, -1))]
-    for i, j in ((0, 1), (0, 2), (1, 2)):
-        d = C[:, j] - C[:, i]
-        dist = np.linalg.norm(d, axis=-1, keepdims=True)
-        a = (R[i] ** 2 - R[j] ** 2 + dist ** 2) / (2 * dist)
-        h = np.sqrt(np.maximum(R[i] ** 2 - a ** 2, 0.0))
-        e = d / dist
-        perp = np.stack([-e[:, 1], e[:, 0]], axis=-1)
-        base = C[:, i] + a * e
-        cands += [(base + h * perp)[:, None, :], (base - h * perp)[:, None, :]]
-    P = np.concatenate(cands, axis=1)                                     # (n, m, 2)
-    inside = np.all(np.linalg.norm(P[:, :, None, :] - C[:, None, :, :], axis=-1) <= R * (1 + 1e-12), axis=-1)
-    if not np.any(inside):
-        raise SolverInputError(f"model: the geometry {model.name!r} has no reachable pose")
-    margin = float(np.max(model.platform_radius)) * (phis[1] - phis[0])
-    lo = np.where(inside[..., None], P, np.inf).min(axis=(0, 1)) - margin
-    hi = np.where(inside[..., None], P, -np.inf).max(axis=(0, 1)) + margin
-    st = np.asarray(step[:2], dtype=float)
-    lo, hi = np.floor(lo / st) * st, np.ceil(hi / st) * st
-    return np.array([[lo[0], hi[0]], [lo[1], hi[1]], [-np.pi, np.pi]])
 
 
 def _pose_distance(a, b):
@@ -273,20 +198,14 @@ class MapTensor:
         Runs phi slice by phi slice (memory bounded by one slice); the labels
         are deterministic: the same inputs give byte-identical labels.
         """
-        if not isinstance(model, Manipulator):
-            raise SolverInputError(f"model: expected a Manipulator, got {type(model).__name__}")
+        check_model(model)
         posture = int(check_posture(posture))
         rule = DEFAULT_RULE if rule is None else rule
-        if rule not in ORDERING_RULES:
-            raise SolverInputError(f"rule: expected one of {sorted(ORDERING_RULES)}, got {rule!r}")
+        rule_code(rule)
         bounds = default_bounds(model) if bounds is None else as_array("bounds", bounds, (3, 2))
         if bounds.shape != (3, 2) or np.any(bounds[:, 1] <= bounds[:, 0]):
             raise SolverInputError(f"bounds: expected shape (3, 2) with min < max per axis, got {bounds.tolist()}")
-        if shape is None:
-            span = bounds[:, 1] - bounds[:, 0]
-            shape = (int(round(span[0] / DEFAULT_STEP[0])) + 1, int(round(span[1] / DEFAULT_STEP[1])) + 1,
-                     int(round(span[2] / DEFAULT_STEP[2])))
-        shape = tuple(int(n) for n in shape)
+        shape = tuple(int(n) for n in (grid_shape(bounds, DEFAULT_STEP) if shape is None else shape))
         if len(shape) != 3 or min(shape) < 2:
             raise SolverInputError(f"shape: expected three node counts >= 2, got {shape}")
         empty = cls(model, posture, bounds, shape, rule, np.zeros(shape, dtype=np.int8))
@@ -316,9 +235,6 @@ class MapTensor:
         return cls(model, posture, bounds, shape, rule, labels, stats)
 
     # ------------------------------------------------------------------ procedure 2
-    def _fractional_index(self, X):
-        return (X - self.origin) / self.step
-
     def label_at(self, X) -> np.ndarray:
         """The label of the node nearest to each pose.
 
@@ -453,116 +369,24 @@ class MapTensor:
                 lines.append(f"  {key.replace('_', ' ')}: {self.stats[key]}")
         return "\n".join(lines)
 
-    # ------------------------------------------------------------------ file
+    # ------------------------------------------------------------------ file (solver.mapfile)
     def checksum(self) -> str:
         """SHA-256 of the labels (C order, int8)."""
-        return hashlib.sha256(np.ascontiguousarray(self.labels, dtype=np.int8).tobytes()).hexdigest()
+        return mapfile.labels_checksum(self.labels)
 
     def metadata(self) -> dict:
-        from . import __version__
-        return {"format": "rrr-dk map tensor", "format_version": FORMAT_VERSION,
-                "library_version": __version__, "geometry": self.model.to_dict(),
-                "geometry_sha256": self.model.digest(), "posture": self.posture,
-                "bounds": self.bounds.tolist(), "shape": list(self.shape), "rule": self.rule,
-                "rule_description": ORDERING_RULES[self.rule], "labels_dtype": "int8",
-                "labels_sha256": self.checksum(), "stats": self.stats}
+        """The file's metadata record (:func:`solver.mapfile.metadata`)."""
+        return mapfile.metadata(self)
 
     def save(self, path) -> Path:
         """Write the map to a compressed ``.npz`` file with its metadata; returns the path."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        meta = json.dumps(self.metadata(), sort_keys=True)
-        buf = io.BytesIO()
-        np.savez_compressed(buf, labels=np.ascontiguousarray(self.labels), metadata=np.array(meta))
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_bytes(buf.getvalue())
-        tmp.replace(path)
-        return path
+        return mapfile.save_map(self, path)
 
     @classmethod
     def load(cls, path, model: Manipulator | None = None, posture: int | None = None) -> "MapTensor":
-        """Read a map written by :meth:`save`, refusing anything that does not check out.
+        """Read a map written by :meth:`save`, refusing anything that does not check out
+        (:class:`MapTensorFileError`; the checks are :func:`solver.mapfile.read_map`'s).
 
-        Parameters
-        ----------
-        path : str or Path
-        model : Manipulator, optional
-            If given, the file's geometry must be this one.
-        posture : int, optional
-            If given, the file's posture must be this one.
-
-        Raises
-        ------
-        MapTensorFileError
-            Missing, truncated or foreign file; unknown format version; labels
-            whose SHA-256 differs from the recorded one; another geometry or posture.
+        ``model`` / ``posture``, if given, are the geometry and posture the file must hold.
         """
-        path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                if "labels" not in data.files or "metadata" not in data.files:
-                    raise MapTensorFileError(f"{path}: not a map tensor file (arrays {data.files})")
-                labels = np.array(data["labels"])
-                meta = json.loads(str(data["metadata"]))
-        except MapTensorFileError:
-            raise
-        except FileNotFoundError:
-            raise MapTensorFileError(f"{path}: no such map tensor file") from None
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as exc:
-            raise MapTensorFileError(f"{path}: unreadable or truncated map tensor file ({exc})") from None
-        version = meta.get("format_version")
-        if meta.get("format") != "rrr-dk map tensor" or version != FORMAT_VERSION:
-            raise MapTensorFileError(f"{path}: format version {version!r} of {meta.get('format')!r}; "
-                                     f"this library reads version {FORMAT_VERSION}")
-        if labels.dtype != np.int8 or list(labels.shape) != list(meta.get("shape", [])):
-            raise MapTensorFileError(f"{path}: labels {labels.dtype} {labels.shape} do not match the "
-                                     f"metadata shape {meta.get('shape')}")
-        digest = hashlib.sha256(np.ascontiguousarray(labels).tobytes()).hexdigest()
-        if digest != meta.get("labels_sha256"):
-            raise MapTensorFileError(f"{path}: labels checksum {digest[:16]}... does not match the recorded "
-                                     f"{str(meta.get('labels_sha256'))[:16]}... (file modified or corrupted)")
-        try:
-            file_model = Manipulator.from_dict(meta["geometry"])
-        except (KeyError, ValueError) as exc:
-            raise MapTensorFileError(f"{path}: invalid geometry record ({exc})") from None
-        if file_model.digest() != meta.get("geometry_sha256"):
-            raise MapTensorFileError(f"{path}: geometry record does not match its recorded digest")
-        if model is not None and model.digest() != file_model.digest():
-            raise MapTensorFileError(f"{path}: built for geometry {file_model.name!r} "
-                                     f"({file_model.digest()[:12]}), expected {model.name!r} "
-                                     f"({model.digest()[:12]})")
-        if posture is not None and int(posture) != meta.get("posture"):
-            raise MapTensorFileError(f"{path}: built for posture {meta.get('posture')}, expected {posture}")
-        if meta.get("rule") not in ORDERING_RULES:
-            raise MapTensorFileError(f"{path}: unknown ordering rule {meta.get('rule')!r}")
-        if labels.size and (labels.min() < 0 or labels.max() > 6):
-            raise MapTensorFileError(f"{path}: labels outside 0..6")
-        labels.setflags(write=False)
-        return cls(model if model is not None else file_model, int(meta["posture"]),
-                   np.asarray(meta["bounds"], dtype=float), tuple(meta["shape"]), meta["rule"], labels,
-                   meta.get("stats", {}))
-
-
-def grid_shape(bounds, step) -> tuple:
-    """Node counts for ``bounds`` (3, 2) at spacing ``step`` (m, m, rad): x, y inclusive, phi periodic."""
-    span = np.asarray(bounds, float)[:, 1] - np.asarray(bounds, float)[:, 0]
-    return (int(round(span[0] / step[0])) + 1, int(round(span[1] / step[1])) + 1, int(round(span[2] / step[2])))
-
-
-def load_or_build(model: Manipulator, posture: int, rule: str = DEFAULT_RULE, step=DEFAULT_STEP,
-                  folder="build/maps", progress: bool = False) -> MapTensor:
-    """The map of ``posture`` at node spacing ``step`` from the cache folder, built and saved if missing
-    (or if the cached file does not check out).
-
-    Files are named ``map_posture<j>_<rule>_<mm>mm_<deg>deg.npz``.
-    """
-    name = f"map_posture{int(posture)}_{rule}_{step[0] * 1e3:g}mm_{np.rad2deg(step[2]):g}deg.npz"
-    path = Path(folder) / name
-    try:
-        return MapTensor.load(path, model=model, posture=posture)
-    except MapTensorFileError:
-        bounds = default_bounds(model, step)
-        mt = MapTensor.build(model, posture, bounds=bounds, shape=grid_shape(bounds, step), rule=rule,
-                             progress=progress)
-        mt.save(path)
-        return mt
+        return cls(**mapfile.read_map(path, model, posture))

@@ -32,148 +32,68 @@ flagged ``ambiguous`` when it is not certain: the nearest other real solution
 is less than ``1 / ambiguity_ratio`` times farther from the prediction, the map
 and the prediction disagree, the predictor met a singularity (it then falls
 back to eq. 22 or the previous pose), or the joint step is ``jump_factor``
-times larger than recent steps.
+times larger than recent steps.  ``ambiguous`` is a heuristic; ``certain`` is the proof.
+
+Certainty
+---------
+Every step reports ``certain``: True only when the tracker has *proved* that
+the returned pose lies on the branch continued from the initial pose, through
+an unbroken chain of certificates back to :meth:`reset` (which starts certain).
+A certificate is about a joint path between samples: the straight segment
+between the previous and the current joints, or, where that segment meets a
+singularity, the parabola through the last three samples (time-scaled).  The
+tracker keeps a *candidate set*, the DK solutions the true branch can be, in
+its state, and narrows it with three certificates (:mod:`._kernels.certify`):
+
+1. *continuation*: a chain of Krawczyk boxes along the path from the single
+   candidate, each box proved to hold exactly one solution for every joint value
+   of its piece of the path, names the branch at the new joints;
+2. *elimination*: otherwise every real solution of the new joints is followed
+   back along the path; one whose chain provably ends at a non-candidate is
+   dropped (two branches cannot meet without a singularity in between);
+3. *posture*: when several remain, those whose elbows are not in the map's
+   posture are dropped (the robot keeps its posture; ``posture_certificate``).
+
+One candidate left means certain.  In default mode the candidates also decide
+the answer: the one left, or the candidate nearest the prediction; paper mode
+keeps procedure 3's answer and is certain only when it is the candidate left.
+Once a step is not certain, ``uncertain_since`` gives the step index since
+which, until a certificate names the branch again; a chain uses at most
+``max_tests`` Krawczyk tests (a few per step far from singularities, hundreds
+next to one).  Measured on the suites: ``bench/bench_tracker.py``.
 
 Every step reports a :class:`StepInfo`.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import NamedTuple
+import time
 
 import numpy as np
 
-from . import _track_kernel as _tk
-from ._checks import SolverInputError, as_array
-from .kinematics import _RULE_CODES, NEWTON_STEPS, REAL_RESIDUAL, REAL_SNAP, _constants, wrap_angle
+from ._kernels import layout as _lay
+from ._kernels.certify import CERT_CONTINUATION
+from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, F_DQ, I_AMBIGUOUS, I_CERTAIN, I_CERTIFICATE, I_JUMP,
+                              I_LABEL, I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, INFO_I_SIZE, OUT_CANDS, OUT_INFO,
+                              OUT_SIZE, OUT_X, OUT_X_PRED, STATE_CANDS, STATE_DQ_SCALE, STATE_EXT_SCALE,
+                              STATE_HAVE_Q2, STATE_HISTORY, STATE_N_CAND, STATE_Q, STATE_Q2, STATE_SIZE,
+                              STATE_VERIFIED, STATE_X, STATE_X2, STATUS_UNREACHABLE)
+from ._kernels.tracker import tracker_step
+from .checks import SolverInputError, as_array
+from .direct_kinematics import kernel_constants
+from .kinematics import wrap_angle
 from .manipulator import Manipulator
 from .maptensor import MapTensor
+from .ordering import rule_code
+from .tracker_state import STEP_FIELDS, STATUS, StepInfo, TrackerError, TrackerState, TrackResult
 
-__all__ = ["Tracker", "TrackerState", "StepInfo", "TrackResult", "STATUS", "TrackerError"]
+__all__ = ["Tracker", "MAX_TESTS"]
 
-#: Status codes of a step (also the FMU's ``status`` output).
-STATUS = {0: "ok", 1: "unreachable", 2: "singular", 3: "rejected", 4: "diverged"}
+#: Default mode: joint motion per continuation substep (rad), and the most substeps of a step.
+SUBSTEP_DQ, MAX_SUBSTEPS = 0.05, 16
 
-
-class TrackerError(ValueError):
-    """A tracker used wrongly (no state yet, a map of another geometry...)."""
-
-
-@dataclass(frozen=True)
-class TrackerState:
-    """The tracker's data: everything a step reads and writes.
-
-    Attributes
-    ----------
-    X : ndarray, shape (3,)
-        Previous pose (m, m, rad).
-    q : ndarray, shape (3,)
-        Previous joints (rad).
-    X2 : ndarray, shape (3,) or None
-        The pose before ``X`` (for the tool-space extrapolation), None right after a reset.
-    dq_scale : float
-        Running mean of recent joint step sizes max|dq_i| (rad), for jump detection.
-    steps : int
-        Accepted steps since reset.
-    dt : float
-        Duration of the last accepted step (s) when the caller gave one, else NaN.
-    """
-
-    X: np.ndarray
-    q: np.ndarray
-    X2: np.ndarray | None = None
-    dq_scale: float = 0.0
-    steps: int = 0
-    dt: float = float("nan")
-
-    @property
-    def history(self) -> int:
-        """Consecutive known poses (1, or 2 when ``X2`` is the pose before ``X``)."""
-        return 1 if self.X2 is None else 2
-
-    def as_array(self) -> np.ndarray:
-        """The state as 12 floats (X, q, X2 or NaN, dq_scale, steps, dt or NaN): what an FMU serialises."""
-        x2 = np.full(3, np.nan) if self.X2 is None else self.X2
-        return np.concatenate([self.X, self.q, x2, [self.dq_scale, float(self.steps), self.dt]])
-
-    @classmethod
-    def from_array(cls, a) -> "TrackerState":
-        a = np.asarray(a, dtype=float)
-        if a.shape != (12,) or not np.all(np.isfinite(a[[0, 1, 2, 3, 4, 5, 9, 10]])):
-            raise TrackerError(f"state: expected 12 floats (X, q, X2, dq_scale, steps, dt), got {a!r}")
-        x2 = None if np.any(np.isnan(a[6:9])) else a[6:9].copy()
-        return cls(a[:3].copy(), a[3:6].copy(), x2, float(a[9]), int(a[10]), float(a[11]))
-
-
-class StepInfo(NamedTuple):
-    """What a step knows about its choice.
-
-    Attributes
-    ----------
-    label : int
-        Solution number (region) used, 1..6; 0 when nothing was chosen.
-    near_border : bool
-        Procedure 2 saw more than one label near the previous pose.
-    X_pred : ndarray, shape (3,)
-        The prediction the choice was compared with (eq. 22 in paper mode, the
-        continuation predictor in default mode, the start of Newton for baselines).
-    n_real : int
-        Number of real DK solutions (-1 where a baseline does not compute them).
-    cond : float
-        Hadamard ratio |det J| / prod |rows of J| at the returned pose (0 singular, 1 best).
-    ambiguous : bool
-        The choice is not certain (see the module docstring).
-    status : int
-        See :data:`STATUS`: 0 ok, 1 unreachable (pose held), 2 singular, 4 diverged.
-    jump : bool
-        The joint step was far larger than recent ones.
-    d_best, d_second : float
-        Weighted distance (m) from the prediction to the chosen and to the
-        nearest other real solution.
-    """
-
-    label: int
-    near_border: bool
-    X_pred: np.ndarray
-    n_real: int
-    cond: float
-    ambiguous: bool
-    status: int
-    jump: bool
-    d_best: float
-    d_second: float
-
-    @property
-    def status_name(self) -> str:
-        return STATUS[self.status]
-
-
-class TrackResult(NamedTuple):
-    """Result of :meth:`Tracker.track`: poses and per-step information as arrays.
-
-    Attributes
-    ----------
-    X : ndarray (n, 3)
-    label, n_real, status : ndarray of int (n,)
-    near_border, ambiguous, jump : ndarray of bool (n,)
-    X_pred : ndarray (n, 3)
-    cond, d_best, d_second : ndarray (n,)
-    seconds : ndarray (n,)
-        Wall time of each step (s); 0 for the initial pose.
-    """
-
-    X: np.ndarray
-    label: np.ndarray
-    near_border: np.ndarray
-    X_pred: np.ndarray
-    n_real: np.ndarray
-    cond: np.ndarray
-    ambiguous: np.ndarray
-    status: np.ndarray
-    jump: np.ndarray
-    d_best: np.ndarray
-    d_second: np.ndarray
-    seconds: np.ndarray
+#: Krawczyk tests one chain of certificates may use (a step runs one chain, or one per real solution
+#: while the branch is unknown); beyond it the step is not certified.
+MAX_TESTS = 2000
 
 
 def _check_q(q) -> np.ndarray:
@@ -195,16 +115,13 @@ class _TrackerBase:
         if not isinstance(model, Manipulator):
             raise TrackerError(f"model: expected a Manipulator, got {type(model).__name__}")
         self.model = model
-        k = _constants(model)
-        tol = REAL_RESIDUAL * float(np.min(model.l2) ** 2)
-        self._geo = np.concatenate([k["M"].ravel(), k["l1"], k["l2sq"], k["b"].ravel(), k["cos8"], k["sin8"],
-                                    k["psi"], [REAL_SNAP, tol, float(NEWTON_STEPS)]])
-        self._T = np.ascontiguousarray(k["T"])
+        k = kernel_constants(model)
+        self._model_pack, self._sample_to_sextic = k["pack"], k["sample_to_sextic"]
         self._w = np.array([1.0, 1.0, float(np.mean(model.platform_radius)) ** 2])
         self.state: TrackerState | None = None
-        self._st = np.empty(12)
-        self._out_f = np.empty(11)
-        self._ii = np.empty(7, dtype=np.int64)
+        self._state_pack = np.empty(STATE_SIZE)
+        self._out_real = np.empty(OUT_SIZE)
+        self._out_int = np.empty(INFO_I_SIZE, dtype=np.int64)
 
     def reset(self, X0, q0) -> None:
         """Start tracking from a known configuration.
@@ -224,7 +141,8 @@ class _TrackerBase:
         X0[2] = wrap_angle(X0[2])
         self.state = TrackerState(X0, q0.copy(), None, 0.0, 0, float("nan"))
 
-    def _kernel(self, q, st):                                      # pragma: no cover - abstract
+    def _kernel(self, q, state_pack):                              # pragma: no cover - abstract
+        """Run the compiled step on joints ``q`` and the state pack into the output packs."""
         raise NotImplementedError
 
     def step(self, q, dt: float | None = None):
@@ -256,26 +174,41 @@ class _TrackerBase:
         st = self.state
         if st is None:
             raise TrackerError(f"{self.name}: no state; call reset(X0, q0) first")
-        pk = self._st
-        pk[0:3], pk[3:6] = st.X, st.q
-        pk[6:9] = st.X if st.X2 is None else st.X2
-        pk[9], pk[10] = st.history, st.dq_scale
         if dt is not None and not (np.isfinite(dt) and dt > 0):
             raise SolverInputError(f"dt: expected a positive time step in s, got {dt!r}")
-        pk[11] = dt / st.dt if dt is not None and np.isfinite(st.dt) else 1.0
+        pk = self._state_pack
+        pk[STATE_X:STATE_X + 3], pk[STATE_Q:STATE_Q + 3] = st.X, st.q
+        pk[STATE_X2:STATE_X2 + 3] = st.X if st.X2 is None else st.X2
+        pk[STATE_HISTORY], pk[STATE_DQ_SCALE] = st.history, st.dq_scale
+        pk[STATE_EXT_SCALE] = dt / st.dt if dt is not None and np.isfinite(st.dt) else 1.0
+        if st.q2 is None:
+            pk[STATE_HAVE_Q2] = 0.0
+        else:
+            pk[STATE_Q2:STATE_Q2 + 3], pk[STATE_HAVE_Q2] = st.q2, 1.0
+        n = len(st.candidates)
+        if n == 0:                                           # right after a reset: the initial pose
+            pk[STATE_CANDS:STATE_CANDS + 3], pk[STATE_N_CAND] = st.X, 1.0
+        else:
+            pk[STATE_CANDS:STATE_CANDS + 3 * n], pk[STATE_N_CAND] = st.candidates.ravel(), n
+        pk[STATE_VERIFIED] = 1.0 if st.verified else 0.0
         self._kernel(q, pk)
-        ii, of = self._ii, self._out_f
-        status = int(ii[_tk.I_STATUS])
-        X = of[0:3].copy()
-        fi = of[6:11]
-        info = StepInfo(int(ii[_tk.I_LABEL]), bool(ii[_tk.I_NEAR_BORDER]), of[3:6].copy(),
-                        int(ii[_tk.I_N_REAL]), float(fi[_tk.F_COND]), bool(ii[_tk.I_AMBIGUOUS]), status,
-                        bool(ii[_tk.I_JUMP]), float(fi[_tk.F_D_BEST]), float(fi[_tk.F_D_SECOND]))
-        if status != _tk.STATUS_UNREACHABLE:
-            dqn = float(fi[_tk.F_DQ])
+        ii, of = self._out_int, self._out_real
+        status = int(ii[I_STATUS])
+        X = of[OUT_X:OUT_X + 3].copy()
+        fi = of[OUT_INFO:]
+        certain, n_cand = bool(ii[I_CERTAIN]), int(ii[I_N_CAND])
+        since = -1 if certain else (st.uncertain_since if st.uncertain_since >= 0 else st.steps + 1)
+        info = StepInfo(int(ii[I_LABEL]), bool(ii[I_NEAR_BORDER]), of[OUT_X_PRED:OUT_X_PRED + 3].copy(),
+                        int(ii[I_N_REAL]), float(fi[F_COND]), bool(ii[I_AMBIGUOUS]), status,
+                        bool(ii[I_JUMP]), float(fi[F_D_BEST]), float(fi[F_D_SECOND]), certain,
+                        int(ii[I_CERTIFICATE]), n_cand, since)
+        if status != STATUS_UNREACHABLE:
+            dqn = float(fi[F_DQ])
             scale = dqn if st.steps == 0 else 0.8 * st.dq_scale + 0.2 * dqn
+            cands = of[OUT_CANDS:OUT_CANDS + 3 * n_cand].reshape(n_cand, 3).copy()
             self.state = TrackerState(X, q.copy(), st.X, scale, st.steps + 1,
-                                      float("nan") if dt is None else float(dt))
+                                      float("nan") if dt is None else float(dt), st.q, cands,
+                                      int(ii[I_CERTIFICATE]) == CERT_CONTINUATION, since)
         return X, info
 
     def track(self, q_stream, X0) -> TrackResult:
@@ -292,17 +225,13 @@ class _TrackerBase:
         -------
         TrackResult
         """
-        import time
-
         q_stream = as_array("q_stream", q_stream, (3,))
         if q_stream.ndim != 2 or len(q_stream) < 1:
             raise SolverInputError(f"q_stream: expected shape (n, 3) with n >= 1, got {q_stream.shape}")
         n = len(q_stream)
         self.reset(X0, q_stream[0])
-        out = {k: np.zeros(n, dtype=t) for k, t in (("label", int), ("near_border", bool), ("n_real", int),
-                                                     ("cond", float), ("ambiguous", bool), ("status", int),
-                                                     ("jump", bool), ("d_best", float),
-                                                     ("d_second", float), ("seconds", float))}
+        out = {k: np.zeros(n, dtype=t) for k, t in STEP_FIELDS + (("seconds", float),)}
+        out["certain"][0], out["uncertain_since"][0] = True, -1
         X = np.zeros((n, 3))
         Xp = np.zeros((n, 3))
         X[0] = Xp[0] = self.state.X
@@ -311,8 +240,7 @@ class _TrackerBase:
             X[k], info = self.step(q_stream[k])
             out["seconds"][k] = time.perf_counter() - t0
             Xp[k] = info.X_pred
-            for key in ("label", "near_border", "n_real", "cond", "ambiguous", "status", "jump", "d_best",
-                        "d_second"):
+            for key, _ in STEP_FIELDS:
                 out[key][k] = getattr(info, key)
         return TrackResult(X=X, X_pred=Xp, **out)
 
@@ -339,12 +267,17 @@ class Tracker(_TrackerBase):
         Hadamard ratio of J below which a configuration is reported singular.
     use_map : bool
         Default mode: restrict candidates by procedure 2 (True) or not (for measurements).
+    posture_certificate : bool
+        Let the posture certificate decide between candidates (the robot stays in
+        the map's posture; see the module docstring).
+    max_tests : int
+        Krawczyk tests one chain of certificates may use.
     """
 
     def __init__(self, model: Manipulator, map_tensor: MapTensor, mode: str = "default", r=None,
                  weights=None, ambiguity_ratio: float = 0.25, jump_factor: float = 20.0,
-                 singular_tol: float = 1e-4, use_map: bool = True, strategy: int = 2,
-                 segment_singular: float = 0.05):
+                 singular_tol: float = 1e-4, use_map: bool = True, strategy: int = _lay.STRATEGY_SEGMENT,
+                 segment_singular: float = 0.05, posture_certificate: bool = True, max_tests: int = MAX_TESTS):
         super().__init__(model)
         if not isinstance(map_tensor, MapTensor):
             raise TrackerError(f"map_tensor: expected a MapTensor, got {type(map_tensor).__name__}")
@@ -354,7 +287,7 @@ class Tracker(_TrackerBase):
         if mode not in ("default", "paper"):
             raise TrackerError(f"mode: expected 'default' or 'paper', got {mode!r}")
         for key, val in (("ambiguity_ratio", ambiguity_ratio), ("jump_factor", jump_factor),
-                         ("singular_tol", singular_tol)):
+                         ("singular_tol", singular_tol), ("max_tests", max_tests)):
             if not (np.isfinite(val) and val > 0):
                 raise TrackerError(f"{key}: expected a positive number, got {val!r}")
         self.map = map_tensor
@@ -366,14 +299,15 @@ class Tracker(_TrackerBase):
         self._w = np.ascontiguousarray(w, dtype=float)
         self.r = r
         self._labels = np.ascontiguousarray(map_tensor.labels)
-        self._mgeo = np.concatenate([map_tensor.origin, map_tensor.step, [1.0 if map_tensor.periodic else 0.0,
-                                                                          r * r], self._w])
+        self._map_pack = _lay.pack_map(map_tensor.origin, map_tensor.step, map_tensor.periodic, r * r, self._w)
         self._stencil = map_tensor._stencil(r, w)
-        self._params = np.array([ambiguity_ratio, jump_factor, 0.05, 16.0, singular_tol,
-                                 1.0 if use_map else 0.0, float(strategy), segment_singular])
-        self._mode = _tk.MODE_PAPER if mode == "paper" else _tk.MODE_DEFAULT
-        self._rule = _RULE_CODES[map_tensor.rule]
+        self._params = _lay.pack_tracker_params(ambiguity_ratio, jump_factor, SUBSTEP_DQ, MAX_SUBSTEPS, singular_tol,
+                                                use_map, strategy, segment_singular,
+                                                map_tensor.posture - 1 if posture_certificate else -1,
+                                                int(max_tests))
+        self._mode = _lay.MODE_PAPER if mode == "paper" else _lay.MODE_DEFAULT
+        self._rule = rule_code(map_tensor.rule)
 
-    def _kernel(self, q, st):
-        _tk.tracker_step_packed(self._mode, self._rule, q, st, self._geo, self._T, self._labels, self._mgeo,
-                                self._stencil, self._params, self._out_f, self._ii)
+    def _kernel(self, q, state_pack):
+        tracker_step(self._mode, self._rule, q, state_pack, self._model_pack, self._sample_to_sextic, self._labels,
+                     self._map_pack, self._stencil, self._params, self._out_real, self._out_int)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._checks import SolverInputError
+from .checks import SolverInputError
 
 #: The circle of the experiments: centre (m), radius (m), constant phi (rad), posture.
 PAPER_CIRCLE = {"center": (0.45, 0.30), "radius": 0.25, "phi": float(np.deg2rad(-45.0)), "posture": 1}

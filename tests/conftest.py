@@ -33,7 +33,7 @@ def pose_distance(a, b):
 
 
 # pythonfmu 0.7's libraries may abort the process at exit once several of its FMUs were loaded
-# (NTNU-IHB/PythonFMU#228; see dynamics.cosim.exit_process).  The session's outcome is known and
+# (NTNU-IHB/PythonFMU#228; see fmu_src.unit.exit_process).  The session's outcome is known and
 # printed by then: end the process with that status, skipping the libraries' finalizers.
 _SESSION = {}
 
@@ -44,7 +44,7 @@ def pytest_sessionfinish(session, exitstatus):
 
 def pytest_unconfigure(config):
     if "status" in _SESSION:
-        from dynamics.cosim import exit_process, fmus_loaded
+        from fmu_src.unit import exit_process, fmus_loaded
 
         if fmus_loaded():
             exit_process(_SESSION["status"])

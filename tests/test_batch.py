@@ -322,21 +322,21 @@ def test_materialize_checks_hash_and_reuses(tmp_path, monkeypatch):
     monkeypatch.setenv("RRR_DK_FMU_CACHE", str(tmp_path))
     data = b"not really an FMU"
     sha = hashlib.sha256(data).hexdigest()
-    path = batch._materialize("RRRPlant", sha, data)
+    path = batch.materialize("RRRPlant", sha, data)
     assert path == tmp_path / sha / "RRRPlant.fmu" and path.read_bytes() == data
-    assert batch._materialize("RRRPlant", sha, data) == path               # already there
+    assert batch.materialize("RRRPlant", sha, data) == path               # already there
     with pytest.raises(RuntimeError, match="SHA-256"):
-        batch._materialize("RRRPlant", "0" * 64, data)
+        batch.materialize("RRRPlant", "0" * 64, data)
     assert sorted(p.name for p in tmp_path.rglob("*")) == sorted([sha, "RRRPlant.fmu"])   # no temp left
 
 
 def test_another_build_in_the_same_process_is_refused(monkeypatch, fmu_dir):
     spec = batch.fmu_spec({n: fmu_dir / f"{n}.fmu" for n in batch.FMU_NAMES})
-    monkeypatch.setitem(batch._STATE, "loaded", {"RRRPlant": "f" * 64})
-    monkeypatch.setitem(batch._STATE, "loops", {})
-    created = batch._STATE["created"]
+    monkeypatch.setitem(batch.worker.STATE, "loaded", {"RRRPlant": "f" * 64})
+    monkeypatch.setitem(batch.worker.STATE, "loops", {})
+    created = batch.worker.STATE["created"]
     with pytest.raises(batch.FMUBuildConflict, match="restart the workers"):
-        batch._get_loop(spec, None)
+        batch.get_loop(spec, None)
     row = batch.run_task(7, expand({"t_end": 0.1})[0], spec)
     assert row["status"] == "failed" and row["error"].startswith("FMUBuildConflict")
-    assert batch._STATE["created"] == created                              # nothing was loaded here
+    assert batch.worker.STATE["created"] == created                              # nothing was loaded here

@@ -3,9 +3,8 @@ import numpy as np
 import pytest
 
 from dynamics.cosim import ClosedLoop, Scenario, build_fmus, simulate_fig3, write_osp_system
-from dynamics.integrate import rk4, task_space_rhs
-from dynamics.model import (DynamicParameters, joint_velocity_jacobian, pose_velocity_jacobian,
-                            total_energy)
+from dynamics import (DynamicParameters, joint_velocity_jacobian, pose_velocity_jacobian, rk4, task_space_rhs,
+                      total_energy)
 from solver import Manipulator, ik, wrap_angle
 
 
@@ -73,7 +72,7 @@ def test_runs_are_reproducible_after_reset(loop):
 
 def test_libcosim_runs_the_same_loop(fmus, loop, tmp_path):
     """The OSP system structure run by DNV libcosim equals our master's Jacobi scheme."""
-    from fmu_src.fmi_build import run_osp_system
+    from fmu_src.libcosim import run_osp_system
 
     sc = Scenario(t_end=0.4)
     osp = write_osp_system(fmus, tmp_path, sc)

@@ -11,17 +11,13 @@ from hypothesis import strategies as st
 
 from solver import (SolverInputError, dk_all, elbow_points, ik, platform_points, posture_of,
                     singularity_measures)
-from dynamics.control import (ComputedTorqueController, ComputedTorqueGains, computed_torque,
-                              simulate_tracking, wrap)
-from dynamics.integrate import (NearestPoseDK, joint_space_rhs, rk4, rk4_step, solve_reference,
-                                task_space_rhs)
-from dynamics.model import (DynamicParameters, ParameterError, coriolis, coriolis_task, forward_dynamics,
-                            forward_dynamics_task, friction, friction_power, friction_task,
-                            generalized_force_task, gravity, gravity_task, inverse_dynamics,
-                            inverse_dynamics_task, joint_accelerations, joint_velocity_jacobian,
-                            kinetic_energy, mass_matrix, mass_matrix_task, passive_joint_angles,
-                            passive_joint_rates, pose_velocity_jacobian, potential_energy, total_energy)
-from dynamics.trajectory import CircleTrajectory
+from dynamics import (CircleTrajectory, ComputedTorqueController, ComputedTorqueGains, DynamicParameters,
+                      NearestPoseDK, ParameterError, computed_torque, coriolis, coriolis_task, forward_dynamics,
+                      forward_dynamics_task, friction, friction_power, friction_task, generalized_force_task,
+                      gravity, gravity_task, inverse_dynamics, inverse_dynamics_task, joint_accelerations,
+                      joint_space_rhs, joint_velocity_jacobian, kinetic_energy, mass_matrix, mass_matrix_task,
+                      passive_joint_angles, passive_joint_rates, pose_velocity_jacobian, potential_energy, rk4,
+                      rk4_step, simulate_tracking, solve_reference, task_space_rhs, total_energy, wrap)
 from conftest import pose_distance
 
 H = 1e-3                 # step and controller period, s

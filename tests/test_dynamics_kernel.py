@@ -1,27 +1,30 @@
-"""The compiled dynamics kernels (dynamics/_kernel.py) against the numpy reference (dynamics/model.py).
+"""The compiled dynamics kernels (dynamics/_kernels/) against their numpy reference (tests/dynamics_reference.py).
 
-Every public dynamics function runs the kernel; its numpy implementation is
-kept as ``_reference_<name>``.  Here the two are compared on many random
+Every public dynamics function runs a kernel; its numpy implementation is the
+oracle ``dynamics_reference.<name>``.  Here the two are compared on many random
 configurations in all eight postures (away from singularities, where both are
 accurate), with parameters that exercise every term; the single-configuration
 path must equal the batch path to the last bit (it is a batch of one), the
-compiled RK4 loop the generic one, and the errors the reference's.  The same
-for the compiled circle reference (:class:`dynamics.trajectory.CircleTrajectory`
-against its numpy ``_reference_task`` / ``_reference_joint``) and the compiled
-steps of the plant and controller FMU slaves (``fmu_src/RRRPlant.py``,
-``fmu_src/ComputedTorqueController.py``, run in process against their numpy
-``_reference_step``).
+compiled RK4 loop the generic one, and the errors the reference's (a kernel's
+refusal is a :class:`dynamics.DynamicsError` with the reference's message).  The
+same for the compiled circle reference (:class:`dynamics.CircleTrajectory`
+against ``circle_task`` / ``circle_joint``) and the steps of the plant and
+controller FMU slaves (``fmu_src/RRRPlant.py``, ``fmu_src/ComputedTorqueController.py``,
+run in process, through :class:`dynamics.PlantStepper` / :class:`dynamics.ControllerStepper`,
+against the numpy ``plant_step`` / ``controller_step``).
 """
+import re
+
 import numpy as np
 import pytest
 
+import dynamics as dm
+import dynamics_reference as oracle
 from solver import SolverInputError, ik, singularity_measures
-from dynamics import _kernel
-from dynamics import model as dm
-from dynamics.control import (ComputedTorqueGains, _computed_torque, _reference__computed_torque,
-                              _reference_computed_torque, computed_torque, wrap)
-from dynamics.integrate import NearestPoseDK, joint_space_rhs, rk4, rk4_step, task_space_rhs
-from dynamics.trajectory import CircleTrajectory
+from dynamics import (CircleTrajectory, ComputedTorqueGains, ControllerStepper, DynamicsError, NearestPoseDK,
+                      PlantStepper, computed_torque, joint_space_rhs, rk4, rk4_step, task_space_rhs, wrap)
+from dynamics._evaluate import arm_pack
+from dynamics._kernels.rows import ik_row
 
 #: kernel vs reference, relative to the largest entry of each result
 REL = 1e-12
@@ -104,7 +107,7 @@ def test_task_space_kernels_equal_reference(model, params, configs, posture):
     for name in TASK:
         args = _task_args(name, c)
         fast = getattr(dm, name)(params, model, *args, posture=posture)
-        ref = getattr(dm, f"_reference_{name}")(params, model, *args, posture=posture)
+        ref = getattr(oracle, name)(params, model, *args, posture=posture)
         assert fast.shape == ref.shape
         worst[name] = _rel(fast, ref).max()
         # a single configuration is a batch of one: the same numbers to the last bit
@@ -122,7 +125,7 @@ def test_joint_space_kernels_equal_reference(model, params, configs, posture):
     for name in JOINT:
         args = _joint_args(name, c)
         fast = getattr(dm, name)(params, model, *args)
-        ref = getattr(dm, f"_reference_{name}")(params, model, *args)
+        ref = getattr(oracle, name)(params, model, *args)
         assert fast.shape == ref.shape
         worst[name] = _rel(fast, ref).max()
         for k in range(0, len(c["X"]), 7):
@@ -140,9 +143,8 @@ def test_computed_torque_kernel_equals_reference(model, params, configs, posture
     q_d = c["q"] + rng.uniform(-4.0, 4.0, c["q"].shape)
     args = (c["q"], c["dq"], c["X"], q_d, c["dq"] + 0.1, c["ddq"])
     fast = computed_torque(params, model, gains, *args)
-    assert _rel(fast, _reference_computed_torque(params, model, gains, *args)).max() <= REL
-    assert _rel(_computed_torque(params, model, gains, *args),
-                _reference__computed_torque(params, model, gains, *args)).max() <= REL
+    assert _rel(fast, oracle.computed_torque(params, model, gains, *args)).max() <= REL
+    assert _rel(fast, oracle.computed_torque_law(params, model, gains, *args)).max() <= REL
     for k in range(0, len(q_d), 5):
         np.testing.assert_array_equal(computed_torque(params, model, gains, *(a[k] for a in args)), fast[k])
     # the law itself: tau = inverse dynamics of ddq_d + Kd de + Kp wrap(e)
@@ -157,7 +159,7 @@ def test_right_hand_sides_equal_reference(model, params, configs):
         f = task_space_rhs(params, model, posture, c["tau"][0])
         for k in range(0, len(c["X"]), 3):
             x = np.concatenate([c["X"][k], c["dX"][k]])
-            ref = dm._reference_forward_task(params, model, c["X"][k], c["q"][k], c["dX"][k], c["tau"][0])
+            ref = oracle.forward_task(params, model, c["X"][k], c["q"][k], c["dX"][k], c["tau"][0])
             d = f(0.0, x)
             np.testing.assert_array_equal(d[:3], c["dX"][k])
             assert _rel(d[None, 3:], ref[None]).max() <= REL
@@ -170,7 +172,7 @@ def test_right_hand_sides_equal_reference(model, params, configs):
         g = joint_space_rhs(params, model, lambda q: next(poses), lambda t, x: c["tau"][1])
         for k in range(len(c["X"])):
             d = g(0.0, np.concatenate([c["q"][k], c["dq"][k]]))
-            ref = dm._reference_forward_joint(params, model, c["q"][k], c["dq"][k], c["X"][k], c["tau"][1])
+            ref = oracle.forward_joint(params, model, c["q"][k], c["dq"][k], c["X"][k], c["tau"][1])
             np.testing.assert_array_equal(d[:3], c["dq"][k])
             assert _rel(d[None, 3:], ref[None]).max() <= REL
 
@@ -179,12 +181,12 @@ def test_kernel_ik_equals_solver_ik(model):
     """Same reach test and angles; rounding is amplified by arccos near a stretched or folded leg."""
     rng = np.random.default_rng(3)
     X = np.column_stack([rng.uniform(-0.2, 1.2, 4000), rng.uniform(-0.3, 1.1, 4000), rng.uniform(-np.pi, np.pi, 4000)])
-    G = dm._kernel_model(model)
+    arm = arm_pack(model)
     q = np.empty(3)
     for posture in range(1, 9):
         ref = ik(model, X, posture)
         for k in range(len(X)):
-            ok = _kernel.ik_row(G, X[k, 0], X[k, 1], X[k, 2], posture - 1, q)
+            ok = ik_row(arm, X[k, 0], X[k, 1], X[k, 2], posture - 1, q)
             assert ok == (not np.isnan(ref[k, 0]))
             if ok:
                 np.testing.assert_allclose(wrap(q - ref[k]), 0.0, rtol=0, atol=1e-12)
@@ -210,7 +212,7 @@ def test_compiled_rk4_equals_the_generic_loop(model):
     assert xs.shape == (1, 6) and np.all(xs[0] == x0)
     ft = task_space_rhs(p, model, 1, lambda t, x: np.array([0.02 * t, 0.0, 0.0]))
     _, xt = rk4(ft, 0.0, x0, 1e-3, 50)
-    _, xr = rk4(lambda t, x: np.concatenate([x[3:], dm._reference_forward_dynamics_task(
+    _, xr = rk4(lambda t, x: np.concatenate([x[3:], oracle.forward_dynamics_task(
         p, model, x[:3], x[3:], np.array([0.02 * t, 0.0, 0.0]))]), 0.0, x0, 1e-3, 50)
     np.testing.assert_allclose(xt, xr, rtol=0, atol=1e-13)
 
@@ -235,7 +237,7 @@ def test_joint_space_rk4_with_nearest_dk(model):
     f = joint_space_rhs(p, model, NearestPoseDK(model, X0), np.array([0.1, 0.0, -0.1]))
 
     def ref(t, x, dk=NearestPoseDK(model, X0)):
-        return np.concatenate([x[3:], dm._reference_forward_dynamics(p, model, x[:3], x[3:], dk(x[:3]),
+        return np.concatenate([x[3:], oracle.forward_dynamics(p, model, x[:3], x[3:], dk(x[:3]),
                                                                      np.array([0.1, 0.0, -0.1]))])
     _, xs = rk4(f, 0.0, x0, 1e-3, 50)
     _, xr = rk4(ref, 0.0, x0, 1e-3, 50)
@@ -243,12 +245,23 @@ def test_joint_space_rk4_with_nearest_dk(model):
 
 
 # ---------------------------------------------------------------------------- input handling
+_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*(?:e[-+]?\d+)?|\bnan\b|\binf\b)")
+
+
 def _same_error(fast, ref):
+    """The runtime raises the reference's error: the same type, or a DynamicsError where a kernel
+    refused what the reference refuses; the same message, numbers to 1e-12 (the reference computes
+    the poses of a trajectory with numpy), except the runtime's "(first refused at index ...)"."""
     with pytest.raises(Exception) as e1:
         fast()
     with pytest.raises(Exception) as e2:
         ref()
-    assert type(e1.value) is type(e2.value) and str(e1.value) == str(e2.value)
+    assert type(e1.value) is type(e2.value) or (type(e1.value) is DynamicsError
+                                                and type(e2.value) is SolverInputError), (e1.value, e2.value)
+    got, want = re.sub(r" \(first refused at index .*\)$", "", str(e1.value)), str(e2.value)
+    assert _NUMBER.sub("#", got) == _NUMBER.sub("#", want), (got, want)
+    np.testing.assert_allclose([float(v) for v in _NUMBER.findall(got)], [float(v) for v in _NUMBER.findall(want)],
+                               rtol=1e-12, atol=1e-12)
     return e1.value
 
 
@@ -269,20 +282,28 @@ def test_fast_path_errors_are_the_reference_errors(model):
     ]
     for name, args in cases:
         err = _same_error(lambda: getattr(dm, name)(p, model, *args),
-                          lambda: getattr(dm, f"_reference_{name}")(p, model, *args))
+                          lambda: getattr(oracle, name)(p, model, *args))
         assert isinstance(err, SolverInputError), (name, err)
+        # a kernel refusal (a single configuration: the kernel checks it) is the one named exception
+        if all(type(a) is np.ndarray and a.shape == (3,) and a.dtype == np.float64 for a in args):
+            assert type(err) is DynamicsError and err.where is None, (name, err)
     for posture in (0, 9, 2.5, True, "1"):
         _same_error(lambda: dm.gravity_task(p, model, X, posture),
-                    lambda: dm._reference_gravity_task(p, model, X, posture))
+                    lambda: oracle.gravity_task(p, model, X, posture))
     gains = ComputedTorqueGains.design()
     _same_error(lambda: computed_torque(p, model, gains, q, z, X, nan, z, z),
-                lambda: _reference_computed_torque(p, model, gains, q, z, X, nan, z, z))
+                lambda: oracle.computed_torque(p, model, gains, q, z, X, nan, z, z))
     _same_error(lambda: computed_torque(p, model, gains, q, z, X + 0.01, q, z, z),
-                lambda: _reference_computed_torque(p, model, gains, q, z, X + 0.01, q, z, z))
+                lambda: oracle.computed_torque(p, model, gains, q, z, X + 0.01, q, z, z))
     # the right-hand side of a pose outside the tool space
     rhs = task_space_rhs(p, model, 1, tau=np.zeros(3))
-    with pytest.raises(SolverInputError, match="tool space"):
+    with pytest.raises(DynamicsError, match="tool space") as err:
         rhs(0.0, np.array([3.0, 3.0, 0.0, 0.0, 0.0, 0.0]))
+    assert err.value.reason == "outside" and isinstance(err.value, ValueError)
+    # in a batch, the error names the first configuration refused
+    with pytest.raises(DynamicsError, match=r"loop residual .* \(first refused at index \(1,\)\)") as err:
+        dm.forward_dynamics(p, model, np.stack([q, q]), z, np.stack([X, X + 0.01]), z)
+    assert err.value.reason == "not-assembled" and err.value.where == (1,)
 
 
 def test_other_input_forms_take_the_checked_route(model):
@@ -292,7 +313,7 @@ def test_other_input_forms_take_the_checked_route(model):
     q = ik(model, X, 1)
     dX = rng.normal(size=(2, 3))
     tau = rng.normal(size=3)
-    ref = dm._reference_forward_dynamics_task(p, model, X, dX, tau)
+    ref = oracle.forward_dynamics_task(p, model, X, dX, tau)
     # lists, integer postures as numpy ints and arrays, read-only and strided arrays, broadcasting
     assert _rel(dm.forward_dynamics_task(p, model, X.tolist(), dX, tau.tolist()), ref).max() <= REL
     assert _rel(dm.forward_dynamics_task(p, model, X, dX, tau, np.int64(1)), ref).max() <= REL
@@ -329,7 +350,7 @@ def _circles(model):
         traj = CircleTrajectory(center=(0.5, 0.3), radius=0.05, phi=0.3, posture=posture, period=1.1,
                                 ramp_time=0.3, start=-1.0)
         try:
-            traj._reference_joint(model, np.linspace(0.0, 1.5, 16))
+            oracle.circle_joint(traj, model, np.linspace(0.0, 1.5, 16))
         except SolverInputError:
             continue                                    # the circle is not in this posture's tool space
         out.append(traj)
@@ -347,12 +368,12 @@ def _circle_diff(fast, ref):
 
 
 def test_circle_kernel_equals_reference(model):
-    """CircleTrajectory.task/joint (compiled) against _reference_task/_reference_joint (numpy)."""
+    """CircleTrajectory.task/joint (compiled) against circle_task/circle_joint (numpy)."""
     t = np.concatenate([[-0.3, 0.0], np.linspace(1e-4, 3.0, 3001)])
     report = []
     for traj in _circles(model):
-        fast_t, ref_t = traj.task(t), traj._reference_task(t)
-        fast_j, ref_j = traj.joint(model, t), traj._reference_joint(model, t)
+        fast_t, ref_t = traj.task(t), oracle.circle_task(traj, t)
+        fast_j, ref_j = traj.joint(model, t), oracle.circle_joint(traj, model, t)
         for f, g in zip(fast_t + fast_j, ref_t + ref_j):
             assert f.shape == g.shape == t.shape + (3,) and f.dtype == g.dtype == np.float64
         dt, dj = _circle_diff(fast_t, ref_t), _circle_diff(fast_j, ref_j)
@@ -375,13 +396,13 @@ def test_circle_kernel_equals_reference(model):
 def test_circle_kernel_refusals_are_the_reference_errors(model):
     traj = CircleTrajectory()
     for t in (np.nan, [0.1, np.inf]):
-        _same_error(lambda: traj.task(t), lambda: traj._reference_task(t))
-        _same_error(lambda: traj.joint(model, t), lambda: traj._reference_joint(model, t))
+        _same_error(lambda: traj.task(t), lambda: oracle.circle_task(traj, t))
+        _same_error(lambda: traj.joint(model, t), lambda: oracle.circle_joint(traj, model, t))
     big = CircleTrajectory(radius=0.8)                  # leaves the tool space of posture 1
     err = _same_error(lambda: big.joint(model, np.linspace(0, 2, 50)),
-                      lambda: big._reference_joint(model, np.linspace(0, 2, 50)))
+                      lambda: oracle.circle_joint(big, model, np.linspace(0, 2, 50)))
     assert isinstance(err, SolverInputError) and "tool space of posture 1" in str(err)
-    _same_error(lambda: traj.joint("paper", 0.1), lambda: traj._reference_joint("paper", 0.1))
+    _same_error(lambda: traj.joint("paper", 0.1), lambda: oracle.circle_joint(traj, "paper", 0.1))
     np.testing.assert_array_equal(traj.task([])[0], np.zeros((0, 3)))
 
 
@@ -407,21 +428,21 @@ OUT_PLANT = ("q1", "q2", "q3", "dq1", "dq2", "dq3", "x_true", "y_true", "phi_tru
 
 @pytest.mark.parametrize("case", ["default", "gravity+substeps", "no-friction+heavy"])
 def test_plant_step_equals_the_numpy_step(model, case):
-    """RRRPlant: the compiled step against the numpy one (the slave's _reference_step), step by step."""
+    """RRRPlant: the compiled step against the numpy one (oracle.plant_step), step by step."""
     from fmu_src.RRRPlant import RRRPlant
     X0 = np.array([0.45, 0.30, -0.7])
     params = {"default": {}, "gravity+substeps": dict(gravity_y=-0.5, gravity_x=0.2, substeps=3),
               "no-friction+heavy": dict(friction=False, mass_scale=1.3)}[case]
     fast = _slave(RRRPlant, x0=X0[0], y0=X0[1], phi0=X0[2], **params)
     ref = _slave(RRRPlant, x0=X0[0], y0=X0[1], phi0=X0[2], **params)
-    ref._reference_outputs()
+    oracle.plant_outputs(ref)
     rng = np.random.default_rng(11)
     for k in range(200):
         tau = (0.3 * np.sin(0.05 * k + np.arange(3)) + 0.02 * rng.normal(size=3)).tolist()
         for inst in (fast, ref):
             inst.tau1, inst.tau2, inst.tau3 = tau
         assert fast.do_step(k * 1e-3, 1e-3)
-        ref._reference_step(k * 1e-3, 1e-3)
+        oracle.plant_step(ref, k * 1e-3, 1e-3)
         # RK4 and the inverse kinematics: the same operations, the same bits
         np.testing.assert_array_equal(fast._x, ref._x)
         assert [getattr(fast, n) for n in OUT_PLANT[:3]] == [getattr(ref, n) for n in OUT_PLANT[:3]]
@@ -434,16 +455,15 @@ def test_plant_step_equals_the_numpy_step(model, case):
 
 
 def test_plant_energy_kernel_equals_total_energy(model, params, configs):
-    from dynamics.model import _plant_pack
-    K = _plant_pack(params, model)
-    out = np.empty(13)
+    out = np.empty(PlantStepper.OUT_SIZE)
     for posture in (1, 5):
+        stepper = PlantStepper(params, model, posture)
         c = configs[posture]
         ref = dm.total_energy(params, model, c["X"], c["dX"], posture)
         dq = np.einsum("...ij,...j->...i", dm.joint_velocity_jacobian(model, c["X"], c["q"]), c["dX"])
         for k in range(len(ref)):
             x = np.concatenate([c["X"][k], c["dX"][k]])
-            assert _kernel.plant_step(K, posture - 1, 0.0, 0.0, 0.0, 0.0, 0, x, out) == _kernel.OK
+            stepper.outputs(x, out)
             np.testing.assert_array_equal(out[:6], x)
             np.testing.assert_array_equal(out[6:9], ik(model, c["X"][k], posture))
             np.testing.assert_allclose(out[9:12], dq[k], rtol=1e-13, atol=1e-13)
@@ -469,12 +489,40 @@ def test_plant_refused_step_rolls_back(model):
     assert inst.do_step(5e-3, 1e-3) and not np.array_equal(inst._x, x_before)
 
 
+def test_steppers_refuse_with_the_one_exception(model):
+    """PlantStepper / ControllerStepper: a refusal is a DynamicsError saying where; wrong lengths of
+    the caller's arrays are argument errors (the compiled steps check them)."""
+    p = dm.DynamicParameters()
+    plant = PlantStepper(p, model, 1)
+    out = np.empty(PlantStepper.OUT_SIZE)
+    x = np.array([0.45, 0.30, -0.7, 0.0, 0.0, 0.0])
+    with pytest.raises(DynamicsError, match="tool space of posture 1") as err:
+        plant.step(4e4, -4e4, 4e4, 0.05, 2, x, out)          # thrown out of the tool space
+    assert err.value.reason == "outside" and err.value.where in (0, 1)
+    with pytest.raises(SolverInputError, match=r"expected float arrays of shapes \(6,\) and \(13,\)"):
+        plant.step(0.0, 0.0, 0.0, 1e-3, 1, x, np.empty(12))
+    traj = CircleTrajectory()
+    ctrl = ControllerStepper(p, model, ComputedTorqueGains.design(), traj)
+    q0, X0 = traj.joint(model, 0.0)[0], traj.task(0.0)[0]
+    out = np.empty(ControllerStepper.OUT_SIZE)
+    ctrl.step(0.0, *q0.tolist(), 0.0, 0.0, 0.0, *X0.tolist(), out)
+    np.testing.assert_array_equal(out[6:], q0)
+    with pytest.raises(DynamicsError) as err:
+        ctrl.step(0.0, *q0.tolist(), 0.0, 0.0, 0.0, 3.0, 3.0, 0.0, out)
+    assert (err.value.where, err.value.reason) == ("measurement", "outside")
+    with pytest.raises(DynamicsError, match="reference at t = nan") as err:
+        ctrl.step(float("nan"), *q0.tolist(), 0.0, 0.0, 0.0, *X0.tolist(), out)
+    assert (err.value.where, err.value.reason) == ("reference", "non-finite")
+    with pytest.raises(SolverInputError, match=r"out: expected a float array of shape \(9,\)"):
+        ctrl.step(0.0, *q0.tolist(), 0.0, 0.0, 0.0, *X0.tolist(), np.empty(3))
+
+
 OUT_CTRL = ("tau1", "tau2", "tau3", "x_ref", "y_ref", "phi_ref_out", "q1_ref", "q2_ref", "q3_ref")
 
 
 @pytest.mark.parametrize("mass_scale", [1.0, 1.2])
 def test_controller_step_equals_the_numpy_step(model, mass_scale):
-    """ComputedTorqueController: the compiled step against the numpy one (_reference_step) on
+    """ComputedTorqueController: the compiled step against the numpy one (oracle.controller_step) on
     measurements around the reference (joints off by up to 2 pi turns, poses of the joints)."""
     from fmu_src.ComputedTorqueController import ComputedTorqueController
     traj = CircleTrajectory()
@@ -495,7 +543,7 @@ def test_controller_step_equals_the_numpy_step(model, mass_scale):
             inst.dq1, inst.dq2, inst.dq3 = dq[k].tolist()
             inst.x, inst.y, inst.phi = X[k].tolist()
         assert fast.do_step(float(t[k]), 1e-3)
-        ref._reference_step(float(t[k]), 1e-3)
+        oracle.controller_step(ref, float(t[k]), 1e-3)
         got = np.array([getattr(fast, n) for n in OUT_CTRL])
         want = np.array([getattr(ref, n) for n in OUT_CTRL])
         assert all(type(getattr(fast, n)) is float for n in OUT_CTRL)
@@ -519,10 +567,9 @@ def test_controller_refusals_are_the_numpy_step_refusals(model):
     # a reference that leaves the tool space (a circle too large for the robot): the numpy code's error
     big = _slave(ComputedTorqueController, q1=q0[0], q2=q0[1], q3=q0[2], x=X0[0], y=X0[1], phi=X0[2])
     object.__setattr__(big, "_traj", CircleTrajectory(radius=0.8))
-    from dynamics.control import _controller_pack
-    big._kpack = _controller_pack(big._params, big._model, big._gains, big._traj)
+    big._stepper = ControllerStepper(big._params, big._model, big._gains, big._traj)
     assert not big.do_step(0.6, 1e-3)
-    assert "SolverInputError" in big.last_refusal and "tool space of posture 1" in big.last_refusal
+    assert "reference at t = 0.6" in big.last_refusal and "tool space of posture 1" in big.last_refusal
     inst.x = X0[0]
     assert inst.do_step(0.0, 1e-3)
 

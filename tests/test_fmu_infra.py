@@ -1,4 +1,4 @@
-"""FMU infrastructure: fmu_src.table_slave + fmu_src.fmi_build, proven on tests/fmu_fixtures/FmuInfraProbe.
+"""FMU infrastructure: fmu_src's runtime and host side, proven on tests/fmu_fixtures/FmuInfraProbe.
 
 The FMU is built once per module into a temporary folder; every test runs it for real (fmpy
 FMU2Slave / simulate_fmu, libcosim through libcosimpy) in this process.
@@ -11,28 +11,25 @@ import sys
 import textwrap
 import xml.etree.ElementTree as ET
 import zipfile
-from ctypes import byref
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:  # fmu_src is not yet an installed package (see pyproject.toml)
-    sys.path.insert(0, str(ROOT))
 
-import fmpy  # noqa: E402
-from fmpy import extract, read_model_description  # noqa: E402
-from fmpy.fmi1 import FMICallException  # noqa: E402
-from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,  # noqa: E402
-                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2Discard, fmi2LastSuccessfulTime,
-                       fmi2Terminated)
-from fmpy.validation import validate_fmu  # noqa: E402
+import fmpy
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import fmi2Discard, fmi2LastSuccessfulTime, fmi2Terminated
+from fmpy.validation import validate_fmu
 
-from fmu_src.fmi_build import (BuildError, LibcosimError, StepRefusedError, build_fmu, input_table,  # noqa: E402
-                               run_libcosim, run_osp_system, simulate, smoke_check, validate,
-                               value_references, write_osp_system_structure)
-from fmu_src.table_slave import TableError, TableSlave, Var, check_table  # noqa: E402
+from fmu_src.checks import smoke_check, validate, value_references
+from fmu_src.libcosim import LibcosimError, run_libcosim, run_osp_system, write_osp_system_structure
+from fmu_src.packaging import BuildError, build_fmu
+from fmu_src.simulation import StepRefusedError, input_table, simulate
+from fmu_src.table_slave import TableError, TableSlave, Var, check_table
+from fmu_src.unit import FMUUnit
 
 FIXTURE = ROOT / "tests" / "fmu_fixtures" / "FmuInfraProbe.py"
 DT = 0.01
@@ -76,37 +73,20 @@ def unzipdir(fmu, tmp_path_factory):
     return extract(str(fmu), unzipdir=str(tmp_path_factory.mktemp("unzipped")))
 
 
-class Instance:
-    """A minimal custom master over fmpy's FMU2Slave that keeps the FMU's log messages."""
+class Instance(FMUUnit):
+    """A minimal custom master on the shared FMU2Slave driver that keeps the FMU's log messages."""
 
-    def __init__(self, unzipdir, md, name="inst", **params):
-        self.messages: list[tuple[int, str]] = []
-
-        def logger(_c, _name, status, _category, message):
-            self.messages.append((status, message.decode()))
-
-        self._cb = fmi2CallbackFunctions()
-        self._cb.logger = fmi2CallbackLoggerTYPE(logger)
-        self._cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
-        self._cb.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
-        from fmpy.logging import addLoggerProxy  # formats the printf-style message
-        addLoggerProxy(byref(self._cb))
-        self.vr = {v.name: v.valueReference for v in md.modelVariables}   # looked up once
-        self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir,
-                             modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
-        self.fmu.instantiate(callbacks=self._cb, loggingOn=True)
+    def __init__(self, fmu, unzipdir, name="inst", **params):
+        super().__init__(fmu, name, unzip_dir=unzipdir, logging_on=True)
+        self.refs = {v.name: v.valueReference for v in self.md.modelVariables}   # looked up once
         self.initialize(**params)
 
     def initialize(self, **params):
-        self.fmu.setupExperiment(startTime=0.0)
-        self.fmu.enterInitializationMode()
-        self.set(**params)
-        self.fmu.exitInitializationMode()
+        super().initialize(0.0, params)
         self.t = 0.0
 
     def set(self, **values):
-        for name, value in values.items():
-            (self.fmu.setInteger if isinstance(value, int) else self.fmu.setReal)([self.vr[name]], [value])
+        self.set_values(values)
 
     def step(self, omega, torque):
         self.set(omega=omega, torque=torque)
@@ -115,25 +95,22 @@ class Instance:
         return self.outputs()
 
     def outputs(self):
-        reals = self.fmu.getReal([self.vr[n] for n in OUT_REAL])
-        return (*reals, self.fmu.getInteger([self.vr["steps"]])[0], self.fmu.getBoolean([self.vr["saturated"]])[0])
-
-    def free(self):
-        self.fmu.terminate()
-        self.fmu.freeInstance()
+        reals = self.fmu.getReal([self.refs[n] for n in OUT_REAL])
+        return (*reals, self.fmu.getInteger([self.refs["steps"]])[0],
+                self.fmu.getBoolean([self.refs["saturated"]])[0])
 
 
 @pytest.fixture
-def make(unzipdir, md):
+def make(fmu, unzipdir):
     made = []
 
     def factory(name="inst", **params):
-        made.append(Instance(unzipdir, md, name, **params))
+        made.append(Instance(fmu, unzipdir, name, **params))
         return made[-1]
 
     yield factory
     for inst in made:
-        inst.free()
+        inst.close()
 
 
 def inputs(n, seed=0):

@@ -8,7 +8,9 @@ import pytest
 import dynamics  # noqa: F401  (host packages first: the FMUs use them)
 import solver
 from fmu_src import references
-from fmu_src.fmi_build import StepRefusedError, build_fmu, input_table, simulate, validate
+from fmu_src.builds import build_slave
+from fmu_src.checks import validate
+from fmu_src.simulation import StepRefusedError, input_table, simulate
 
 ROOT = Path(__file__).resolve().parent.parent
 NAMES = ("RRRPlant", "ComputedTorqueController")
@@ -17,8 +19,7 @@ NAMES = ("RRRPlant", "ComputedTorqueController")
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory):
     out = tmp_path_factory.mktemp("pc")
-    return {n: build_fmu(ROOT / "fmu_src" / f"{n}.py", out,
-                         project_packages=[str(ROOT / "solver"), str(ROOT / "dynamics")]) for n in NAMES}
+    return {n: build_slave(n, out) for n in NAMES}
 
 
 def slave_class(name):
@@ -56,8 +57,7 @@ def test_plant_outputs_are_states_and_consistent():
 
 
 def test_controller_on_its_reference_gives_the_inverse_dynamics():
-    from dynamics.model import DynamicParameters, inverse_dynamics
-    from dynamics.trajectory import CircleTrajectory
+    from dynamics import CircleTrajectory, DynamicParameters, inverse_dynamics
 
     ref = references.read("ComputedTorqueController")
     model = solver.Manipulator.paper()
@@ -77,7 +77,7 @@ def test_bad_torque_is_refused_and_named(fmus):
     with pytest.raises(StepRefusedError, match="tau2"):
         simulate(fmus["RRRPlant"], stop_time=0.01, step_size=1e-3,
                  inputs=input_table(t, tau1=np.zeros(11), tau2=tau, tau3=np.zeros(11)),
-                 start_values=references._start_values())
+                 start_values=references.start_values())
 
 
 def test_a_pose_outside_the_tool_space_is_refused(fmus):
@@ -86,3 +86,14 @@ def test_a_pose_outside_the_tool_space_is_refused(fmus):
     with pytest.raises(StepRefusedError, match="outside the tool space"):
         simulate(fmus["ComputedTorqueController"], stop_time=0.005, step_size=1e-3,
                  inputs=input_table(t, x=far, y=far))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_bundles_only_what_the_slave_imports(fmus, name):
+    import zipfile
+
+    with zipfile.ZipFile(fmus[name]) as z:
+        names = set(z.namelist())
+    assert "resources/dynamics/steppers.py" in names and "resources/solver/tracker.py" in names
+    assert not [n for n in names if n.startswith(("resources/dynamics/cosim/", "resources/dynamics/batch/"))]
+    assert "resources/fmu_src/checks.py" not in names

@@ -7,8 +7,8 @@ from scipy.optimize import brentq, minimize_scalar
 
 from solver import (Manipulator, SolverInputError, constraints, dk_all, ik, jacobians,
                     order_solutions, posture_of, singularity_measures)
-from solver import _dk_kernel
-from solver.kinematics import _constants
+from solver._kernels.direct_kinematics import elim
+from solver.direct_kinematics import kernel_constants
 from conftest import pose_distance, random_poses
 
 EXAMPLE = np.array([0.8, 0.0, np.deg2rad(15.0)])   # posture 1, six real solutions
@@ -182,13 +182,13 @@ def test_dense_scan_cross_check_on_1000_joint_vectors(model):
 # ------------------------------------------------------------------ the elimination itself
 def test_eliminant_has_no_fourth_harmonic(model, rng):
     """The e^{+-4 i phi} terms cancel identically (isotropic vectors), so the degree is 6."""
-    k = _constants(model)
+    k = kernel_constants(model)
     for q in rng.uniform(-np.pi, np.pi, (20, 3)):
         D = model.motors + 0.6 * np.column_stack([np.cos(q), np.sin(q)])
         phis = 2 * np.pi * np.arange(16) / 16
         f = []
         for p in phis:
-            d, nx, ny, ux, uy, k0, *_ = _dk_kernel._elim(np.cos(p), np.sin(p), D, k["b"], k["l2sq"])
+            d, nx, ny, ux, uy, k0, *_ = elim(np.cos(p), np.sin(p), D, k["b"], k["l2sq"])
             f.append(nx * nx + ny * ny + 2 * d * (nx * ux + ny * uy) + d * d * k0)
         a = np.abs(np.fft.fft(f)) / 16
         assert a[4] <= 1e-13 * a.max() and a[5:12].max() <= 1e-13 * a.max()

@@ -7,8 +7,8 @@ import zipfile
 import numpy as np
 import pytest
 
-from solver import Manipulator, dk_all, ik
-from solver.maptensor import FORMAT_VERSION, MapTensor, MapTensorFileError, default_bounds, label_poses
+from solver import (FORMAT_VERSION, Manipulator, MapTensor, MapTensorFileError, default_bounds, dk_all, ik,
+                    label_poses, map_path)
 from conftest import pose_distance
 
 STEP = (0.05, 0.05, np.deg2rad(10.0))
@@ -187,7 +187,7 @@ def test_cli_build_inspect_plot(tmp_path):
                                     timeout=300)
     r = run("build", "--posture", "2", "--step-mm", "60", "--step-deg", "15", "--out", str(out))
     assert r.returncode == 0, r.stderr
-    f = out / "map_posture2.npz"
+    f = map_path(Manipulator.paper(), 2, step=(0.06, 0.06, np.deg2rad(15.0)), cache_dir=out)
     assert f.exists()
     r = run("inspect", str(f))
     assert r.returncode == 0 and "posture 2" in r.stdout and "reachable nodes" in r.stdout

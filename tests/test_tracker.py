@@ -2,11 +2,10 @@
 import numpy as np
 import pytest
 
-from solver import Manipulator, SolverInputError, circle_path, dk_all, ik, jacobians, wrap_angle
+from solver import (STATUS, Manipulator, MapTensor, SolverInputError, Tracker, TrackerError, TrackerState,
+                    circle_path, default_bounds, dk_all, ik, jacobians, wrap_angle)
 from solver.baselines import BASELINES, NewtonTracker
-from solver.maptensor import MapTensor, default_bounds
 from solver.suite import default_suite, make_path, near_singular_circle
-from solver.tracker import STATUS, Tracker, TrackerError, TrackerState
 
 STEP = (0.02, 0.02, np.deg2rad(4.0))
 

@@ -1,19 +1,16 @@
-"""Compiled procedure 2 (eq. 18-19): labels of the map-tensor nodes near one pose.
+"""Procedure 2 (eq. 18-19) on a map tensor, compiled: the labels of the nodes near one pose,
+and the label of the node nearest to it.
 
-Shared by :meth:`solver.maptensor.MapTensor.near_labels` (batched) and the
-tracker's step, so there is one implementation of the procedure.
+Shared by :meth:`solver.MapTensor.near_labels` / :meth:`~solver.MapTensor.label_at`
+(batched) and the tracker's step, so there is one implementation of the procedure.
 """
 from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
-
-@njit(cache=True)
-def _wrap(a):
-    return math.pi - ((math.pi - a) % (2.0 * math.pi)) + 0.0
+from .linalg import wrap
 
 
 @njit(cache=True)
@@ -35,7 +32,7 @@ def near_mask_one(labels, origin, step, periodic, X, r2, w, stencil, out):
         dy = origin[1] + j * step[1] - X[1]
         dp = origin[2] + k * step[2] - X[2]
         if periodic:
-            dp = _wrap(dp)
+            dp = wrap(dp)
             k = k % nphi
         elif k < 0 or k >= nphi:
             continue
@@ -59,11 +56,13 @@ def label_at_one(labels, origin, step, periodic, X):
 
 @njit(cache=True)
 def near_mask_batch(labels, origin, step, periodic, X, r2, w, stencil, out):
+    """:func:`near_mask_one` of poses ``X`` (N, 3) into ``out`` (N, 7)."""
     for n in range(X.shape[0]):
         near_mask_one(labels, origin, step, periodic, X[n], r2, w, stencil, out[n])
 
 
 @njit(cache=True)
 def label_at_batch(labels, origin, step, periodic, X, out):
+    """:func:`label_at_one` of poses ``X`` (N, 3) into ``out`` (N,)."""
     for n in range(X.shape[0]):
         out[n] = label_at_one(labels, origin, step, periodic, X[n])

@@ -1,4 +1,4 @@
-"""Argument checking shared by every public function of :mod:`solver`.
+"""Argument checking shared by every public function of :mod:`solver` (public: other packages use it too).
 
 One helper turns an argument into a float array of the expected trailing
 shape and says exactly what was wrong otherwise ("q: expected (..., 3), got

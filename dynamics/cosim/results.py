@@ -1,0 +1,157 @@
+"""The closed loop's results: the time series (:class:`ClosedLoopResult`), its CSV and its plots.
+
+A run's table has one row per communication point ``t_k`` and the columns :data:`COLUMNS`; each
+column but ``time`` is an output of an instance (:data:`COLUMN_SOURCES`), read by the master at
+``t_k`` (the plant's outputs before its step, the DK pose and the torque of the step from ``t_k``).
+"""
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from solver import STATUS, wrap_angle
+
+from .scenario import Scenario
+
+__all__ = ["ClosedLoopResult", "COLUMNS", "COLUMN_SOURCES", "write_csv", "plot_closed_loop"]
+
+#: Result column -> the "instance.output" it records (None: the time).
+COLUMN_SOURCES = {
+    "time": None,
+    **{f"q{i}": f"plant.q{i}" for i in (1, 2, 3)},
+    **{f"dq{i}": f"plant.dq{i}" for i in (1, 2, 3)},
+    **{f"tau{i}": f"controller.tau{i}" for i in (1, 2, 3)},
+    **{v: f"dk.{v}" for v in ("x", "y", "phi")},
+    **{f"{v}_true": f"plant.{v}_true" for v in ("x", "y", "phi")},
+    "x_ref": "controller.x_ref", "y_ref": "controller.y_ref", "phi_ref": "controller.phi_ref_out",
+    **{f"q{i}_ref": f"controller.q{i}_ref" for i in (1, 2, 3)},
+    "dk_status": "dk.status", "region": "dk.region", "n_real": "dk.n_real",
+    "near_border": "dk.near_border", "ambiguous": "dk.ambiguous",
+}
+#: Columns of :meth:`dynamics.cosim.ClosedLoop.run`'s result, in order.
+COLUMNS = tuple(COLUMN_SOURCES)
+
+
+@dataclass
+class ClosedLoopResult:
+    """Time series of a closed-loop run (row ``k`` is time ``t0 + k h``) and its metrics."""
+
+    scenario: Scenario
+    columns: dict
+    wall_seconds: float
+
+    def __getitem__(self, key):
+        return self.columns[key]
+
+    @property
+    def t(self) -> np.ndarray:
+        return self.columns["time"]
+
+    def joint_error(self) -> np.ndarray:
+        """q - q_ref, wrapped, (n, 3) rad."""
+        e = np.stack([self.columns[f"q{i}"] - self.columns[f"q{i}_ref"] for i in (1, 2, 3)], axis=1)
+        return wrap_angle(e)
+
+    def rms_joint_error(self, t_from: float = 0.5) -> float:
+        """RMS over time and joints of the joint tracking error after ``t_from`` s, rad."""
+        e = self.joint_error()[self.t >= t_from - 1e-12]
+        return float(np.sqrt(np.mean(e * e)))
+
+    def max_dk_error(self) -> float:
+        """Largest |DK pose - true pose| (m or rad, phi wrapped) over the run."""
+        d = np.stack([self.columns["x"] - self.columns["x_true"], self.columns["y"] - self.columns["y_true"],
+                      wrap_angle(self.columns["phi"] - self.columns["phi_true"])], axis=1)
+        return float(np.max(np.abs(d)))
+
+    @property
+    def realtime_factor(self) -> float:
+        """Simulated seconds per wall-clock second."""
+        return self.scenario.t_end / self.wall_seconds
+
+    def metrics(self) -> dict:
+        return {"rms_joint_error_after_0.5s": self.rms_joint_error(0.5), "max_dk_vs_true": self.max_dk_error(),
+                "dk_status_nonzero": int(np.count_nonzero(self.columns["dk_status"])),
+                "wall_seconds": self.wall_seconds, "realtime_factor": self.realtime_factor}
+
+
+def write_csv(result: ClosedLoopResult, path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    names = list(result.columns)
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(names)
+        for row in zip(*(result.columns[n] for n in names)):
+            w.writerow([f"{v:.17g}" if isinstance(v, float) else v for v in row])
+    return path
+
+
+def plot_closed_loop(result: ClosedLoopResult, out_dir) -> list[Path]:
+    """PNG plots: pose vs reference, joint errors, torques, DK status."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    c, t = result.columns, result.t
+    sc = result.scenario
+    paths = []
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), dpi=110)
+    axes[0].plot(c["x_ref"], c["y_ref"], "k:", lw=1.5, label="reference")
+    axes[0].plot(c["x"], c["y"], "-", color="tab:blue", lw=1.0, label="DK FMU pose")
+    axes[0].plot(c["x_true"], c["y_true"], "--", color="tab:orange", lw=0.8, label="true pose (plant)")
+    axes[0].set_aspect("equal")
+    axes[0].set_xlabel("x [m]")
+    axes[0].set_ylabel("y [m]")
+    axes[0].legend(fontsize=8)
+    for key, col in (("x", "tab:blue"), ("y", "tab:green"), ("phi", "tab:red")):
+        ref = c["phi_ref"] if key == "phi" else c[f"{key}_ref"]
+        axes[1].plot(t, c[key] - ref, color=col, label=f"{key} - {key}_ref [{'rad' if key == 'phi' else 'm'}]")
+    axes[1].set_xlabel("t [s]")
+    axes[1].legend(fontsize=8)
+    axes[1].set_title("pose error (DK pose - reference)", fontsize=9)
+    fig.suptitle(f"Closed loop (Fig. 2): computed torque on the circle, h = {sc.h * 1e3:g} ms, {sc.order}",
+                 fontsize=10)
+    fig.tight_layout()
+    paths.append(out / "closed_loop_pose.png")
+    fig.savefig(paths[-1])
+    plt.close(fig)
+
+    e = result.joint_error()
+    fig, axes = plt.subplots(2, 1, figsize=(8, 6), dpi=110, sharex=True)
+    for i in range(3):
+        axes[0].plot(t, e[:, i], label=f"q{i + 1} - q{i + 1}_ref")
+        axes[1].plot(t, c[f"tau{i + 1}"], label=f"tau{i + 1}")
+    axes[0].set_ylabel("joint error [rad]")
+    axes[0].set_yscale("symlog", linthresh=1e-6)
+    axes[0].legend(fontsize=8)
+    axes[0].set_title(f"RMS joint error after 0.5 s: {result.rms_joint_error(0.5):.3g} rad", fontsize=9)
+    axes[1].set_ylabel("torque [N m]")
+    axes[1].set_xlabel("t [s]")
+    axes[1].legend(fontsize=8)
+    fig.tight_layout()
+    paths.append(out / "closed_loop_joints_torques.png")
+    fig.savefig(paths[-1])
+    plt.close(fig)
+
+    fig, axes = plt.subplots(3, 1, figsize=(8, 5), dpi=110, sharex=True)
+    axes[0].step(t, c["dk_status"], where="post")
+    axes[0].set_yticks(sorted(STATUS))
+    axes[0].set_yticklabels([STATUS[k] for k in sorted(STATUS)], fontsize=7)
+    axes[0].set_title("DK FMU: status, region used, real solutions, flags", fontsize=9)
+    axes[1].step(t, c["region"], where="post", label="region")
+    axes[1].step(t, c["n_real"], where="post", label="n_real")
+    axes[1].legend(fontsize=8)
+    axes[2].step(t, c["near_border"], where="post", label="near_border")
+    axes[2].step(t, c["ambiguous"] * 0.5, where="post", label="ambiguous (x0.5)")
+    axes[2].legend(fontsize=8)
+    axes[2].set_xlabel("t [s]")
+    fig.tight_layout()
+    paths.append(out / "closed_loop_dk_status.png")
+    fig.savefig(paths[-1])
+    plt.close(fig)
+    return paths

@@ -1,0 +1,78 @@
+"""A closed-loop run's parameters: :class:`Scenario` (the FMUs' parameters and the master's)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from solver import PAPER_CIRCLE
+
+__all__ = ["Scenario"]
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """Everything a closed-loop run depends on (parameters of the three FMUs and of the master).
+
+    The field annotations are the fields' types (the batch's sweep parsing reads them).
+
+    Attributes
+    ----------
+    t_end : float
+        Simulated time, s.
+    h : float
+        Communication (and control) step, s.
+    order : {"gauss-seidel", "jacobi"}
+        Master algorithm (see :mod:`dynamics.cosim.master`).
+    posture : int
+        Posture of the robot, its DK map and its reference.
+    bandwidth, damping : float
+        Requested closed-loop error dynamics (rad/s, 1).
+    plant_mass_scale, controller_mass_scale : float
+        Factors on the default masses of the plant (the real robot) and of the controller's model.
+    tracker_mode : {"default", "paper"}
+        Mode of the DK FMU's tracker.
+    period, ramp_time : float
+        Circle: seconds per revolution at cruise speed, duration of the start from rest.
+    center, radius, phi : circle geometry (m, m, rad); default :data:`solver.PAPER_CIRCLE`.
+    plant_substeps : int
+        RK4 steps of the plant per communication step.
+    """
+
+    t_end: float = 2.5
+    h: float = 1e-3
+    order: str = "gauss-seidel"
+    posture: int = 1
+    bandwidth: float = 50.0
+    damping: float = 1.0
+    plant_mass_scale: float = 1.0
+    controller_mass_scale: float = 1.0
+    tracker_mode: str = "default"
+    period: float = 2.0
+    ramp_time: float = 0.5
+    center: tuple[float, float] = field(default=tuple(PAPER_CIRCLE["center"]))
+    radius: float = PAPER_CIRCLE["radius"]
+    phi: float = PAPER_CIRCLE["phi"]
+    plant_substeps: int = 1
+
+    def __post_init__(self):
+        if self.order not in ("gauss-seidel", "jacobi"):
+            raise ValueError(f"order: expected 'gauss-seidel' or 'jacobi', got {self.order!r}")
+        if self.tracker_mode not in ("default", "paper"):
+            raise ValueError(f"tracker_mode: expected 'default' or 'paper', got {self.tracker_mode!r}")
+        for key in ("t_end", "h", "bandwidth", "damping", "plant_mass_scale", "controller_mass_scale",
+                    "period", "radius"):
+            v = getattr(self, key)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise ValueError(f"{key}: expected a positive number, got {v!r}")
+        if self.h > self.t_end:
+            raise ValueError(f"h: expected a step no longer than t_end = {self.t_end}, got {self.h}")
+
+    @property
+    def n_steps(self) -> int:
+        return int(round(self.t_end / self.h))
+
+    @property
+    def start_pose(self) -> np.ndarray:
+        """The circle's first point (polar angle 0), m, m, rad."""
+        return np.array([self.center[0] + self.radius, self.center[1], self.phi])

@@ -1,0 +1,243 @@
+"""The project's three FMUs and how each is built (host side; ``python build_fmu.py`` runs them).
+
+* ``RRRDirectKinematics`` (:func:`build_dk`): the slave ``fmu_src/RRRDirectKinematics.py`` (its
+  ``BUILD_POSTURE``/``BUILD_MODE`` constants set to the start values of the parameters ``posture`` and
+  ``mode``), the ``solver`` modules it imports, the map tensor of each posture as
+  ``resources/maps/posture<j>.npz`` with ``resources/maps/manifest.json`` (size and SHA-256 of each,
+  checked at instantiation), and its readme as ``documentation/``.  Maps come from ``map_files`` or
+  from the map cache ``<out>/maps/`` (:func:`solver.cached_map`, the one cache of ``python -m solver
+  build`` too, keyed by geometry, posture, rule, resolution and the code that labels); a missing or
+  unusable cache entry is built and saved there, so a rebuild with the same options and code reuses
+  it.  Same options and the same map files give a byte-identical FMU.
+* ``RRRPlant`` and ``ComputedTorqueController`` (:func:`build_slave`): the slave and the ``solver``
+  and ``dynamics`` modules it imports (the math only: never the master, the batch or dask).
+
+Every FMU bundles only what its slave imports (:func:`fmu_src.packaging.bundled_files`).
+:func:`build_fmus` builds the stale ones of the three in child processes (``python -m
+fmu_src.cli``): a process that later runs FMUs must load each FMU only once, and a build imports
+the slave and builds maps.
+"""
+from __future__ import annotations
+
+import hashlib
+import html
+import importlib.util
+import json
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from solver import DEFAULT_RULE, DEFAULT_STEP, ORDERING_RULES, Manipulator, MapTensor, cached_map, map_path
+
+from .checks import validate
+from .packaging import bundled_files, build_fmu
+
+__all__ = ["FMU_NAMES", "DK_NAME", "MODES", "DEFAULT_RESOLUTION", "BuildResult", "parse_resolution",
+           "resolution_step", "map_cache_path", "build_dk", "build_slave", "build_fmus", "slave_script",
+           "project_packages", "is_stale"]
+
+HERE = Path(__file__).resolve().parent
+#: The three FMUs, in the order of the closed loop's data flow (DK -> controller -> plant).
+FMU_NAMES = ("RRRDirectKinematics", "ComputedTorqueController", "RRRPlant")
+DK_NAME = "RRRDirectKinematics"
+MODES = ("default", "paper")
+#: Default node spacing of the DK map (the map tensor's default): 10 mm in x and y, 2 degrees in phi.
+DEFAULT_RESOLUTION = (DEFAULT_STEP[0], DEFAULT_STEP[2])
+
+_LEN_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3}
+_ANG_UNITS = {"rad": 1.0, "deg": float(np.pi / 180.0)}
+
+
+def slave_script(name: str) -> Path:
+    """The slave script of FMU ``name`` (``fmu_src/<name>.py``)."""
+    return HERE / f"{name}.py"
+
+
+def project_packages() -> list[Path]:
+    """The folders of the project packages a slave may import (``solver``, ``dynamics``)."""
+    return [Path(importlib.util.find_spec(name).submodule_search_locations[0]) for name in ("solver", "dynamics")]
+
+
+# ---------------------------------------------------------------------- resolution and maps
+def parse_resolution(text) -> tuple[float, float]:
+    """Node spacing ``(xy in m, phi in rad)`` from ``"10mm,2deg"``, ``"0.04m 6deg"`` or ``"40 6"`` (mm, deg).
+
+    Accepts a string or a sequence of one or two strings/numbers.
+    """
+    if isinstance(text, (list, tuple)):
+        text = " ".join(str(t) for t in text)
+    parts = [p for p in re.split(r"[\s,;/]+", str(text).strip()) if p]
+    if len(parts) != 2:
+        raise ValueError(f"resolution {text!r}: expected two values, e.g. '10mm,2deg' or '10 2' (mm, deg)")
+    out = []
+    for part, units, bare, kind in ((parts[0], _LEN_UNITS, "mm", "length"), (parts[1], _ANG_UNITS, "deg", "angle")):
+        m = re.fullmatch(r"([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)([a-z]*)", part)
+        if not m or (m.group(2) and m.group(2) not in units):
+            raise ValueError(f"resolution {text!r}: {part!r} is not a {kind} (units {sorted(units)}; a bare "
+                             f"number is in {bare})")
+        value = float(m.group(1)) * units[m.group(2) or bare]
+        if not value > 0:
+            raise ValueError(f"resolution {text!r}: {part!r} must be positive")
+        out.append(value)
+    return out[0], out[1]
+
+
+def resolution_step(resolution) -> tuple[float, float, float]:
+    """The map node spacing ``(x, y, phi)`` (m, m, rad) of a resolution ``(xy in m, phi in rad)``."""
+    return (resolution[0], resolution[0], resolution[1])
+
+
+def map_cache_path(cache_dir, posture: int, resolution, rule: str, model: Manipulator) -> Path:
+    """Cache file of a map in ``cache_dir`` (``solver.map_path``, the one naming scheme)."""
+    return map_path(model, posture, rule, resolution_step(resolution), cache_dir)
+
+
+# ---------------------------------------------------------------------- the DK FMU
+@dataclass
+class BuildResult:
+    fmu: Path
+    maps: dict[int, Path]
+    posture: int
+    mode: str
+    seconds: float
+    map_seconds: float
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def size(self) -> int:
+        return self.fmu.stat().st_size
+
+
+def _stage_script(dest: Path, posture: int, mode: str) -> Path:
+    source = slave_script(DK_NAME)
+    text = source.read_text()
+    for pattern, value in ((r"^BUILD_POSTURE = \d+$", f"BUILD_POSTURE = {posture:d}"),
+                           (r'^BUILD_MODE = "\w+"$', f'BUILD_MODE = "{mode}"')):
+        text, n = re.subn(pattern, value, text, flags=re.MULTILINE)
+        if n != 1:
+            raise RuntimeError(f"{source}: expected one line matching {pattern!r}, found {n}")
+    script = dest / source.name
+    script.write_text(text)
+    return script
+
+
+def _stage_documentation(dest: Path) -> Path:
+    readme = HERE / f"{DK_NAME}.md"
+    doc = dest / "documentation"
+    doc.mkdir()
+    text = readme.read_text()
+    shutil.copyfile(readme, doc / "index.md")
+    (doc / "_main.html").write_text(
+        f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{DK_NAME}</title></head>\n"
+        f"<body><pre>\n{html.escape(text)}</pre></body></html>\n")
+    return doc
+
+
+def _dk_maps(model, postures, resolution, map_files, rule, cache_dir, progress, log) -> tuple[list[int], dict]:
+    maps: dict[int, Path] = {}
+    for f in map_files:
+        mt = MapTensor.load(f)            # raises MapTensorFileError naming the problem
+        if mt.model.digest() != model.digest():
+            raise ValueError(f"{f}: built for geometry {mt.model.name!r}; this FMU is the paper's 3-RRR (Table 1)")
+        if mt.posture in maps:
+            raise ValueError(f"{f}: a second map of posture {mt.posture}")
+        maps[mt.posture] = Path(f)
+    postures = [int(p) for p in postures] if postures else sorted(maps)
+    if not postures:
+        raise ValueError("no posture to embed")
+    for p in postures:
+        if not 1 <= p <= 8:
+            raise ValueError(f"posture {p}: expected 1..8")
+        if p not in maps:
+            cached_map(model, p, rule, resolution_step(resolution), cache_dir, progress=progress, log=log)
+            maps[p] = map_cache_path(cache_dir, p, resolution, rule, model)
+    return postures, maps
+
+
+def build_dk(out_dir="build", postures=(1,), resolution=DEFAULT_RESOLUTION, map_files=(), mode: str = "default",
+             rule: str = DEFAULT_RULE, cache_dir=None, check: bool = True, progress: bool = False,
+             log=print) -> BuildResult:
+    """Build ``<out_dir>/RRRDirectKinematics.fmu`` (see the module docstring).
+
+    ``postures``: postures to embed, the first one is the start value of the parameter ``posture``;
+    ``map_files``: map files to embed (their postures are added; a posture given twice is an error);
+    postures without a given map use the cache ``cache_dir`` (default ``<out_dir>/maps``).
+    """
+    t0 = time.perf_counter()
+    if mode not in MODES:
+        raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
+    if rule not in ORDERING_RULES:
+        raise ValueError(f"rule: expected one of {sorted(ORDERING_RULES)}, got {rule!r}")
+    model = Manipulator.paper()
+    out_dir = Path(out_dir)
+    cache_dir = out_dir / "maps" if cache_dir is None else Path(cache_dir)
+    t_map = time.perf_counter()
+    postures, maps = _dk_maps(model, postures, resolution, map_files, rule, cache_dir, progress, log)
+    map_seconds = time.perf_counter() - t_map
+    with tempfile.TemporaryDirectory(prefix="build_fmu_") as tmp:
+        tmp = Path(tmp)
+        script = _stage_script(tmp, postures[0], mode)
+        entries = []
+        data_files = {}
+        for p in sorted(maps):
+            data = maps[p].read_bytes()
+            name = f"maps/posture{p}.npz"
+            data_files[name] = maps[p]
+            entries.append({"posture": p, "file": name, "bytes": len(data),
+                            "sha256": hashlib.sha256(data).hexdigest()})
+        manifest = tmp / "manifest.json"
+        manifest.write_text(json.dumps({"model": DK_NAME, "maps": entries}, indent=1, sort_keys=True) + "\n")
+        data_files["maps/manifest.json"] = manifest
+        fmu = build_fmu(script, out_dir, project_packages=project_packages(), data_files=data_files,
+                        documentation_dir=_stage_documentation(tmp), check=check)
+    problems = validate(fmu) if check else []
+    return BuildResult(fmu, maps, postures[0], mode, time.perf_counter() - t0, map_seconds, problems)
+
+
+# ---------------------------------------------------------------------- the plant and the controller
+def build_slave(name: str, out_dir="build", check: bool = True) -> Path:
+    """Build ``<out_dir>/<name>.fmu`` of the plant or the controller (see the module docstring)."""
+    if name not in FMU_NAMES or name == DK_NAME:
+        raise ValueError(f"name: expected one of {[n for n in FMU_NAMES if n != DK_NAME]}, got {name!r}")
+    return build_fmu(slave_script(name), out_dir, project_packages=project_packages(), check=check)
+
+
+# ---------------------------------------------------------------------- all three, as needed
+def is_stale(name: str, fmu: Path) -> bool:
+    """Whether ``fmu`` is missing or older than its slave script or the ``fmu_src`` runtime it bundles."""
+    if not fmu.exists():
+        return True
+    script = slave_script(name)
+    runtime = bundled_files(script, {HERE.name: HERE}).values()
+    return fmu.stat().st_mtime < max(p.stat().st_mtime for p in (script, *runtime))
+
+
+def build_fmus(out_dir="build", resolution=None, force: bool = False, log=print) -> dict:
+    """Build (or reuse) the three FMUs in ``out_dir``; returns {name: path}.
+
+    The DK FMU embeds the map tensor of posture 1 at the default resolution, or at ``resolution`` =
+    (m, rad), cached in ``<out_dir>/maps``.  An FMU is rebuilt when ``force`` or :func:`is_stale`.
+    Each build runs in a child process, ``python -m fmu_src.cli`` (see the module docstring).
+    """
+    out = Path(out_dir).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {name: out / f"{name}.fmu" for name in FMU_NAMES}
+    for name in FMU_NAMES:
+        if not (force or is_stale(name, paths[name])):
+            continue
+        args = [sys.executable, "-m", "fmu_src.cli", "--out", str(out), "--only", name, "--no-reference"]
+        if name == DK_NAME and resolution is not None:
+            args += ["--resolution", "{!r}m,{!r}rad".format(*(float(v) for v in resolution))]
+        t0 = time.perf_counter()
+        proc = subprocess.run(args, cwd=str(HERE.parent), capture_output=True, text=True)
+        if proc.returncode != 0 or not paths[name].exists():
+            raise RuntimeError(f"building {paths[name].name} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
+        log(f"built {paths[name]} in {time.perf_counter() - t0:.1f} s")
+    return paths

@@ -1,0 +1,118 @@
+"""``python build_fmu.py`` (also ``python -m fmu_src.cli``): build the three FMUs and their reference CSVs.
+
+    python build_fmu.py [--out build] [--posture 1 [2 ...]] [--resolution 10mm,2deg]
+                        [--map FILE [FILE ...]] [--mode default|paper] [--rule real-phi]
+                        [--only NAME [NAME ...]] [--no-reference]
+    python build_fmu.py --write-reference      # regenerate fmu_src/reference/<FMU>.csv
+
+1. The FMUs (:mod:`fmu_src.builds`) are built into ``--out`` and validated: ``RRRDirectKinematics``
+   with the map tensor(s) of ``--posture`` at ``--resolution`` (cached in ``<out>/maps/``) or the
+   ``--map`` files, ``--mode`` and ``--posture`` as start values of its parameters;
+   ``ComputedTorqueController`` and ``RRRPlant``.  ``--only`` builds some of them.
+2. The reference run of each FMU (:mod:`fmu_src.references`) is built into ``<out>/reference/`` and
+   written as ``<out>/reference/<FMU>.csv``; each is compared with the kept
+   ``fmu_src/reference/<FMU>.csv`` (the tests compare with those).  ``--no-reference`` skips it.
+
+``--write-reference`` does step 2 only and rewrites the kept CSVs.  Same options and the same map
+files give byte-identical FMUs.  ``--resolution`` accepts ``"10mm,2deg"``, ``"0.04m 6deg"``,
+``"1cm,0.035rad"`` or two bare numbers (mm, deg): ``40 6``.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from solver import DEFAULT_RULE, ORDERING_RULES, MapTensorFileError
+
+from .builds import DEFAULT_RESOLUTION, DK_NAME, FMU_NAMES, MODES, build_dk, build_slave, parse_resolution
+from .unit import exit_process
+
+__all__ = ["main"]
+
+_KEPT = Path(__file__).resolve().parent / "reference"
+
+
+def _parser(default_out) -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="python build_fmu.py", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default=str(default_out), help=f"output folder (default {default_out})")
+    ap.add_argument("--posture", type=int, nargs="+", default=None,
+                    help="posture(s) 1..8 to embed; the first is the parameter's start value (default 1)")
+    ap.add_argument("--resolution", nargs="+", default=None,
+                    help="map node spacing: '10mm,2deg' (default), '0.04m 6deg' or two numbers in mm and deg")
+    ap.add_argument("--map", nargs="+", default=(), metavar="FILE", help="embed these map files (no rebuild)")
+    ap.add_argument("--mode", choices=MODES, default="default", help="start value of the parameter 'mode'")
+    ap.add_argument("--rule", choices=sorted(ORDERING_RULES), default=DEFAULT_RULE,
+                    help="ordering rule of maps built here")
+    ap.add_argument("--only", nargs="+", choices=FMU_NAMES, default=FMU_NAMES, metavar="NAME",
+                    help=f"build only these FMUs ({', '.join(FMU_NAMES)})")
+    ap.add_argument("--no-reference", action="store_true", help="do not run and write the reference CSVs")
+    ap.add_argument("--write-reference", action="store_true",
+                    help="build the reference configurations and rewrite fmu_src/reference/<FMU>.csv")
+    return ap
+
+
+def _build(args) -> int:
+    """Step 1 (see the module docstring); the exit status."""
+    status = 0
+    for name in args.only:
+        if name == DK_NAME:
+            resolution = DEFAULT_RESOLUTION if args.resolution is None else parse_resolution(args.resolution)
+            postures = args.posture if args.posture is not None else ([] if args.map else [1])
+            result = build_dk(args.out, postures=postures, resolution=resolution, map_files=args.map,
+                              mode=args.mode, rule=args.rule, progress=sys.stderr.isatty())
+            print(f"{result.fmu}: {result.size / 1e6:.3f} MB ({result.size:,} bytes), postures "
+                  f"{sorted(result.maps)} (start {result.posture}), mode {result.mode}; built in "
+                  f"{result.seconds:.1f} s (maps {result.map_seconds:.1f} s)")
+            problems = result.problems
+        else:
+            t0 = time.perf_counter()
+            fmu = build_slave(name, args.out)
+            print(f"{fmu}: {fmu.stat().st_size / 1e6:.3f} MB; built in {time.perf_counter() - t0:.1f} s")
+            problems = []                          # build_slave validates (BuildError on a problem)
+        if problems:
+            print("validation: FAILED\n  " + "\n  ".join(problems))
+            status = 1
+        else:
+            print("validation: OK (fmpy.validation + fmu_src.checks.validate report nothing)")
+    return status
+
+
+def _references(out, csv_dir) -> None:
+    """Step 2 (see the module docstring)."""
+    from .references import write_references
+
+    t0 = time.perf_counter()
+    paths = write_references(out, csv_dir)
+    for path in paths.values():
+        kept = _KEPT / path.name
+        if path.resolve() == kept.resolve():
+            note = ""
+        elif kept.is_file() and kept.read_bytes() == path.read_bytes():
+            note = f"; equal to the kept fmu_src/reference/{path.name}"
+        else:
+            note = f"; DIFFERS from the kept fmu_src/reference/{path.name}"
+        print(f"{path}: {len(path.read_text().splitlines())} lines{note}")
+    print(f"reference runs in {time.perf_counter() - t0:.1f} s")
+
+
+def main(argv=None, default_out="build") -> int:
+    """The command line (see the module docstring); returns the exit status."""
+    args = _parser(default_out).parse_args(argv)
+    try:
+        if args.write_reference:
+            _references(args.out, _KEPT)
+            return 0
+        status = _build(args)
+        if status == 0 and not args.no_reference:
+            _references(args.out, Path(args.out) / "reference")
+    except (ValueError, MapTensorFileError, RuntimeError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return status
+
+
+if __name__ == "__main__":
+    exit_process(main())

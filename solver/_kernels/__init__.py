@@ -1,0 +1,17 @@
+"""The compiled (numba) kernels of :mod:`solver`: private, called only by the package's modules.
+
+Every kernel works on scalars and small arrays; arguments that travel together are packed
+into flat float arrays whose fields are read through the named offsets of :mod:`.layout`
+(never by position).  Modules:
+
+- :mod:`.layout`: the packed arrays' offsets, the status / mode / rule codes, and the packers;
+- :mod:`.linalg`: angle wrapping and 3x3 determinant, solve and Hadamard ratio;
+- :mod:`.kinematics`: the one inverse kinematics and the one Jacobian (loop rows, J and K,
+  the Newton step on the loop constraints, the velocity model);
+- :mod:`.direct_kinematics`: all six DK solutions of one joint vector (the sextic);
+- :mod:`.ordering`: the numbering rules of the six solutions;
+- :mod:`.maptensor`: procedure 2 (labels near a pose) and the nearest node's label;
+- :mod:`.tracker`, :mod:`.baselines`: one step of procedure 3 and of each baseline.
+
+All kernels are compiled on first use and cached by numba next to their source.
+"""

@@ -1,0 +1,150 @@
+"""The one inverse kinematics and the one Jacobian of the package, compiled.
+
+Leg ``i`` is ``M_i - D_i - A_i``: elbow ``D_i = M_i + l1_i (cos q_i, sin q_i)``, platform
+joint ``A_i = P + R(phi) b_i``, loop vector ``L_i = A_i - D_i``, loop constraint
+``F_i = |L_i|^2 - l2_i^2``.  :func:`loop_row` gives ``L_i`` and row ``i`` of ``J / 2``
+(``J = dF/dX``); every J, Newton step and det J sign of the kernels is built from it.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .layout import MODEL_L1, MODEL_L2SQ, MODEL_MOTORS, MODEL_PLATFORM
+from .linalg import cramer3, det3, hadamard, row_ratio, solve3, wrap
+
+
+@njit(cache=True)
+def geometry(model_pack):
+    """Views of the model pack: motors (3, 2), l1 (3,), l2^2 (3,), platform joints (3, 2)."""
+    return (model_pack[MODEL_MOTORS:MODEL_MOTORS + 6].reshape((3, 2)), model_pack[MODEL_L1:MODEL_L1 + 3],
+            model_pack[MODEL_L2SQ:MODEL_L2SQ + 3], model_pack[MODEL_PLATFORM:MODEL_PLATFORM + 6].reshape((3, 2)))
+
+
+@njit(cache=True)
+def elbows(q, M, l1, D):
+    """Elbow positions ``D`` (3, 2) of joints ``q``."""
+    for i in range(3):
+        D[i, 0] = M[i, 0] + l1[i] * math.cos(q[i])
+        D[i, 1] = M[i, 1] + l1[i] * math.sin(q[i])
+
+
+@njit(cache=True, inline="always")
+def loop_row(x, y, c, s, bx, by, mx, my, ax, ay):
+    """Leg loop at pose ``(x, y)``, ``cos/sin phi = c, s``, platform joint ``b = (bx, by)``, motor
+    ``M = (mx, my)`` and arm ``D - M = (ax, ay)``.
+
+    Returns ``R b`` (2 values), ``L = P + R b - M - (D - M)`` (2 values) and
+    ``L . dR/dphi b``: the row ``(L_x, L_y, L . dR/dphi b)`` is row ``i`` of ``J / 2``.
+    Kernels that hold the elbow ``D`` itself pass it as ``M`` with a zero arm.
+    """
+    rbx = c * bx - s * by
+    rby = s * bx + c * by
+    lx = x + rbx - mx - ax
+    ly = y + rby - my - ay
+    return rbx, rby, lx, ly, ly * rbx - lx * rby
+
+
+# ----------------------------------------------------------------------------- inverse kinematics
+@njit(cache=True)
+def ik_pose(x, y, phi, elbow_bits, M, l1, l2, b, q):
+    """Inverse kinematics of one pose into ``q`` (3,); False (``q`` partly written) if a leg cannot reach.
+
+    ``elbow_bits`` is ``posture - 1``: bit ``i`` set means leg ``i``'s elbow sign is negative.
+    """
+    c, s = math.cos(phi), math.sin(phi)
+    for i in range(3):
+        dx = x + c * b[i, 0] - s * b[i, 1] - M[i, 0]
+        dy = y + s * b[i, 0] + c * b[i, 1] - M[i, 1]
+        rho2 = dx * dx + dy * dy
+        rho = math.sqrt(rho2)
+        if rho == 0.0:
+            return False
+        ca = (l1[i] * l1[i] + rho2 - l2[i] * l2[i]) / (2.0 * l1[i] * rho)
+        if not abs(ca) <= 1.0 + 1e-12:
+            return False
+        alpha = math.acos(min(1.0, max(-1.0, ca)))
+        sign = 1.0 - 2.0 * ((elbow_bits >> i) & 1)
+        q[i] = wrap(math.atan2(dy, dx) - sign * alpha)
+    return True
+
+
+@njit(cache=True)
+def ik_batch(X, elbow_bits, M, l1, l2, b, out):
+    """:func:`ik_pose` of poses ``X`` (N, 3) with ``elbow_bits`` (N,) into ``out`` (N, 3); NaN rows if unreachable."""
+    for n in range(X.shape[0]):
+        if not ik_pose(X[n, 0], X[n, 1], X[n, 2], elbow_bits[n], M, l1, l2, b, out[n]):
+            for i in range(3):
+                out[n, i] = np.nan
+
+
+# ----------------------------------------------------------------------------- Jacobians
+@njit(cache=True)
+def jacobian(X, q, M, l1, b, J, kd):
+    """``J = dF/dX`` (3, 3) and the diagonal ``kd`` (3,) of ``K = dF/dq`` at ``(X, q)``, written in place."""
+    c, s = math.cos(X[2]), math.sin(X[2])
+    for i in range(3):
+        cq, sq = math.cos(q[i]), math.sin(q[i])
+        _rbx, _rby, lx, ly, lr = loop_row(X[0], X[1], c, s, b[i, 0], b[i, 1], M[i, 0], M[i, 1], l1[i] * cq,
+                                          l1[i] * sq)
+        J[i, 0] = 2.0 * lx
+        J[i, 1] = 2.0 * ly
+        J[i, 2] = 2.0 * lr
+        kd[i] = -2.0 * l1[i] * (ly * cq - lx * sq)
+
+
+@njit(cache=True)
+def jacobian_batch(X, q, M, l1, b, J, kd):
+    """:func:`jacobian` of ``X``, ``q`` (N, 3) into ``J`` (N, 3, 3) and ``kd`` (N, 3)."""
+    for n in range(X.shape[0]):
+        jacobian(X[n], q[n], M, l1, b, J[n], kd[n])
+
+
+@njit(cache=True)
+def velocity(X, q, dq, M, l1, b, out):
+    """dX = -J^-1 K dq at (X, q) (the velocity model, eq. 20); returns the Hadamard ratio of J."""
+    J = np.empty((3, 3))
+    kd = np.empty(3)
+    jacobian(X, q, M, l1, b, J, kd)
+    r = np.empty(3)
+    for i in range(3):
+        r[i] = -kd[i] * dq[i]
+    if not solve3(J, r, out):
+        out[:] = 0.0
+        return 0.0
+    return hadamard(J)
+
+
+@njit(cache=True)
+def newton_step(x, y, phi, D, b, l2sq):
+    """At a real pose with elbows ``D``: max|F_i|, the Newton step (dx, dy, dphi) on F(X) = 0,
+    whether the step is finite, and the Hadamard ratio of J (0 when singular)."""
+    c, s = math.cos(phi), math.sin(phi)
+    A = np.empty((3, 3))                     # J / 2
+    g = np.empty(3)                          # -F / 2
+    step = np.empty(3)
+    res = 0.0
+    for i in range(3):
+        _rbx, _rby, lx, ly, lr = loop_row(x, y, c, s, b[i, 0], b[i, 1], D[i, 0], D[i, 1], 0.0, 0.0)
+        F = lx * lx + ly * ly - l2sq[i]
+        res = max(res, abs(F))
+        A[i, 0], A[i, 1], A[i, 2], g[i] = lx, ly, lr, -0.5 * F
+    det = det3(A)
+    if det == 0.0 or not math.isfinite(det):
+        return res, 0.0, 0.0, 0.0, False, 0.0
+    ok = cramer3(A, g, det, step)
+    return res, step[0], step[1], step[2], ok, row_ratio(A, det)
+
+
+@njit(cache=True)
+def det_sign(x, y, phi, D, b):
+    """Sign of det J at a real pose with elbows ``D`` (+1 or -1; 0 exactly singular)."""
+    c, s = math.cos(phi), math.sin(phi)
+    A = np.empty((3, 3))
+    for i in range(3):
+        _rbx, _rby, lx, ly, lr = loop_row(x, y, c, s, b[i, 0], b[i, 1], D[i, 0], D[i, 1], 0.0, 0.0)
+        A[i, 0], A[i, 1], A[i, 2] = lx, ly, lr
+    det = det3(A)
+    return 1 if det > 0 else (-1 if det < 0 else 0)

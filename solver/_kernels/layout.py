@@ -1,0 +1,153 @@
+"""Layout of every packed kernel argument, and the codes the kernels share with Python.
+
+numba unboxes each argument of a call from Python separately, so the per-step kernels take
+few arguments: values that travel together are packed into one flat float64 array.  Each
+field of a packed array is read and written through the offsets below (module-level
+integer constants, which numba compiles as literals); a field of several values spans
+``[OFFSET, OFFSET + n)``.  The ``pack_*`` functions build the arrays on the Python side.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+# ----------------------------------------------------------------------------- model pack
+# The geometry and the DK constants of one manipulator (built once per model).
+MODEL_MOTORS = 0          # (3, 2) motor positions M_i, m
+MODEL_L1 = 6              # (3,) proximal lengths l1_i, m
+MODEL_L2SQ = 9            # (3,) squared distal lengths l2_i^2, m^2
+MODEL_PLATFORM = 12       # (3, 2) platform joints b_i in the platform frame, m
+MODEL_COS8 = 18           # (8,) cos of the eight sample angles 2 pi m / 8
+MODEL_SIN8 = 26           # (8,) sin of the eight sample angles
+MODEL_PSI = 34            # (8,) half-angle shift psi_j of each sample j
+MODEL_SNAP_TOL = 42       # |Im phi| below which a root is tried as real
+MODEL_REAL_TOL = 43       # residual below which a polished root is real, m^2
+MODEL_NEWTON_STEPS = 44   # Newton steps that polish a real root (an integer)
+MODEL_SIZE = 45
+
+# ----------------------------------------------------------------------------- tracker state pack
+# What a step reads of the tracker's state (rewritten before every step).
+STATE_X = 0               # (3,) previous pose
+STATE_Q = 3               # (3,) previous joints
+STATE_X2 = 6              # (3,) the pose before the previous one (= STATE_X right after a reset)
+STATE_HISTORY = 9         # consecutive known poses, 1 or 2
+STATE_DQ_SCALE = 10       # running mean of recent joint step sizes, rad (0: none yet)
+STATE_EXT_SCALE = 11      # ratio of this time step to the previous one (tool-space extrapolation)
+STATE_Q2 = 12             # (3,) the joints before the previous ones (the parabola of the certificates)
+STATE_HAVE_Q2 = 15        # > 0 when STATE_Q2 holds them
+STATE_N_CAND = 16         # number of certificate candidates (1: the branch is known)
+STATE_VERIFIED = 17       # > 0: the single candidate ends a verified chain (its tiny box is proved)
+STATE_CANDS = 18          # (6, 3) the candidates: the DK solutions the true branch can be
+STATE_SIZE = 36
+
+# ----------------------------------------------------------------------------- map pack
+# The grid of a map tensor and the procedure-2 neighbourhood (eq. 18-19).
+MAP_ORIGIN = 0            # (3,) coordinates of node (0, 0, 0)
+MAP_STEP = 3              # (3,) node spacing
+MAP_PERIODIC = 6          # > 0 when the phi axis wraps around
+MAP_R2 = 7                # squared procedure-2 radius
+MAP_WEIGHTS = 8           # (3,) eq. 19 weights
+MAP_SIZE = 11
+
+# ----------------------------------------------------------------------------- tracker options
+PARAM_AMBIGUITY = 0       # ambiguous when d_best > this * d_second
+PARAM_JUMP = 1            # a jump when max|dq| > this * the recent mean step
+PARAM_SUBSTEP_DQ = 2      # joint motion per continuation substep, rad
+PARAM_MAX_SUBSTEPS = 3    # at most this many continuation substeps
+PARAM_SINGULAR = 4        # Hadamard ratio of J below which a configuration is singular
+PARAM_USE_MAP = 5         # > 0: restrict candidates by procedure 2
+PARAM_STRATEGY = 6        # one of the STRATEGY_* codes
+PARAM_SEGMENT_SINGULAR = 7  # STRATEGY_SEGMENT: a segment this close to singular trusts extrapolation
+PARAM_POSTURE_BITS = 8    # posture - 1 for the posture certificate, -1 without it
+PARAM_MAX_TESTS = 9       # Krawczyk tests one chain may use
+PARAM_SIZE = 10
+
+# ----------------------------------------------------------------------------- baseline options
+BASELINE_WEIGHTS = 0      # (3,) eq. 19 weights
+BASELINE_TOL = 3          # Newton / CLDK stop at this residual max|F_i|, m^2
+BASELINE_SEPARATION = 4   # Newton with a separation flag: certain when d_other > this * d_step
+BASELINE_SIZE = 5
+
+# ----------------------------------------------------------------------------- step outputs
+# Float outputs of a step: the pose, the prediction, then the float info fields.
+OUT_X = 0                 # (3,) the pose returned
+OUT_X_PRED = 3            # (3,) the prediction it was compared with
+OUT_INFO = 6              # (INFO_F_SIZE,) the fields F_*
+OUT_CANDS = 11            # (6, 3) the candidates after the step (as STATE_CANDS)
+OUT_SIZE = 29
+# float info fields (offsets inside OUT_INFO)
+F_D_BEST, F_D_SECOND, F_COND_PREV, F_COND, F_DQ = 0, 1, 2, 3, 4
+INFO_F_SIZE = 5
+# integer outputs of a step
+I_LABEL, I_NEAR_BORDER, I_N_REAL, I_AMBIGUOUS, I_STATUS, I_JUMP, I_REGION = 0, 1, 2, 3, 4, 5, 6
+I_CERTAIN, I_CERTIFICATE, I_N_CAND = 7, 8, 9
+INFO_I_SIZE = 10
+
+# ----------------------------------------------------------------------------- codes
+#: Status of a step (also the DK FMU's ``status`` output); REJECTED is the FMU's own.
+STATUS_OK, STATUS_UNREACHABLE, STATUS_SINGULAR, STATUS_REJECTED, STATUS_DIVERGED = 0, 1, 2, 3, 4
+#: The status codes by name, the one table of them.
+STATUS = {STATUS_OK: "ok", STATUS_UNREACHABLE: "unreachable", STATUS_SINGULAR: "singular",
+          STATUS_REJECTED: "rejected", STATUS_DIVERGED: "diverged"}
+#: Tracker modes.
+MODE_PAPER, MODE_DEFAULT = 0, 1
+#: Default-mode strategies: continuation only, extrapolation only, arbitrated by the segment's
+#: closeness to a singularity, arbitrated by which predictor is more decisive.
+STRATEGY_CONTINUATION, STRATEGY_EXTRAPOLATION, STRATEGY_SEGMENT, STRATEGY_DECISIVE = 0, 1, 2, 3
+#: Baselines.
+BASELINE_NEWTON, BASELINE_PREDICTOR_NEWTON, BASELINE_CLDK, BASELINE_NEAREST, BASELINE_NEWTON_SEPARATION = 0, 1, 2, 3, 4
+#: Ordering rules (names in :data:`solver.ordering.ORDERING_RULES`).
+RULE_REAL_PHI, RULE_LITERAL, RULE_REAL_X, RULE_REAL_Y, RULE_ASPECT = 0, 1, 2, 3, 4
+
+
+# ----------------------------------------------------------------------------- packers
+def pack_model(motors, l1, l2sq, platform, cos8, sin8, psi, snap_tol, real_tol, newton_steps) -> np.ndarray:
+    """The model pack (MODEL_SIZE,) of a geometry and its DK constants."""
+    pack = np.empty(MODEL_SIZE)
+    pack[MODEL_MOTORS:MODEL_MOTORS + 6] = np.ravel(motors)
+    pack[MODEL_L1:MODEL_L1 + 3] = l1
+    pack[MODEL_L2SQ:MODEL_L2SQ + 3] = l2sq
+    pack[MODEL_PLATFORM:MODEL_PLATFORM + 6] = np.ravel(platform)
+    pack[MODEL_COS8:MODEL_COS8 + 8] = cos8
+    pack[MODEL_SIN8:MODEL_SIN8 + 8] = sin8
+    pack[MODEL_PSI:MODEL_PSI + 8] = psi
+    pack[MODEL_SNAP_TOL] = snap_tol
+    pack[MODEL_REAL_TOL] = real_tol
+    pack[MODEL_NEWTON_STEPS] = float(newton_steps)
+    return pack
+
+
+def pack_map(origin, step, periodic: bool, r2: float, weights) -> np.ndarray:
+    """The map pack (MAP_SIZE,) of a map tensor's grid and a procedure-2 neighbourhood."""
+    pack = np.empty(MAP_SIZE)
+    pack[MAP_ORIGIN:MAP_ORIGIN + 3] = origin
+    pack[MAP_STEP:MAP_STEP + 3] = step
+    pack[MAP_PERIODIC] = 1.0 if periodic else 0.0
+    pack[MAP_R2] = r2
+    pack[MAP_WEIGHTS:MAP_WEIGHTS + 3] = weights
+    return pack
+
+
+def pack_tracker_params(ambiguity, jump, substep_dq, max_substeps, singular, use_map: bool, strategy: int,
+                        segment_singular, posture_bits: int, max_tests: int) -> np.ndarray:
+    """The tracker options (PARAM_SIZE,)."""
+    pack = np.empty(PARAM_SIZE)
+    pack[PARAM_AMBIGUITY] = ambiguity
+    pack[PARAM_JUMP] = jump
+    pack[PARAM_SUBSTEP_DQ] = substep_dq
+    pack[PARAM_MAX_SUBSTEPS] = max_substeps
+    pack[PARAM_SINGULAR] = singular
+    pack[PARAM_USE_MAP] = 1.0 if use_map else 0.0
+    pack[PARAM_STRATEGY] = float(strategy)
+    pack[PARAM_SEGMENT_SINGULAR] = segment_singular
+    pack[PARAM_POSTURE_BITS] = float(posture_bits)
+    pack[PARAM_MAX_TESTS] = float(max_tests)
+    return pack
+
+
+def pack_baseline_params(weights, tol, separation=3.0) -> np.ndarray:
+    """The baseline options (BASELINE_SIZE,)."""
+    pack = np.empty(BASELINE_SIZE)
+    pack[BASELINE_WEIGHTS:BASELINE_WEIGHTS + 3] = weights
+    pack[BASELINE_TOL] = tol
+    pack[BASELINE_SEPARATION] = separation
+    return pack

@@ -1,0 +1,55 @@
+"""Scalar helpers of every kernel: angle wrapping and 3x3 linear algebra by cofactors."""
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+
+@njit(cache=True)
+def wrap(a):
+    """An angle wrapped to (-pi, pi] (as :func:`solver.wrap_angle`)."""
+    return math.pi - ((math.pi - a) % (2.0 * math.pi)) + 0.0
+
+
+@njit(cache=True)
+def det3(A):
+    """Determinant of a 3x3 matrix by cofactors of its first row."""
+    return (A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]) - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
+            + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]))
+
+
+@njit(cache=True)
+def cramer3(A, r, det, out):
+    """``out = A^-1 r`` by Cramer's rule with ``det = det3(A)`` (nonzero); False if not finite."""
+    out[0] = (r[0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]) - A[0, 1] * (r[1] * A[2, 2] - A[1, 2] * r[2])
+              + A[0, 2] * (r[1] * A[2, 1] - A[1, 1] * r[2])) / det
+    out[1] = (A[0, 0] * (r[1] * A[2, 2] - A[1, 2] * r[2]) - r[0] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
+              + A[0, 2] * (A[1, 0] * r[2] - r[1] * A[2, 0])) / det
+    out[2] = (A[0, 0] * (A[1, 1] * r[2] - r[1] * A[2, 1]) - A[0, 1] * (A[1, 0] * r[2] - r[1] * A[2, 0])
+              + r[0] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0])) / det
+    return math.isfinite(out[0]) and math.isfinite(out[1]) and math.isfinite(out[2])
+
+
+@njit(cache=True)
+def solve3(A, r, out):
+    """Solve ``A x = r`` (3x3) into ``out``; False if ``A`` is singular or the solution not finite."""
+    det = det3(A)
+    if det == 0.0 or not math.isfinite(det):
+        return False
+    return cramer3(A, r, det, out)
+
+
+@njit(cache=True)
+def row_ratio(A, det):
+    """``|det| / prod |rows of A|`` for ``det = det3(A)``: 0 singular, 1 for orthogonal rows."""
+    norm = 1.0
+    for i in range(3):
+        norm *= math.sqrt(A[i, 0] ** 2 + A[i, 1] ** 2 + A[i, 2] ** 2)
+    return abs(det) / norm if norm > 0 else 0.0
+
+
+@njit(cache=True)
+def hadamard(A):
+    """The Hadamard ratio ``|det A| / prod |rows of A|`` (0 at a singularity, 1 at best)."""
+    return row_ratio(A, det3(A))

@@ -1,0 +1,305 @@
+"""One step of procedure 3 (the tracker), compiled.
+
+One call does a whole step (all DK solutions, the predictor, procedure 2 on the map, the
+choice), so the per-step cost is the work, not Python overhead.  :class:`solver.Tracker`
+checks inputs, holds the state, packs it (:mod:`.layout`) and calls :func:`tracker_step`.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .certify import CERT_NONE, certify
+from .direct_kinematics import dk_one
+from .kinematics import geometry, jacobian, velocity
+from .layout import (F_COND, F_COND_PREV, F_D_BEST, F_D_SECOND, F_DQ, I_AMBIGUOUS, I_JUMP, I_LABEL,
+                     I_N_REAL, I_NEAR_BORDER, I_REGION, I_STATUS, INFO_F_SIZE, INFO_I_SIZE, MAP_ORIGIN,
+                     MAP_PERIODIC, MAP_R2, MAP_STEP, MAP_WEIGHTS, MODE_PAPER, OUT_INFO, OUT_X, OUT_X_PRED,
+                     PARAM_AMBIGUITY, PARAM_JUMP, PARAM_MAX_SUBSTEPS, PARAM_SEGMENT_SINGULAR, PARAM_SINGULAR,
+                     PARAM_STRATEGY, PARAM_SUBSTEP_DQ, PARAM_USE_MAP, STATE_DQ_SCALE, STATE_EXT_SCALE,
+                     STATE_HISTORY, STATE_Q, STATE_X, STATE_X2, I_CERTAIN, I_CERTIFICATE, I_N_CAND, OUT_CANDS,
+                     PARAM_MAX_TESTS, PARAM_POSTURE_BITS, STATE_CANDS, STATE_HAVE_Q2, STATE_N_CAND, STATE_Q2,
+                     STATE_VERIFIED, STATUS_OK, STATUS_SINGULAR, STATUS_UNREACHABLE,
+                     STRATEGY_CONTINUATION, STRATEGY_EXTRAPOLATION, STRATEGY_SEGMENT)
+from .linalg import hadamard, wrap
+from .maptensor import label_at_one, near_mask_one
+
+
+@njit(cache=True)
+def joint_step(q, qp, dq):
+    """The joint step ``dq = q - qp`` (3,) with wrapped angles, written in place; returns max|dq_i|."""
+    dqn = 0.0
+    for i in range(3):
+        dq[i] = wrap(q[i] - qp[i])
+        dqn = max(dqn, abs(dq[i]))
+    return dqn
+
+
+@njit(cache=True)
+def continuation(X0, q0, dq, nsub, M, l1, b, out):
+    """Integrate J dX = -K dq along the joint segment q0 + s dq, s in [0, 1] (RK4, ``nsub`` steps).
+
+    Writes the end pose to ``out``; returns the smallest Hadamard ratio of J met.
+    """
+    h = 1.0 / nsub
+    X = X0.copy()
+    k1, k2, k3, k4 = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    Xs, qs = np.empty(3), np.empty(3)
+    worst = 1.0
+    for n in range(nsub):
+        s0 = n * h
+        for i in range(3):
+            qs[i] = q0[i] + s0 * dq[i]
+        worst = min(worst, velocity(X, qs, dq, M, l1, b, k1))
+        for i in range(3):
+            Xs[i] = X[i] + 0.5 * h * k1[i]
+            qs[i] = q0[i] + (s0 + 0.5 * h) * dq[i]
+        worst = min(worst, velocity(Xs, qs, dq, M, l1, b, k2))
+        for i in range(3):
+            Xs[i] = X[i] + 0.5 * h * k2[i]
+        worst = min(worst, velocity(Xs, qs, dq, M, l1, b, k3))
+        for i in range(3):
+            Xs[i] = X[i] + h * k3[i]
+            qs[i] = q0[i] + (s0 + h) * dq[i]
+        worst = min(worst, velocity(Xs, qs, dq, M, l1, b, k4))
+        for i in range(3):
+            X[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+    out[:] = X
+    return worst
+
+
+@njit(cache=True)
+def wdist(a, b, w):
+    """Weighted pose distance of eq. 19 with the phi difference wrapped."""
+    dp = wrap(a[2] - b[2])
+    return math.sqrt(w[0] * (a[0] - b[0]) ** 2 + w[1] * (a[1] - b[1]) ** 2 + w[2] * dp * dp)
+
+
+@njit(cache=True)
+def nearest(poses, real, Xref, w, m1, m2, m3, use_map):
+    """The real solution nearest to ``Xref`` among those whose label is in one of the masks
+    (all real ones if ``use_map`` is off or none qualifies), and its decisiveness
+    ``d_best / d_second`` (0 = certain, 1 = a tie)."""
+    Xr = np.empty(3)
+    best, second, k_best = np.inf, np.inf, -1
+    best_any, second_any, k_any = np.inf, np.inf, -1
+    for k in range(6):
+        if real[k]:
+            for i in range(3):
+                Xr[i] = poses[k, i].real
+            d = wdist(Xr, Xref, w)
+            if d < best_any:
+                best_any, second_any, k_any = d, best_any, k
+            elif d < second_any:
+                second_any = d
+            if m1[k + 1] or m2[k + 1] or m3[k + 1]:
+                if d < best:
+                    best, second, k_best = d, best, k
+                elif d < second:
+                    second = d
+    if not use_map or k_best < 0:
+        return k_any, best_any / second_any if second_any > 0 else 1.0
+    return k_best, best / second if second > 0 else 1.0
+
+
+@njit(cache=True)
+def certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred, w, params, model_pack,
+                     new_cands, info_i):
+    """The certificates of a step (:mod:`.certify`) and what they change in the choice.
+
+    Updates the candidate set (into ``new_cands``) and writes I_CERTAIN,
+    I_CERTIFICATE and I_N_CAND.  In default mode a choice the certificates rule
+    out is replaced: by the one candidate left, or by the candidate nearest the
+    prediction.  Paper mode keeps its answer and is certain only when it is the
+    one candidate left.  Returns the (possibly new) chosen solution index.
+    """
+    n_cand = int(state[STATE_N_CAND])
+    cands = state[STATE_CANDS:STATE_CANDS + 18].reshape((6, 3))
+    d2 = np.zeros(3)
+    have_par = state[STATE_HAVE_Q2] > 0.0
+    if have_par:
+        # the parabola through q2 (at s = -r), qp (s = 0) and q (s = 1), r = previous / this time step
+        r = 1.0 / ext_scale
+        for i in range(3):
+            d2[i] = (wrap(state[STATE_Q2 + i] - qp[i]) + r * dq[i]) / (r * (1.0 + r))
+    keep = np.empty(6, dtype=np.bool_)
+    n_new, cert = certify(cands, n_cand, state[STATE_VERIFIED] > 0.0, qp, dq, d2, have_par, poses, real,
+                          int(params[PARAM_POSTURE_BITS]), int(params[PARAM_MAX_TESTS]), model_pack, new_cands,
+                          keep)
+    certain = False
+    if cert != CERT_NONE:
+        sole = 0
+        for k in range(6):
+            if keep[k]:
+                sole = k
+        if mode != MODE_PAPER:
+            chosen = sole
+        certain = chosen == sole
+    elif mode != MODE_PAPER and not keep[chosen]:
+        mask = np.zeros(7, dtype=np.bool_)
+        for k in range(6):
+            mask[k + 1] = keep[k]
+        chosen, _ = nearest(poses, real, X_pred, w, mask, mask, mask, True)
+    info_i[I_CERTAIN] = 1 if certain else 0
+    info_i[I_CERTIFICATE] = cert
+    info_i[I_N_CAND] = n_new
+    return chosen
+
+
+@njit(cache=True)
+def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map_pack, stencil, params,
+                 out_real, out_int):
+    """One step of procedure 3 (``mode`` MODE_PAPER or MODE_DEFAULT); see :mod:`solver.tracker`.
+
+    Reads the joints ``q`` (3,), the state pack ``state``, the model pack, the map's labels,
+    its map pack and procedure-2 ``stencil``, and the options ``params``; writes the step's
+    outputs into ``out_real`` (OUT_SIZE,) and ``out_int`` (INFO_I_SIZE,).
+    """
+    M, l1, l2sq, b = geometry(model_pack)
+    Xp, qp, X2 = state[STATE_X:STATE_X + 3], state[STATE_Q:STATE_Q + 3], state[STATE_X2:STATE_X2 + 3]
+    hist, dq_scale, ext_scale = int(state[STATE_HISTORY]), state[STATE_DQ_SCALE], state[STATE_EXT_SCALE]
+    origin, step = map_pack[MAP_ORIGIN:MAP_ORIGIN + 3], map_pack[MAP_STEP:MAP_STEP + 3]
+    periodic, r2, w = map_pack[MAP_PERIODIC] > 0.0, map_pack[MAP_R2], map_pack[MAP_WEIGHTS:MAP_WEIGHTS + 3]
+    X_out, X_pred = out_real[OUT_X:OUT_X + 3], out_real[OUT_X_PRED:OUT_X_PRED + 3]
+    info_f, info_i = out_real[OUT_INFO:OUT_INFO + INFO_F_SIZE], out_int
+    poses = np.empty((6, 3), dtype=np.complex128)
+    real = np.empty(6, dtype=np.bool_)
+    dk_one(q, model_pack, sample_to_sextic, rule, poses, real)
+    dq = np.empty(3)
+    dqn = joint_step(q, qp, dq)
+    qu = np.empty(3)                                   # q unwrapped next to the previous joints
+    for i in range(3):
+        qu[i] = qp[i] + dq[i]
+    # eq. 22: the linear predictor at the previous pose
+    dX = np.empty(3)
+    cond_prev = velocity(Xp, qp, dq, M, l1, b, dX)
+    X_lin = np.empty(3)
+    for i in range(3):
+        X_lin[i] = Xp[i] + dX[i]
+    # procedure 2 at the previous pose
+    near_prev = np.zeros(7, dtype=np.bool_)
+    near_mask_one(labels, origin, step, periodic, Xp, r2, w, stencil, near_prev)
+    n_near = 0
+    single = 0
+    for lab in range(1, 7):
+        if near_prev[lab]:
+            n_near += 1
+            single = lab
+    n_real = 0
+    for k in range(6):
+        if real[k]:
+            n_real += 1
+    for i in range(INFO_I_SIZE):
+        info_i[i] = 0
+    for i in range(INFO_F_SIZE):
+        info_f[i] = 0.0
+    info_i[I_NEAR_BORDER] = 1 if n_near > 1 else 0
+    info_i[I_N_REAL] = n_real
+    info_f[F_COND_PREV] = cond_prev
+    info_f[F_DQ] = dqn
+    jump = dq_scale > 0.0 and dqn > params[PARAM_JUMP] * dq_scale
+    info_i[I_JUMP] = 1 if jump else 0
+    if n_real == 0:
+        X_out[:] = Xp
+        X_pred[:] = X_lin
+        info_i[I_STATUS] = STATUS_UNREACHABLE
+        info_i[I_N_CAND] = int(state[STATE_N_CAND])
+        return
+    chosen = -1
+    ambiguous = False
+    Xr = np.empty(3)
+    if mode == MODE_PAPER:
+        X_pred[:] = X_lin
+        if n_near == 1:
+            region = single
+        else:
+            region = label_at_one(labels, origin, step, periodic, X_lin)
+        info_i[I_REGION] = region
+        if region >= 1 and real[region - 1]:
+            chosen = region - 1
+        else:
+            ambiguous = True                       # procedure 3 has no answer: nearest to the prediction
+            chosen, _ = nearest(poses, real, X_lin, w, near_prev, near_prev, near_prev, False)
+    else:
+        # continuation predictor along the joint segment, guarded near singularities
+        nsub = int(min(params[PARAM_MAX_SUBSTEPS], max(1.0, math.ceil(dqn / params[PARAM_SUBSTEP_DQ]))))
+        worst = continuation(Xp, qp, dq, nsub, M, l1, b, X_pred)
+        ok = worst > params[PARAM_SINGULAR]
+        for i in range(3):
+            ok = ok and math.isfinite(X_pred[i])
+        if not ok:
+            X_pred[:] = Xp if not (cond_prev > params[PARAM_SINGULAR]) else X_lin
+        region = label_at_one(labels, origin, step, periodic, X_pred)
+        info_i[I_REGION] = region
+        use_map = params[PARAM_USE_MAP] > 0.0
+        # tool-space extrapolation from the last two poses, scaled by the ratio of time steps
+        have_ext = hist >= 2 and params[PARAM_STRATEGY] != STRATEGY_CONTINUATION
+        X_ext = np.empty(3)
+        for i in range(3):
+            X_ext[i] = Xp[i] + ext_scale * (wrap(Xp[i] - X2[i]) if i == 2 else Xp[i] - X2[i])
+        near_pred = np.zeros(7, dtype=np.bool_)
+        near_ext = np.zeros(7, dtype=np.bool_)
+        kc, rc = nearest(poses, real, X_pred, w, near_prev, near_pred, near_ext, False)
+        ke, re = kc, rc
+        if have_ext:
+            ke, re = nearest(poses, real, X_ext, w, near_prev, near_pred, near_ext, False)
+        # procedure 2 at the predictions only when a candidate's label is not seen near X_prev
+        if use_map and n_near > 0 and not (near_prev[kc + 1] and near_prev[ke + 1]):
+            near_mask_one(labels, origin, step, periodic, X_pred, r2, w, stencil, near_pred)
+            if have_ext:
+                near_mask_one(labels, origin, step, periodic, X_ext, r2, w, stencil, near_ext)
+            kc, rc = nearest(poses, real, X_pred, w, near_prev, near_pred, near_ext, True)
+            if have_ext:
+                ke, re = nearest(poses, real, X_ext, w, near_prev, near_pred, near_ext, True)
+        if have_ext:
+            strategy = params[PARAM_STRATEGY]
+            if kc == ke:
+                chosen = kc
+            else:
+                ambiguous = True
+                if strategy == STRATEGY_EXTRAPOLATION:
+                    chosen = ke
+                elif strategy == STRATEGY_SEGMENT:
+                    chosen = ke if (not ok or worst < params[PARAM_SEGMENT_SINGULAR]) else kc
+                else:
+                    chosen = ke if re < rc else kc
+            if chosen == ke:
+                X_pred[:] = X_ext
+        else:
+            chosen = kc
+        if use_map and not (near_prev[chosen + 1] or near_pred[chosen + 1] or near_ext[chosen + 1]) \
+                and n_near > 0:
+            ambiguous = True                       # no label seen nearby supports the choice
+        if not ok:
+            ambiguous = True
+    chosen = certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred, w, params,
+                              model_pack, out_real[OUT_CANDS:OUT_CANDS + 18].reshape((6, 3)), info_i)
+    # distances to the prediction: chosen and the nearest other real solution
+    for i in range(3):
+        Xr[i] = poses[chosen, i].real
+    d_best = wdist(Xr, X_pred, w)
+    d_second = np.inf
+    Xo = np.empty(3)
+    for k in range(6):
+        if real[k] and k != chosen:
+            for i in range(3):
+                Xo[i] = poses[k, i].real
+            d_second = min(d_second, wdist(Xo, X_pred, w))
+    if mode != MODE_PAPER and d_best > params[PARAM_AMBIGUITY] * d_second:
+        ambiguous = True
+    if jump:
+        ambiguous = True
+    info_f[F_D_BEST] = d_best
+    info_f[F_D_SECOND] = d_second
+    for i in range(3):
+        X_out[i] = Xr[i]
+    J = np.empty((3, 3))
+    kd = np.empty(3)
+    jacobian(X_out, qu, M, l1, b, J, kd)
+    cond = hadamard(J)
+    info_f[F_COND] = cond
+    info_i[I_LABEL] = chosen + 1
+    info_i[I_AMBIGUOUS] = 1 if ambiguous else 0
+    info_i[I_STATUS] = STATUS_SINGULAR if cond < params[PARAM_SINGULAR] else STATUS_OK

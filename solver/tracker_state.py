@@ -1,0 +1,215 @@
+"""The tracker's data and what a step reports: :class:`TrackerState`, :class:`StepInfo`, :class:`TrackResult`.
+
+The tracker (:mod:`solver.tracker`) is constant; everything a step reads and
+writes is a :class:`TrackerState`, replaced as a whole at every accepted step,
+so a rejected step leaves it untouched and a caller (an FMU rolling back a
+step) can keep a reference and restore it.  :meth:`TrackerState.as_array` is
+its serialised form (a fixed number of floats, :data:`STATE_FLOATS`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+
+from ._kernels import layout as _lay
+
+__all__ = ["TrackerState", "StepInfo", "TrackResult", "TrackerError", "STATUS", "CERTIFICATES", "STATE_FLOATS"]
+
+#: Status codes of a step by code (also the FMU's ``status`` output; 3, rejected, is the FMU's own).
+STATUS = _lay.STATUS
+
+#: Certificates by code (``StepInfo.certificate``), see :mod:`solver.tracker`.
+CERTIFICATES = {0: "none", 1: "continuation", 2: "elimination", 3: "posture"}
+
+
+class TrackerError(ValueError):
+    """A tracker used wrongly (no state yet, a map of another geometry...)."""
+
+
+def _no_candidates() -> np.ndarray:
+    return np.zeros((0, 3))
+
+
+@dataclass(frozen=True)
+class TrackerState:
+    """The tracker's data: everything a step reads and writes.
+
+    Attributes
+    ----------
+    X : ndarray, shape (3,)
+        Previous pose (m, m, rad).
+    q : ndarray, shape (3,)
+        Previous joints (rad).
+    X2 : ndarray, shape (3,) or None
+        The pose before ``X`` (for the tool-space extrapolation), None right after a reset.
+    dq_scale : float
+        Running mean of recent joint step sizes max|dq_i| (rad), for jump detection.
+    steps : int
+        Accepted steps since reset.
+    dt : float
+        Duration of the last accepted step (s) when the caller gave one, else NaN.
+    q2 : ndarray, shape (3,) or None
+        The joints before ``q`` (the parabola of the certificates), None right after a reset.
+    candidates : ndarray, shape (n, 3), 1 <= n <= 6
+        The DK solutions at ``q`` that the true branch can be (m, m, rad); one
+        when the branch is known.  Empty means ``X`` alone (right after a reset).
+    verified : bool
+        The single candidate ends a verified chain (its tiny box is proved).
+    uncertain_since : int
+        Step index (steps since reset) since which the tracker cannot vouch; -1 while it can.
+    """
+
+    X: np.ndarray
+    q: np.ndarray
+    X2: np.ndarray | None = None
+    dq_scale: float = 0.0
+    steps: int = 0
+    dt: float = float("nan")
+    q2: np.ndarray | None = None
+    candidates: np.ndarray = field(default_factory=_no_candidates)
+    verified: bool = False
+    uncertain_since: int = -1
+
+    @property
+    def history(self) -> int:
+        """Consecutive known poses (1, or 2 when ``X2`` is the pose before ``X``)."""
+        return 1 if self.X2 is None else 2
+
+    @property
+    def certain(self) -> bool:
+        """The tracker vouches for ``X`` (no step since the last certificate was uncertain)."""
+        return self.uncertain_since < 0
+
+    def as_array(self) -> np.ndarray:
+        """The state as :data:`STATE_FLOATS` floats (see :data:`_SAVED_FIELDS`): what an FMU serialises."""
+        a = np.full(STATE_FLOATS, np.nan)
+        a[_X:_X + 3], a[_Q:_Q + 3] = self.X, self.q
+        if self.X2 is not None:
+            a[_X2:_X2 + 3] = self.X2
+        a[_DQ_SCALE], a[_STEPS], a[_DT] = self.dq_scale, float(self.steps), self.dt
+        if self.q2 is not None:
+            a[_Q2:_Q2 + 3] = self.q2
+        n = len(self.candidates)
+        a[_N_CAND], a[_VERIFIED], a[_SINCE] = float(n), float(self.verified), float(self.uncertain_since)
+        a[_CANDS:_CANDS + 3 * n] = np.ravel(self.candidates)
+        return a
+
+    @classmethod
+    def from_array(cls, a) -> "TrackerState":
+        """Inverse of :meth:`as_array`; :class:`TrackerError` if ``a`` is not such an array."""
+        a = np.asarray(a, dtype=float)
+        if a.shape != (STATE_FLOATS,) or not np.all(np.isfinite(a[_FINITE])) or not 0 <= a[_N_CAND] <= 6:
+            raise TrackerError(f"state: expected {STATE_FLOATS} floats (X, q, X2, dq_scale, steps, dt, q2, "
+                               f"candidates), got {np.array2string(np.asarray(a), threshold=40)}")
+        n = int(a[_N_CAND])
+        cands = a[_CANDS:_CANDS + 3 * n].reshape(n, 3).copy()
+        if not np.all(np.isfinite(cands)):
+            raise TrackerError(f"state: {n} candidates expected, got non-finite values {cands.tolist()}")
+        x2, q2 = a[_X2:_X2 + 3], a[_Q2:_Q2 + 3]
+        return cls(a[_X:_X + 3].copy(), a[_Q:_Q + 3].copy(), None if np.any(np.isnan(x2)) else x2.copy(),
+                   float(a[_DQ_SCALE]), int(a[_STEPS]), float(a[_DT]),
+                   None if np.any(np.isnan(q2)) else q2.copy(), cands, bool(a[_VERIFIED]), int(a[_SINCE]))
+
+
+#: Fields of TrackerState.as_array: X, q, X2 (NaN after a reset), dq_scale, steps, dt, q2 (NaN after a
+#: reset), number of candidates, verified, uncertain_since, candidates (6 x 3, NaN past the number).
+_X, _Q, _X2, _DQ_SCALE, _STEPS, _DT, _Q2, _N_CAND, _VERIFIED, _SINCE, _CANDS = 0, 3, 6, 9, 10, 11, 12, 15, 16, 17, 18
+STATE_FLOATS = _CANDS + 18
+_FINITE = [*range(_X, _X + 3), *range(_Q, _Q + 3), _DQ_SCALE, _STEPS, _N_CAND, _VERIFIED, _SINCE]
+
+
+class StepInfo(NamedTuple):
+    """What a step knows about its choice.
+
+    Attributes
+    ----------
+    label : int
+        Solution number (region) used, 1..6; 0 when nothing was chosen.
+    near_border : bool
+        Procedure 2 saw more than one label near the previous pose.
+    X_pred : ndarray, shape (3,)
+        The prediction the choice was compared with (eq. 22 in paper mode, the
+        continuation predictor in default mode, the start of Newton for baselines).
+    n_real : int
+        Number of real DK solutions (-1 where a baseline does not compute them).
+    cond : float
+        Hadamard ratio |det J| / prod |rows of J| at the returned pose (0 singular, 1 best).
+    ambiguous : bool
+        The heuristic doubt of the choice (see :mod:`solver.tracker`); ``certain`` is the proof.
+    status : int
+        See :data:`STATUS`: 0 ok, 1 unreachable (pose held), 2 singular, 4 diverged.
+    jump : bool
+        The joint step was far larger than recent ones.
+    d_best, d_second : float
+        Weighted distance (m) from the prediction to the chosen and to the
+        nearest other real solution.
+    certain : bool
+        The tracker vouches that the pose lies on the branch continued from the
+        initial pose (a chain of certificates back to it; see :mod:`solver.tracker`).
+    certificate : int
+        The certificate of this step (:data:`CERTIFICATES`): 0 none, 1
+        continuation, 2 elimination, 3 posture.
+    n_candidates : int
+        DK solutions the true branch can be after this step (1 when known).
+    uncertain_since : int
+        Step index since which the tracker cannot vouch; -1 when ``certain``.
+    """
+
+    label: int
+    near_border: bool
+    X_pred: np.ndarray
+    n_real: int
+    cond: float
+    ambiguous: bool
+    status: int
+    jump: bool
+    d_best: float
+    d_second: float
+    certain: bool = False
+    certificate: int = 0
+    n_candidates: int = 0
+    uncertain_since: int = -1
+
+    @property
+    def status_name(self) -> str:
+        return STATUS[self.status]
+
+
+class TrackResult(NamedTuple):
+    """Result of :meth:`Tracker.track`: poses and per-step information as arrays.
+
+    Attributes
+    ----------
+    X : ndarray (n, 3)
+    label, n_real, status, certificate, n_candidates, uncertain_since : ndarray of int (n,)
+    near_border, ambiguous, jump, certain : ndarray of bool (n,)
+    X_pred : ndarray (n, 3)
+    cond, d_best, d_second : ndarray (n,)
+    seconds : ndarray (n,)
+        Wall time of each step (s); 0 for the initial pose (which is certain).
+    """
+
+    X: np.ndarray
+    label: np.ndarray
+    near_border: np.ndarray
+    X_pred: np.ndarray
+    n_real: np.ndarray
+    cond: np.ndarray
+    ambiguous: np.ndarray
+    status: np.ndarray
+    jump: np.ndarray
+    d_best: np.ndarray
+    d_second: np.ndarray
+    certain: np.ndarray
+    certificate: np.ndarray
+    n_candidates: np.ndarray
+    uncertain_since: np.ndarray
+    seconds: np.ndarray
+
+
+#: Per-step fields of TrackResult (name, dtype) besides X, X_pred and seconds.
+STEP_FIELDS = (("label", int), ("near_border", bool), ("n_real", int), ("cond", float), ("ambiguous", bool),
+               ("status", int), ("jump", bool), ("d_best", float), ("d_second", float), ("certain", bool),
+               ("certificate", int), ("n_candidates", int), ("uncertain_since", int))
