@@ -387,24 +387,22 @@ def certify(cands, n_cand, verified, qp, dq, d2_par, have_par, poses, real, post
             n_new += 1
     code = CERT_ELIMINATION
     if n_new > 1 and posture_bits >= 0:
+        in_posture = np.zeros(6, dtype=np.bool_)      # kept candidates in the tracker's posture
         n_post = 0
         for k in range(6):
             if keep[k]:
                 for i in range(3):
                     Xr[i] = poses[k, i].real
-                if elbow_bits(Xr, qu, M, l1, b) == posture_bits:
-                    n_post += 1
+                in_posture[k] = elbow_bits(Xr, qu, M, l1, b) == posture_bits
+                n_post += in_posture[k]
         if n_post >= 1:
             n_new = 0
             for k in range(6):
+                keep[k] = in_posture[k]
                 if keep[k]:
                     for i in range(3):
-                        Xr[i] = poses[k, i].real
-                    if elbow_bits(Xr, qu, M, l1, b) == posture_bits:
-                        new_cands[n_new, :] = Xr
-                        n_new += 1
-                    else:
-                        keep[k] = False
+                        new_cands[n_new, i] = poses[k, i].real
+                    n_new += 1
             code = CERT_POSTURE
     if n_new == 0:                                  # nothing consistent (cannot happen in exact arithmetic)
         for k in range(6):
