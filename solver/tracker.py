@@ -67,6 +67,7 @@ Every step reports a :class:`StepInfo`.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -76,7 +77,8 @@ from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, F_DQ, I_AMBIGUOUS, I
                               I_LABEL, I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, INFO_I_SIZE, OUT_CANDS, OUT_INFO,
                               OUT_SIZE, OUT_X, OUT_X_PRED, STATE_CANDS, STATE_DQ_SCALE, STATE_EXT_SCALE,
                               STATE_HAVE_Q2, STATE_HISTORY, STATE_N_CAND, STATE_Q, STATE_Q2, STATE_SIZE,
-                              STATE_VERIFIED, STATE_X, STATE_X2, STATUS_UNREACHABLE)
+                              STATE_VERIFIED, STATE_X, STATE_X2, STATUS_UNREACHABLE, STATE_INTACT,
+                              I_INTACT, STATE_A_SCALE, STATE_REFUSED, STATUS_REJECTED, F_INNOV)
 from ._kernels.tracker import tracker_step
 from .checks import SolverInputError, as_array
 from .direct_kinematics import kernel_constants
@@ -94,6 +96,11 @@ SUBSTEP_DQ, MAX_SUBSTEPS = 0.05, 16
 #: Krawczyk tests one chain of certificates may use (a step runs one chain, or one per real solution
 #: while the branch is unknown); beyond it the step is not certified.
 MAX_TESTS = 2000
+
+#: With measured joints (``joint_tolerance > 0``): a sample is refused as an outlier when its joint
+#: step differs from the one expected (constant joint velocity) by more than the noise allows,
+#: ``2 tol (1 + r)``, plus ``GATE`` times the running mean of recent differences (see "Sensors").
+GATE = 4.0
 
 
 def _check_q(q) -> np.ndarray:
@@ -180,7 +187,7 @@ class _TrackerBase:
         pk[STATE_X:STATE_X + 3], pk[STATE_Q:STATE_Q + 3] = st.X, st.q
         pk[STATE_X2:STATE_X2 + 3] = st.X if st.X2 is None else st.X2
         pk[STATE_HISTORY], pk[STATE_DQ_SCALE] = st.history, st.dq_scale
-        pk[STATE_EXT_SCALE] = dt / st.dt if dt is not None and np.isfinite(st.dt) else 1.0
+        pk[STATE_EXT_SCALE] = (dt / st.dt if dt is not None and np.isfinite(st.dt) else 1.0) * (st.refused + 1)
         if st.q2 is None:
             pk[STATE_HAVE_Q2] = 0.0
         else:
@@ -191,6 +198,8 @@ class _TrackerBase:
         else:
             pk[STATE_CANDS:STATE_CANDS + 3 * n], pk[STATE_N_CAND] = st.candidates.ravel(), n
         pk[STATE_VERIFIED] = 1.0 if st.verified else 0.0
+        pk[STATE_INTACT] = 1.0 if st.intact else 0.0
+        pk[STATE_A_SCALE], pk[STATE_REFUSED] = st.a_scale, st.refused
         self._kernel(q, pk)
         ii, of = self._out_int, self._out_real
         status = int(ii[I_STATUS])
@@ -202,13 +211,16 @@ class _TrackerBase:
                         int(ii[I_N_REAL]), float(fi[F_COND]), bool(ii[I_AMBIGUOUS]), status,
                         bool(ii[I_JUMP]), float(fi[F_D_BEST]), float(fi[F_D_SECOND]), certain,
                         int(ii[I_CERTIFICATE]), n_cand, since)
-        if status != STATUS_UNREACHABLE:
-            dqn = float(fi[F_DQ])
+        if status == STATUS_REJECTED:                       # an outlier: only the count of refusals moves
+            self.state = replace(st, refused=st.refused + 1)
+        elif status != STATUS_UNREACHABLE:
+            dqn, innov = float(fi[F_DQ]), float(fi[F_INNOV])
             scale = dqn if st.steps == 0 else 0.8 * st.dq_scale + 0.2 * dqn
             cands = of[OUT_CANDS:OUT_CANDS + 3 * n_cand].reshape(n_cand, 3).copy()
             self.state = TrackerState(X, q.copy(), st.X, scale, st.steps + 1,
                                       float("nan") if dt is None else float(dt), st.q, cands,
-                                      int(ii[I_CERTIFICATE]) == CERT_CONTINUATION, since)
+                                      int(ii[I_CERTIFICATE]) == CERT_CONTINUATION, since, bool(ii[I_INTACT]),
+                                      innov if st.steps < 2 else 0.8 * st.a_scale + 0.2 * innov, 0)
         return X, info
 
     def track(self, q_stream, X0) -> TrackResult:
@@ -277,7 +289,8 @@ class Tracker(_TrackerBase):
     def __init__(self, model: Manipulator, map_tensor: MapTensor, mode: str = "default", r=None,
                  weights=None, ambiguity_ratio: float = 0.25, jump_factor: float = 20.0,
                  singular_tol: float = 1e-4, use_map: bool = True, strategy: int = _lay.STRATEGY_SEGMENT,
-                 segment_singular: float = 0.05, posture_certificate: bool = True, max_tests: int = MAX_TESTS):
+                 segment_singular: float = 0.05, posture_certificate: bool = True, max_tests: int = MAX_TESTS,
+                 joint_tolerance: float = 0.0, gate: float = GATE):
         super().__init__(model)
         if not isinstance(map_tensor, MapTensor):
             raise TrackerError(f"map_tensor: expected a MapTensor, got {type(map_tensor).__name__}")
@@ -290,6 +303,10 @@ class Tracker(_TrackerBase):
                          ("singular_tol", singular_tol), ("max_tests", max_tests)):
             if not (np.isfinite(val) and val > 0):
                 raise TrackerError(f"{key}: expected a positive number, got {val!r}")
+        for key, val in (("joint_tolerance", joint_tolerance), ("gate", gate)):
+            if not (isinstance(val, (int, float, np.floating, np.integer)) and np.isfinite(val) and val >= 0):
+                raise TrackerError(f"{key}: expected a number >= 0, got {val!r}")
+        self.joint_tolerance = float(joint_tolerance)
         self.map = map_tensor
         self.mode = mode
         self.posture = map_tensor.posture
@@ -304,7 +321,7 @@ class Tracker(_TrackerBase):
         self._params = _lay.pack_tracker_params(ambiguity_ratio, jump_factor, SUBSTEP_DQ, MAX_SUBSTEPS, singular_tol,
                                                 use_map, strategy, segment_singular,
                                                 map_tensor.posture - 1 if posture_certificate else -1,
-                                                int(max_tests))
+                                                int(max_tests), float(joint_tolerance), float(gate))
         self._mode = _lay.MODE_PAPER if mode == "paper" else _lay.MODE_DEFAULT
         self._rule = rule_code(map_tensor.rule)
 

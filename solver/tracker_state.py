@@ -59,6 +59,15 @@ class TrackerState:
         The single candidate ends a verified chain (its tiny box is proved).
     uncertain_since : int
         Step index (steps since reset) since which the tracker cannot vouch; -1 while it can.
+    intact : bool
+        Every step since the reset was vouched for over the tube of joint paths
+        within the tracker's ``joint_tolerance`` of the samples (always True with
+        exact joints, ``joint_tolerance = 0``); once False, ``certain`` stays False
+        until the next reset.
+    a_scale : float
+        Running mean of recent joint innovations (rad): the outlier gate's scale.
+    refused : int
+        Samples refused in a row since the last accepted one.
     """
 
     X: np.ndarray
@@ -71,6 +80,9 @@ class TrackerState:
     candidates: np.ndarray = field(default_factory=_no_candidates)
     verified: bool = False
     uncertain_since: int = -1
+    intact: bool = True
+    a_scale: float = 0.0
+    refused: int = 0
 
     @property
     def history(self) -> int:
@@ -94,6 +106,7 @@ class TrackerState:
         n = len(self.candidates)
         a[_N_CAND], a[_VERIFIED], a[_SINCE] = float(n), float(self.verified), float(self.uncertain_since)
         a[_CANDS:_CANDS + 3 * n] = np.ravel(self.candidates)
+        a[_INTACT], a[_A_SCALE], a[_REFUSED] = float(self.intact), self.a_scale, float(self.refused)
         return a
 
     @classmethod
@@ -110,14 +123,18 @@ class TrackerState:
         x2, q2 = a[_X2:_X2 + 3], a[_Q2:_Q2 + 3]
         return cls(a[_X:_X + 3].copy(), a[_Q:_Q + 3].copy(), None if np.any(np.isnan(x2)) else x2.copy(),
                    float(a[_DQ_SCALE]), int(a[_STEPS]), float(a[_DT]),
-                   None if np.any(np.isnan(q2)) else q2.copy(), cands, bool(a[_VERIFIED]), int(a[_SINCE]))
+                   None if np.any(np.isnan(q2)) else q2.copy(), cands, bool(a[_VERIFIED]), int(a[_SINCE]),
+                   bool(a[_INTACT]), float(a[_A_SCALE]), int(a[_REFUSED]))
 
 
 #: Fields of TrackerState.as_array: X, q, X2 (NaN after a reset), dq_scale, steps, dt, q2 (NaN after a
-#: reset), number of candidates, verified, uncertain_since, candidates (6 x 3, NaN past the number).
+#: reset), number of candidates, verified, uncertain_since, candidates (6 x 3, NaN past the number), intact,
+#: a_scale, refused.
 _X, _Q, _X2, _DQ_SCALE, _STEPS, _DT, _Q2, _N_CAND, _VERIFIED, _SINCE, _CANDS = 0, 3, 6, 9, 10, 11, 12, 15, 16, 17, 18
-STATE_FLOATS = _CANDS + 18
-_FINITE = [*range(_X, _X + 3), *range(_Q, _Q + 3), _DQ_SCALE, _STEPS, _N_CAND, _VERIFIED, _SINCE]
+_INTACT, _A_SCALE, _REFUSED = _CANDS + 18, _CANDS + 19, _CANDS + 20
+STATE_FLOATS = _REFUSED + 1
+_FINITE = [*range(_X, _X + 3), *range(_Q, _Q + 3), _DQ_SCALE, _STEPS, _N_CAND, _VERIFIED, _SINCE, _INTACT, _A_SCALE,
+           _REFUSED]
 
 
 class StepInfo(NamedTuple):
@@ -139,7 +156,8 @@ class StepInfo(NamedTuple):
     ambiguous : bool
         The heuristic doubt of the choice (see :mod:`solver.tracker`); ``certain`` is the proof.
     status : int
-        See :data:`STATUS`: 0 ok, 1 unreachable (pose held), 2 singular, 4 diverged.
+        See :data:`STATUS`: 0 ok, 1 unreachable (pose held), 2 singular, 3 rejected
+        (an outlier the gate refused, pose held, state kept), 4 diverged.
     jump : bool
         The joint step was far larger than recent ones.
     d_best, d_second : float

@@ -50,12 +50,12 @@ def test_krawczyk_proves_a_lone_solution_and_refuses_two_or_none(model, geo):
     q = ik(model, X, 1)
     w = np.empty(W_SIZE)
     zero = np.zeros(3)
-    assert krawczyk(X, np.full(3, TINY), q, zero, zero, 0.0, 0.0, M, l1, b, l2sq, w)
-    assert krawczyk(X, np.full(3, 1e-3), q, zero, zero, 0.0, 0.0, M, l1, b, l2sq, w)
+    assert krawczyk(X, np.full(3, TINY), q, zero, zero, 0.0, 0.0, 0.0, M, l1, b, l2sq, w)
+    assert krawczyk(X, np.full(3, 1e-3), q, zero, zero, 0.0, 0.0, 0.0, M, l1, b, l2sq, w)
     # a box that holds no solution: K is not inside it
-    assert not krawczyk(X + [0.01, 0, 0], np.full(3, 1e-3), q, zero, zero, 0.0, 0.0, M, l1, b, l2sq, w)
+    assert not krawczyk(X + [0.01, 0, 0], np.full(3, 1e-3), q, zero, zero, 0.0, 0.0, 0.0, M, l1, b, l2sq, w)
     # a box that holds every solution of q is refused (more than one zero)
-    assert not krawczyk(np.array([0.5, 0.3, 0.0]), np.array([1.0, 1.0, np.pi]), q, zero, zero, 0.0, 0.0,
+    assert not krawczyk(np.array([0.5, 0.3, 0.0]), np.array([1.0, 1.0, np.pi]), q, zero, zero, 0.0, 0.0, 0.0,
                         M, l1, b, l2sq, w)
 
 
@@ -73,7 +73,7 @@ def test_a_chain_ends_where_a_fine_continuation_ends(model, geo):
         if np.any(np.isnan(q0)):
             continue
         dq = rng.normal(0.0, 0.15, 3)
-        if follow_branch(X0, False, q0, dq, zero, M, l1, b, l2sq, 2000, out) < 0:
+        if follow_branch(X0, False, q0, dq, zero, 0.0, M, l1, b, l2sq, 2000, out) < 0:
             continue
         closed += 1
         x = X0.copy()
@@ -174,7 +174,7 @@ def test_certainty_survives_save_and_restore(model, maps, hard):
     X2, i2 = tr.step(p.q[0])
     np.testing.assert_array_equal(X1, X2)
     assert i1.certain == i2.certain and i1.uncertain_since == i2.uncertain_since
-    with pytest.raises(ValueError, match="36 floats"):
+    with pytest.raises(ValueError, match="39 floats"):
         TrackerState.from_array(np.zeros(12))
 
 

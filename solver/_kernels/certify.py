@@ -54,8 +54,8 @@ TWO_PI = 2.0 * math.pi
 CERT_NONE, CERT_CONTINUATION, CERT_ELIMINATION, CERT_POSTURE = 0, 1, 2, 3
 
 # workspace of a chain (floats): point F, J, g; Y; interval J lo/hi; interval g lo/hi; K half-widths
-W_F, W_J, W_G, W_Y, W_JLO, W_JHI, W_GLO, W_GHI, W_TOT = 0, 3, 12, 15, 24, 33, 42, 45, 48
-W_SIZE = 51
+W_F, W_J, W_G, W_Y, W_JLO, W_JHI, W_GLO, W_GHI, W_TOT, W_FQ = 0, 3, 12, 15, 24, 33, 42, 45, 48, 51
+W_SIZE = 54
 
 
 @njit(cache=True, inline="always")
@@ -132,11 +132,12 @@ def inverse3(w, src, dst):
 
 
 @njit(cache=True)
-def krawczyk(m, rho, q0, d1, d2, s_lo, s_hi, M, l1, b, l2sq, w):
+def krawczyk(m, rho, q0, d1, d2, s_lo, s_hi, eps, M, l1, b, l2sq, w):
     """Krawczyk's test of the box ``m +- rho`` (3,) for every ``s`` in [s_lo, s_hi].
 
-    True when the box holds exactly one solution of ``F(., q(s)) = 0`` for each
-    such ``s``.  Leaves the half-widths of the Krawczyk image about ``m`` in
+    True when the box holds exactly one solution of ``F(., q) = 0`` for each
+    joint vector ``q`` within ``eps`` (rad, max norm) of ``q(s)``, ``s`` in
+    [s_lo, s_hi] (``eps = 0``: the path itself).  Leaves the half-widths of the Krawczyk image about ``m`` in
     ``w[W_TOT:W_TOT + 3]`` (what epsilon-inflation grows the box to).
     """
     s_c = 0.5 * (s_lo + s_hi)
@@ -158,8 +159,8 @@ def krawczyk(m, rho, q0, d1, d2, s_lo, s_hi, M, l1, b, l2sq, w):
                 qlo, qhi = min(qlo, qx), max(qhi, qx)
         va, vb = d1[i] + 2.0 * s_lo * d2[i], d1[i] + 2.0 * s_hi * d2[i]
         vlo, vhi = min(va, vb) - PAD, max(va, vb) + PAD
-        cqlo, cqhi = icos(qlo - PAD, qhi + PAD)
-        sqlo, sqhi = isin(qlo - PAD, qhi + PAD)
+        cqlo, cqhi = icos(qlo - eps - PAD, qhi + eps + PAD)
+        sqlo, sqhi = isin(qlo - eps - PAD, qhi + eps + PAD)
         bx, by = b[i, 0], b[i, 1]
         a1lo, a1hi = _smul(bx, clo, chi)
         a2lo, a2hi = _smul(-by, slo, shi)
@@ -185,7 +186,9 @@ def krawczyk(m, rho, q0, d1, d2, s_lo, s_hi, M, l1, b, l2sq, w):
         u1lo, u1hi = _mul(mxlo, mxhi, sqlo, sqhi)
         u2lo, u2hi = _mul(mylo, myhi, cqlo, cqhi)
         k2 = 2.0 * l1[i]
-        w[W_GLO + i], w[W_GHI + i] = _mul(k2 * (u1lo - u2hi) - PAD, k2 * (u1hi - u2lo) + PAD, vlo, vhi)
+        fqlo, fqhi = k2 * (u1lo - u2hi) - PAD, k2 * (u1hi - u2lo) + PAD        # dF_i/dq_i at m
+        w[W_GLO + i], w[W_GHI + i] = _mul(fqlo, fqhi, vlo, vhi)
+        w[W_FQ + i] = max(abs(fqlo), abs(fqhi)) * eps
     ok = True
     for r in range(3):
         yf = 0.0
@@ -200,6 +203,8 @@ def krawczyk(m, rho, q0, d1, d2, s_lo, s_hi, M, l1, b, l2sq, w):
             glo += a
             ghi += c2
         t = abs(yf) + ypad * PAD + hs * max(abs(glo), abs(ghi))
+        for j in range(3):                            # the joints' own box: |Y| |dF/dq| eps
+            t += abs(w[W_Y + 3 * r + j]) * w[W_FQ + j]
         for j in range(3):
             lo = 1.0 if r == j else 0.0
             hi = lo
@@ -232,7 +237,7 @@ def newton_on_path(X, q0, d1, d2, s, M, l1, b, l2sq, w, iters):
 
 
 @njit(cache=True)
-def follow_branch(X0, verified, q0, d1, d2, M, l1, b, l2sq, max_tests, out):
+def follow_branch(X0, verified, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, out):
     """Follow the branch through ``X0`` at ``q(0)`` to ``s = 1`` with a chain of Krawczyk boxes.
 
     ``verified``: ``X0`` is already known to be within TINY of the only solution
@@ -245,9 +250,12 @@ def follow_branch(X0, verified, q0, d1, d2, M, l1, b, l2sq, max_tests, out):
     tiny = np.full(3, TINY)
     x = X0.copy()
     tests = 0
+    dq_max = 0.0
+    for i in range(3):
+        dq_max = max(dq_max, abs(d1[i]))
     if not verified:
         tests = 1
-        if not krawczyk(x, tiny, q0, d1, d2, 0.0, 0.0, M, l1, b, l2sq, w):
+        if not krawczyk(x, tiny, q0, d1, d2, 0.0, 0.0, 0.0, M, l1, b, l2sq, w):
             return -1
     s, h = 0.0, 1.0
     xb, c, rho = np.empty(3), np.empty(3), np.empty(3)
@@ -255,6 +263,8 @@ def follow_branch(X0, verified, q0, d1, d2, M, l1, b, l2sq, max_tests, out):
         if tests >= max_tests:
             return -tests
         sb = min(1.0, s + h)
+        if eps > 0.0 and s > 0.0 and sb < 1.0 and (sb - s) * dq_max <= 2.0 * eps * (1.0 + 1e-9):
+            return -max(tests, 1)                     # an inner piece shorter than the tube's width
         # predictor: Euler along dX/ds = -J^-1 g, then Newton at q(sb)
         point_terms(x[0], x[1], x[2], q0, d1, d2, s, M, l1, b, l2sq, w)
         if not inverse3(w, W_J, W_Y):
@@ -274,7 +284,7 @@ def follow_branch(X0, verified, q0, d1, d2, M, l1, b, l2sq, max_tests, out):
             ok = False
             for _ in range(INFLATE):                  # epsilon-inflation towards the Krawczyk image
                 tests += 1
-                if krawczyk(c, rho, q0, d1, d2, s, sb, M, l1, b, l2sq, w):
+                if krawczyk(c, rho, q0, d1, d2, s, sb, eps, M, l1, b, l2sq, w):
                     ok = True
                     break
                 grow = True
@@ -286,7 +296,7 @@ def follow_branch(X0, verified, q0, d1, d2, M, l1, b, l2sq, max_tests, out):
                     break
             if ok:
                 tests += 1
-                ok = krawczyk(xb, tiny, q0, d1, d2, sb, sb, M, l1, b, l2sq, w)
+                ok = krawczyk(xb, tiny, q0, d1, d2, sb, sb, 0.0, M, l1, b, l2sq, w)
         if ok:
             s = sb
             x[:] = xb
@@ -318,7 +328,7 @@ def elbow_bits(X, q, M, l1, b):
 
 
 @njit(cache=True)
-def certify(cands, n_cand, verified, qp, dq, d2_par, have_par, poses, real, posture_bits, max_tests,
+def certify(cands, n_cand, verified, intact, qp, dq, d2_par, have_par, eps, poses, real, posture_bits, max_tests,
             model_pack, new_cands, keep):
     """The candidate set after one step (see the module docstring).
 
@@ -344,10 +354,13 @@ def certify(cands, n_cand, verified, qp, dq, d2_par, have_par, poses, real, post
     for k in range(6):
         keep[k] = False
     if n_cand == 1:
-        for p in range(n_paths):
-            d1 = dq if p == 0 else d1_par
-            d2 = zero if p == 0 else d2_par
-            if follow_branch(cands[0], verified, qp, d1, d2, M, l1, b, l2sq, max_tests, end) > 0:
+        # with measured joints (eps > 0), first the tube: the proof that keeps the chain intact
+        first = 0 if eps > 0.0 and intact else 1
+        for p in range(first, n_paths + 1):
+            d1 = dq if p <= 1 else d1_par
+            d2 = zero if p <= 1 else d2_par
+            if follow_branch(cands[0], verified, qp, d1, d2, eps if p == 0 else 0.0, M, l1, b, l2sq, max_tests,
+                             end) > 0:
                 hit = -1
                 for k in range(6):
                     if real[k]:
@@ -358,7 +371,7 @@ def certify(cands, n_cand, verified, qp, dq, d2_par, have_par, poses, real, post
                 if 0 <= hit < 6:
                     keep[hit] = True
                     new_cands[0, :] = end
-                    return 1, CERT_CONTINUATION
+                    return 1, CERT_CONTINUATION, eps == 0.0 or p == 0
     # elimination: follow every real solution back; drop those that come from a non-candidate
     rd1 = np.empty(3)
     rd2 = np.empty(3)
@@ -376,7 +389,7 @@ def certify(cands, n_cand, verified, qp, dq, d2_par, have_par, poses, real, post
                 d2i = 0.0 if p == 0 else d2_par[i]
                 rd1[i] = -(d1i + 2.0 * d2i)
                 rd2[i] = d2i
-            if follow_branch(Xr, False, qu, rd1, rd2, M, l1, b, l2sq, max_tests, end) > 0:
+            if follow_branch(Xr, False, qu, rd1, rd2, 0.0, M, l1, b, l2sq, max_tests, end) > 0:
                 kept = False
                 for j in range(n_cand):
                     kept = kept or same_pose(end, cands[j])
@@ -411,4 +424,4 @@ def certify(cands, n_cand, verified, qp, dq, d2_par, have_par, poses, real, post
                 for i in range(3):
                     new_cands[n_new, i] = poses[k, i].real
                 n_new += 1
-    return n_new, code if n_new == 1 else CERT_NONE
+    return n_new, code if n_new == 1 else CERT_NONE, eps == 0.0

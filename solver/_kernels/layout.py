@@ -37,7 +37,11 @@ STATE_HAVE_Q2 = 15        # > 0 when STATE_Q2 holds them
 STATE_N_CAND = 16         # number of certificate candidates (1: the branch is known)
 STATE_VERIFIED = 17       # > 0: the single candidate ends a verified chain (its tiny box is proved)
 STATE_CANDS = 18          # (6, 3) the candidates: the DK solutions the true branch can be
-STATE_SIZE = 36
+STATE_INTACT = 36         # > 0: every step since the reset was vouched for over the joint tolerance tube
+                          # (always, with exact joints)
+STATE_A_SCALE = 37        # running mean of recent joint innovations max|dq - expected dq|, rad (the gate's scale)
+STATE_REFUSED = 38        # samples refused in a row since the last accepted one
+STATE_SIZE = 39
 
 # ----------------------------------------------------------------------------- map pack
 # The grid of a map tensor and the procedure-2 neighbourhood (eq. 18-19).
@@ -59,7 +63,9 @@ PARAM_STRATEGY = 6        # one of the STRATEGY_* codes
 PARAM_SEGMENT_SINGULAR = 7  # STRATEGY_SEGMENT: a segment this close to singular trusts extrapolation
 PARAM_POSTURE_BITS = 8    # posture - 1 for the posture certificate, -1 without it
 PARAM_MAX_TESTS = 9       # Krawczyk tests one chain may use
-PARAM_SIZE = 10
+PARAM_JOINT_TOL = 10      # bound on the joints' measurement error, rad (0: exact joints)
+PARAM_GATE = 11           # outlier gate: refuse a joint step this many times beyond the expected one
+PARAM_SIZE = 12
 
 # ----------------------------------------------------------------------------- baseline options
 BASELINE_WEIGHTS = 0      # (3,) eq. 19 weights
@@ -72,22 +78,25 @@ BASELINE_SIZE = 5
 OUT_X = 0                 # (3,) the pose returned
 OUT_X_PRED = 3            # (3,) the prediction it was compared with
 OUT_INFO = 6              # (INFO_F_SIZE,) the fields F_*
-OUT_CANDS = 11            # (6, 3) the candidates after the step (as STATE_CANDS)
-OUT_SIZE = 29
+OUT_CANDS = 12            # (6, 3) the candidates after the step (as STATE_CANDS)
+OUT_SIZE = 30
 # float info fields (offsets inside OUT_INFO)
-F_D_BEST, F_D_SECOND, F_COND_PREV, F_COND, F_DQ = 0, 1, 2, 3, 4
-INFO_F_SIZE = 5
+F_D_BEST, F_D_SECOND, F_COND_PREV, F_COND, F_DQ, F_INNOV = 0, 1, 2, 3, 4, 5
+INFO_F_SIZE = 6
 # integer outputs of a step
 I_LABEL, I_NEAR_BORDER, I_N_REAL, I_AMBIGUOUS, I_STATUS, I_JUMP, I_REGION = 0, 1, 2, 3, 4, 5, 6
-I_CERTAIN, I_CERTIFICATE, I_N_CAND = 7, 8, 9
-INFO_I_SIZE = 10
+I_CERTAIN, I_CERTIFICATE, I_N_CAND, I_INTACT = 7, 8, 9, 10
+INFO_I_SIZE = 11
 
 # ----------------------------------------------------------------------------- codes
-#: Status of a step (also the DK FMU's ``status`` output); REJECTED is the FMU's own.
+#: Status of a step (also the DK FMU's ``status`` output); REJECTED: a sample the tracker (outlier
+#: gate) or the FMU (input check) refused, the pose held.
 STATUS_OK, STATUS_UNREACHABLE, STATUS_SINGULAR, STATUS_REJECTED, STATUS_DIVERGED = 0, 1, 2, 3, 4
 #: The status codes by name, the one table of them.
 STATUS = {STATUS_OK: "ok", STATUS_UNREACHABLE: "unreachable", STATUS_SINGULAR: "singular",
           STATUS_REJECTED: "rejected", STATUS_DIVERGED: "diverged"}
+#: Samples refused in a row after which the next one is taken anyway (the joints moved: certainty lost).
+MAX_REFUSED = 2
 #: Tracker modes.
 MODE_PAPER, MODE_DEFAULT = 0, 1
 #: Default-mode strategies: continuation only, extrapolation only, arbitrated by the segment's
@@ -128,7 +137,8 @@ def pack_map(origin, step, periodic: bool, r2: float, weights) -> np.ndarray:
 
 
 def pack_tracker_params(ambiguity, jump, substep_dq, max_substeps, singular, use_map: bool, strategy: int,
-                        segment_singular, posture_bits: int, max_tests: int) -> np.ndarray:
+                        segment_singular, posture_bits: int, max_tests: int, joint_tol: float = 0.0,
+                        gate: float = 0.0) -> np.ndarray:
     """The tracker options (PARAM_SIZE,)."""
     pack = np.empty(PARAM_SIZE)
     pack[PARAM_AMBIGUITY] = ambiguity
@@ -141,6 +151,8 @@ def pack_tracker_params(ambiguity, jump, substep_dq, max_substeps, singular, use
     pack[PARAM_SEGMENT_SINGULAR] = segment_singular
     pack[PARAM_POSTURE_BITS] = float(posture_bits)
     pack[PARAM_MAX_TESTS] = float(max_tests)
+    pack[PARAM_JOINT_TOL] = joint_tol
+    pack[PARAM_GATE] = gate
     return pack
 
 

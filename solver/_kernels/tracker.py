@@ -21,7 +21,8 @@ from .layout import (F_COND, F_COND_PREV, F_D_BEST, F_D_SECOND, F_DQ, I_AMBIGUOU
                      PARAM_STRATEGY, PARAM_SUBSTEP_DQ, PARAM_USE_MAP, STATE_DQ_SCALE, STATE_EXT_SCALE,
                      STATE_HISTORY, STATE_Q, STATE_X, STATE_X2, I_CERTAIN, I_CERTIFICATE, I_N_CAND, OUT_CANDS,
                      PARAM_MAX_TESTS, PARAM_POSTURE_BITS, STATE_CANDS, STATE_HAVE_Q2, STATE_N_CAND, STATE_Q2,
-                     STATE_VERIFIED, STATUS_OK, STATUS_SINGULAR, STATUS_UNREACHABLE,
+                     STATE_VERIFIED, STATE_INTACT, PARAM_JOINT_TOL, I_INTACT, STATUS_OK, F_INNOV,
+                     STATE_A_SCALE, STATE_REFUSED, PARAM_GATE, MAX_REFUSED, STATUS_REJECTED, STATUS_SINGULAR, STATUS_UNREACHABLE,
                      STRATEGY_CONTINUATION, STRATEGY_EXTRAPOLATION, STRATEGY_SEGMENT)
 from .linalg import hadamard, wrap
 from .maptensor import label_at_one, near_mask_one
@@ -125,18 +126,20 @@ def certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred
         for i in range(3):
             d2[i] = (wrap(state[STATE_Q2 + i] - qp[i]) + r * dq[i]) / (r * (1.0 + r))
     keep = np.empty(6, dtype=np.bool_)
-    n_new, cert = certify(cands, n_cand, state[STATE_VERIFIED] > 0.0, qp, dq, d2, have_par, poses, real,
-                          int(params[PARAM_POSTURE_BITS]), int(params[PARAM_MAX_TESTS]), model_pack, new_cands,
-                          keep)
+    intact_before = state[STATE_INTACT] > 0.0
+    n_new, cert, intact = certify(cands, n_cand, state[STATE_VERIFIED] > 0.0, intact_before, qp, dq, d2, have_par,
+                                  params[PARAM_JOINT_TOL], poses, real, int(params[PARAM_POSTURE_BITS]),
+                                  int(params[PARAM_MAX_TESTS]), model_pack, new_cands, keep)
+    intact = intact and intact_before
     certain = False
-    if cert != CERT_NONE:
+    if cert != CERT_NONE:        # the choice follows the certificates; vouched only with the chain intact
         sole = 0
         for k in range(6):
             if keep[k]:
                 sole = k
         if mode != MODE_PAPER:
             chosen = sole
-        certain = chosen == sole
+        certain = chosen == sole and intact
     elif mode != MODE_PAPER and not keep[chosen]:
         mask = np.zeros(7, dtype=np.bool_)
         for k in range(6):
@@ -145,6 +148,7 @@ def certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred
     info_i[I_CERTAIN] = 1 if certain else 0
     info_i[I_CERTIFICATE] = cert
     info_i[I_N_CAND] = n_new
+    info_i[I_INTACT] = 1 if intact else 0
     return chosen
 
 
@@ -164,11 +168,32 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
     periodic, r2, w = map_pack[MAP_PERIODIC] > 0.0, map_pack[MAP_R2], map_pack[MAP_WEIGHTS:MAP_WEIGHTS + 3]
     X_out, X_pred = out_real[OUT_X:OUT_X + 3], out_real[OUT_X_PRED:OUT_X_PRED + 3]
     info_f, info_i = out_real[OUT_INFO:OUT_INFO + INFO_F_SIZE], out_int
+    dq = np.empty(3)
+    dqn = joint_step(q, qp, dq)
+    for i in range(INFO_I_SIZE):
+        info_i[i] = 0
+    for i in range(INFO_F_SIZE):
+        info_f[i] = 0.0
+    # the outlier gate (measured joints): the step against the one expected from the last two samples
+    innov = 0.0
+    if state[STATE_HAVE_Q2] > 0.0:
+        for i in range(3):
+            innov = max(innov, abs(dq[i] - ext_scale * wrap(qp[i] - state[STATE_Q2 + i])))
+    info_f[F_INNOV] = innov
+    tol = params[PARAM_JOINT_TOL]
+    forced = state[STATE_REFUSED] >= MAX_REFUSED
+    if tol > 0.0 and params[PARAM_GATE] > 0.0 and state[STATE_HAVE_Q2] > 0.0 and not forced \
+            and innov > 2.0 * tol * (1.0 + ext_scale) + params[PARAM_GATE] * state[STATE_A_SCALE]:
+        X_out[:] = Xp
+        X_pred[:] = Xp
+        info_f[F_DQ] = dqn
+        info_i[I_STATUS] = STATUS_REJECTED
+        info_i[I_N_CAND] = int(state[STATE_N_CAND])
+        info_i[I_INTACT] = 1 if state[STATE_INTACT] > 0.0 else 0
+        return
     poses = np.empty((6, 3), dtype=np.complex128)
     real = np.empty(6, dtype=np.bool_)
     dk_one(q, model_pack, sample_to_sextic, rule, poses, real)
-    dq = np.empty(3)
-    dqn = joint_step(q, qp, dq)
     qu = np.empty(3)                                   # q unwrapped next to the previous joints
     for i in range(3):
         qu[i] = qp[i] + dq[i]
@@ -191,10 +216,6 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
     for k in range(6):
         if real[k]:
             n_real += 1
-    for i in range(INFO_I_SIZE):
-        info_i[i] = 0
-    for i in range(INFO_F_SIZE):
-        info_f[i] = 0.0
     info_i[I_NEAR_BORDER] = 1 if n_near > 1 else 0
     info_i[I_N_REAL] = n_real
     info_f[F_COND_PREV] = cond_prev
@@ -206,6 +227,7 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
         X_pred[:] = X_lin
         info_i[I_STATUS] = STATUS_UNREACHABLE
         info_i[I_N_CAND] = int(state[STATE_N_CAND])
+        info_i[I_INTACT] = 1 if state[STATE_INTACT] > 0.0 else 0
         return
     chosen = -1
     ambiguous = False
@@ -276,6 +298,9 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
             ambiguous = True
     chosen = certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred, w, params,
                               model_pack, out_real[OUT_CANDS:OUT_CANDS + 18].reshape((6, 3)), info_i)
+    if forced:                                     # a sample taken after refusals: the tube no longer holds
+        info_i[I_INTACT] = 0
+        info_i[I_CERTAIN] = 0
     # distances to the prediction: chosen and the nearest other real solution
     for i in range(3):
         Xr[i] = poses[chosen, i].real

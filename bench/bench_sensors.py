@@ -1,0 +1,181 @@
+"""The tracker fed by real sensors: errors, certainty and step time per sensor grade and method.
+
+    python bench/bench_sensors.py [--suite all|default|hard] [--rate 1000] [--grades 16-bit 12-bit ...]
+                                  [--methods default paper newton] [--out results]
+
+Paths: the suites of :mod:`solver.suite` (``default``: the paper circle and circles
+passing 20, 5 and 1 mm from a type-1 singularity; ``hard``: all eight postures,
+circles, ellipses and Lissajous figures passing 0.5 to 20 mm from one or far from
+it), each sampled at ``--rate`` points per revolution (1000: a revolution a second
+at 1 kHz), plus the suites at their own coarse samplings with ``--coarse``.
+Sensors (:data:`solver.sensors.SENSOR_GRADES`): exact joints; 16-, 14- and 12-bit
+encoders with 1e-3 rad of white noise; outliers (0.1 rad, one sample), a stuck
+joint (20 samples) and dropouts (NaN) on the 14-bit encoder, five per stream.
+
+Truth (:func:`solver.sensors.sensor_truth`): the real DK solution of the measured
+joints nearest to the noise-free pose, counted only where the second nearest is at
+least three times farther and the sample is not a glitch.  On counted steps:
+
+* errors: pose more than 1e-6 from the truth (x, y, wrapped phi);
+* silent errors: errors reported ``certain``;
+* false alarms: right steps not reported ``certain`` (vouching methods only);
+* refused: samples the method refused (a dropout's NaN raises ``SolverInputError``,
+  an outlier is status ``rejected``), counted or not;
+* recovery: the most good samples after a glitch before the method is right again.
+
+Step time: the median over all steps of each method, measured in the same run.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from solver import DEFAULT_RULE, DEFAULT_STEP, Manipulator, SolverInputError, Tracker, cached_map, wrap_angle
+from solver.baselines import BASELINES
+from solver.sensors import SENSOR_GRADES, sensor_truth
+from solver.suite import default_suite, hard_suite
+from solver.tracker_state import STATUS
+
+VOUCHING = ("default", "paper", "newton-separation")
+REJECTED = [k for k, v in STATUS.items() if v == "rejected"][0]
+
+
+def make_methods(model, maps, names, tol):
+    makers = {"default": lambda p: Tracker(model, maps[p], joint_tolerance=tol),
+              "paper": lambda p: Tracker(model, maps[p], mode="paper", joint_tolerance=tol)}
+    for name, cls in BASELINES.items():
+        makers[name] = (lambda c: (lambda p: c(model)))(cls)
+    return {n: makers[n] for n in names}
+
+
+def run_stream(tracker, q, X0, dt):
+    """Track a measured stream sample by sample: poses (n, 3), certain (n,), refused (n,), step seconds (n,)."""
+    n = len(q)
+    X = np.full((n, 3), np.nan)
+    certain = np.zeros(n, dtype=bool)
+    refused = np.zeros(n, dtype=bool)
+    secs = np.zeros(n)
+    tracker.reset(X0, q[0])
+    X[0], certain[0] = tracker.state.X, True
+    step = tracker.step
+    for k in range(1, n):
+        t0 = time.perf_counter()
+        try:
+            X[k], info = step(q[k], dt)
+        except SolverInputError:
+            secs[k] = time.perf_counter() - t0
+            refused[k] = True
+            X[k] = tracker.state.X
+            continue
+        secs[k] = time.perf_counter() - t0
+        certain[k] = info.certain
+        refused[k] = info.status == REJECTED
+    return X, certain, refused, secs
+
+
+def pose_errors(X, truth):
+    d = np.abs(X - truth)
+    d[:, 2] = np.abs(wrap_angle(X[:, 2] - truth[:, 2]))
+    return d.max(axis=1)
+
+
+def score(X, certain, refused, truth, counted, glitch, vouching):
+    """Counts of one stream: counted, errors, silent, alarms, refused, recovery (most good samples to recover)."""
+    right = pose_errors(X, truth) <= 1e-6
+    c = counted.copy()
+    c[0] = False
+    wrong = c & ~right
+    silent = wrong & certain if vouching else wrong
+    alarms = c & right & ~certain if vouching else np.zeros_like(c)
+    recovery = 0
+    ends = np.nonzero(glitch[:-1] & ~glitch[1:])[0] + 1          # first good sample after each glitch
+    for k in ends:
+        j = k
+        while j < len(right) and not (right[j] or not counted[j]):
+            j += 1
+        recovery = max(recovery, j - k + 1 if j > k or not right[k] else 0)
+    return dict(counted=int(c.sum()), errors=int(wrong.sum()), silent=int(silent.sum()), alarms=int(alarms.sum()),
+                refused=int(refused.sum()), recovery=recovery)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--suite", choices=("all", "default", "hard"), default="all")
+    ap.add_argument("--rate", type=int, default=1000, help="samples per revolution (1000: 1 kHz, 1 rev/s)")
+    ap.add_argument("--coarse", action="store_true", help="also the suites at their own samplings")
+    ap.add_argument("--grades", nargs="+", default=[s.name for s in SENSOR_GRADES])
+    ap.add_argument("--methods", nargs="+", default=["default", "paper", "newton"])
+    ap.add_argument("--limit", type=int, default=0, help="only the first N paths (quick looks)")
+    ap.add_argument("--no-tolerance", dest="tolerance", action="store_false",
+                    help="run the trackers without the sensor's joint_tolerance (as for exact joints)")
+    ap.add_argument("--sigmas", type=float, default=5.0, help="joint_tolerance = this many noise sigmas + half a step")
+    ap.add_argument("--out", default="results")
+    args = ap.parse_args(argv)
+    model = Manipulator.paper()
+    suite = []
+    if args.suite in ("all", "default"):
+        suite += default_suite(model, samplings=(args.rate,) + ((1000, 300, 100, 30) if args.coarse else ()))
+    if args.suite in ("all", "hard"):
+        suite += hard_suite(model, samplings=(args.rate,) + ((30, 50, 100, 200) if args.coarse else ()))
+    if args.limit:
+        suite = suite[:args.limit]
+    grades = {s.name: s for s in SENSOR_GRADES}
+    maps = {p: cached_map(model, p, DEFAULT_RULE, DEFAULT_STEP) for p in sorted({s.posture for s in suite})}
+    dt = 1e-3
+    rows = {}
+    secs = {m: [] for m in args.methods}
+    worst = {}
+    t_start = time.perf_counter()
+    for gname in args.grades:
+        sensor = grades[gname]
+        makers = make_methods(model, maps, args.methods, sensor.tolerance(args.sigmas) if args.tolerance else 0.0)
+        tot = {m: dict(counted=0, errors=0, silent=0, alarms=0, refused=0, recovery=0) for m in makers}
+        for i, path in enumerate(suite):
+            stream = sensor.measure(path.q, seed=1000 + i)
+            q = stream.q.copy()
+            q[0] = path.q[0]                                      # the tracker starts from a known configuration
+            truth, counted = sensor_truth(model, q, path.X, stream.glitch)
+            for m, make in makers.items():
+                X, certain, refused, s = run_stream(make(path.posture), q, path.X[0], dt)
+                sc = score(X, certain, refused, truth, counted, stream.glitch, m in VOUCHING)
+                secs[m].append(s[1:])
+                for key in tot[m]:
+                    tot[m][key] = max(tot[m][key], sc[key]) if key == "recovery" else tot[m][key] + sc[key]
+                if sc["silent"] or (m == "default" and sc["errors"] > 0):
+                    worst.setdefault((gname, m), []).append((path.name, sc["errors"], sc["silent"], sc["alarms"]))
+        rows[gname] = tot
+    elapsed = time.perf_counter() - t_start
+    print(f"{len(suite)} paths at {args.rate} samples per revolution, dt = 1 ms, {elapsed:.0f} s")
+    print("\n| sensor | method | counted steps | errors | silent errors | false alarms | refused | recovery (samples) |")
+    print("|---|---|---|---|---|---|---|---|")
+    for gname, tot in rows.items():
+        for m, t in tot.items():
+            fa = f"{t['alarms']} ({100 * t['alarms'] / max(t['counted'], 1):.2f} %)" if m in VOUCHING else "n/a"
+            rec = str(t["recovery"]) if grades[gname].glitch else "-"
+            print(f"| {gname} | {m} | {t['counted']:,} | {t['errors']} | {t['silent']} | {fa} | {t['refused']} | {rec} |")
+    med = {m: 1e6 * float(np.median(np.concatenate(v))) for m, v in secs.items()}
+    print("\n| method | median step time (us), all streams |\n|---|---|")
+    for m, v in med.items():
+        print(f"| {m} | {v:.1f} |")
+    if "newton" in med and "default" in med:
+        print(f"\nstep time default / newton: {med['default'] / med['newton']:.2f}x (<= 3x)")
+    if worst:
+        print("\npaths with silent errors, or default-mode errors (path, errors, silent, alarms):")
+        for (g, m), lst in worst.items():
+            print(f"  {g} {m}: " + "; ".join(f"{p} {e}/{s}/{a}" for p, e, s, a in lst[:8])
+                  + (f" ... ({len(lst)} paths)" if len(lst) > 8 else ""))
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with open(out / "sensor_suite.csv", "w") as f:
+        f.write("sensor,method,counted,errors,silent_errors,false_alarms,refused,recovery\n")
+        for gname, tot in rows.items():
+            for m, t in tot.items():
+                f.write(f"{gname},{m},{t['counted']},{t['errors']},{t['silent']},{t['alarms']},{t['refused']},"
+                        f"{t['recovery']}\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,208 @@
+"""The tracker fed by sensors: the sensor model, the tube certificates, the outlier gate."""
+import numpy as np
+import pytest
+
+from solver import STATUS, MapTensor, SolverInputError, Tracker, default_bounds
+from solver._kernels.certify import TINY, W_SIZE, krawczyk, newton_on_path
+from solver._kernels.kinematics import geometry
+from solver.direct_kinematics import kernel_constants
+from solver.sensors import SENSOR_GRADES, Sensor, quantize, sensor_truth
+from solver.suite import default_suite, near_singular_circle, make_path
+from solver.trajectories import circle_path
+
+STEP = (0.02, 0.02, np.deg2rad(4.0))
+REJECTED = [k for k, v in STATUS.items() if v == "rejected"][0]
+TOL = Sensor("14-bit", bits=14, noise=1e-3).tolerance(3.0)
+
+
+@pytest.fixture(scope="module")
+def map1(model):
+    b = default_bounds(model, STEP)
+    span = b[:, 1] - b[:, 0]
+    shape = (int(round(span[0] / STEP[0])) + 1, int(round(span[1] / STEP[1])) + 1, 90)
+    return MapTensor.build(model, 1, bounds=b, shape=shape, rule="aspect")
+
+
+@pytest.fixture(scope="module")
+def near_fold(model):
+    """The posture-1 circle passing 5 mm from a type-1 singularity, at 1000 samples (1 kHz, 1 rev/s)."""
+    radius, _ = near_singular_circle(model, 1, (0.50, 0.29), 0.0, 0.005)
+    return make_path(model, "p1-near-sing-5mm/1000", 1, circle_path(1000, (0.50, 0.29), radius, 0.0))
+
+
+def run(tracker, q, X0):
+    tracker.reset(X0, q[0])
+    X, certain = [tracker.state.X], [True]
+    for k in range(1, len(q)):
+        x, info = tracker.step(q[k], 1e-3)
+        X.append(x)
+        certain.append(info.certain)
+    return np.array(X), np.array(certain)
+
+
+def wrong(X, truth):
+    d = np.abs(X - truth)
+    d[:, 2] = np.abs(np.angle(np.exp(1j * (X[:, 2] - truth[:, 2]))))
+    return d.max(axis=1) > 1e-6
+
+
+# ----------------------------------------------------------------------------- the sensor model
+def test_quantization_puts_every_reading_on_the_encoder_grid(rng):
+    q = rng.uniform(-np.pi, np.pi, (200, 3))
+    for bits in (12, 14, 16):
+        res = 2 * np.pi / 2 ** bits
+        m = quantize(q, bits)
+        np.testing.assert_allclose(m / res, np.round(m / res), atol=1e-6)
+        assert np.max(np.abs(m - q)) <= res / 2 + 1e-12
+    with pytest.raises(SolverInputError, match="bits"):
+        quantize(q, 0)
+
+
+def test_sensor_streams_are_deterministic_and_glitch_where_they_say(model, rng):
+    q = np.cumsum(rng.normal(0, 1e-3, (600, 3)), axis=0)
+    for sensor in SENSOR_GRADES:
+        a, b = sensor.measure(q, seed=7), sensor.measure(q, seed=7)
+        np.testing.assert_array_equal(a.q, b.q)
+        if sensor.glitch is None:
+            assert not a.glitch.any()
+            assert np.max(np.abs(a.q - q)) < sensor.tolerance(6.0) + 1e-12
+            continue
+        assert a.glitch.any() and not a.glitch[:3].any()
+        if sensor.glitch == "dropout":
+            assert np.array_equal(np.isnan(a.q).any(axis=1), a.glitch)
+        if sensor.glitch == "outlier":
+            jumps = np.max(np.abs(a.q - q), axis=1)
+            assert np.all(jumps[a.glitch] > 0.09) and np.all(jumps[~a.glitch] < 0.02)
+        if sensor.glitch == "stuck":
+            starts = np.nonzero(a.glitch & ~np.roll(a.glitch, 1))[0]
+            for k in starts:                       # one joint holds the value it had before the glitch
+                held = a.q[k:k + sensor.stuck] == a.q[k - 1]
+                assert held.all(axis=0).any()
+    with pytest.raises(SolverInputError, match="glitch"):
+        Sensor("bad", glitch="spike")
+
+
+def test_truth_counts_only_clearly_nearest_steps(model, near_fold):
+    sensor = Sensor("12-bit", bits=12, noise=1e-3)
+    stream = sensor.measure(near_fold.q, seed=3)
+    X, counted = sensor_truth(model, stream.q, near_fold.X)
+    assert counted.mean() > 0.8
+    far = np.max(np.abs(X - near_fold.X), axis=1)
+    assert np.median(far[counted]) < 0.01              # mostly the noise-free pose moved by the noise
+    _, counted_strict = sensor_truth(model, stream.q, near_fold.X, factor=30.0)
+    assert counted_strict.sum() < counted.sum()
+
+
+# ----------------------------------------------------------------------------- tube certificates
+def test_krawczyk_over_a_joint_box_holds_the_solution_of_every_joint_in_it(model, rng):
+    M, l1, b, l2sq = (lambda g: (g[0], g[1], g[3], g[2]))(geometry(kernel_constants(model)["pack"]))
+    from solver import ik
+    X = np.array([0.5, 0.35, 0.1])
+    q = ik(model, X, 1)
+    zero, w = np.zeros(3), np.empty(W_SIZE)
+    eps = 1e-3
+    rho = np.full(3, 0.02)
+    assert krawczyk(X, rho, q, zero, zero, 0.0, 0.0, eps, M, l1, b, l2sq, w)
+    assert not krawczyk(X, np.full(3, TINY), q, zero, zero, 0.0, 0.0, eps, M, l1, b, l2sq, w)
+    assert not krawczyk(X, rho, q, zero, zero, 0.0, 0.0, 0.3, M, l1, b, l2sq, w)
+    for _ in range(50):                            # every joint vector of the box has its solution inside
+        qe = q + rng.uniform(-eps, eps, 3)
+        Xe = X.copy()
+        assert newton_on_path(Xe, qe, zero, zero, 0.0, M, l1, b, l2sq, w, 30) < 1e-12
+        assert np.all(np.abs(Xe - X) <= rho)
+
+
+def test_measured_joints_past_a_fold_are_never_vouched_for_when_wrong(model, map1, near_fold):
+    """12-bit encoder with 1e-3 rad of noise on a circle 5 mm from a singularity: the measured joints
+    cross a fold that the robot does not.  Proved along the measured joints alone (tolerance 0) the
+    tracker vouches for wrong poses; with the sensor's tolerance it never does."""
+    sensor = Sensor("12-bit", bits=12, noise=1e-3)
+    stream = sensor.measure(near_fold.q, seed=1000)
+    q = stream.q.copy()
+    q[0] = near_fold.q[0]
+    truth, counted = sensor_truth(model, q, near_fold.X)
+    X0, c0 = run(Tracker(model, map1), q, near_fold.X[0])
+    assert np.sum(wrong(X0, truth) & counted & c0) > 0            # silent errors without the tube
+    X1, c1 = run(Tracker(model, map1, joint_tolerance=sensor.tolerance(3.0)), q, near_fold.X[0])
+    assert np.sum(wrong(X1, truth) & counted & c1) == 0
+    np.testing.assert_array_equal(X1, X0)                         # the same choices, only the proof differs
+    assert c1[:10].all()                                          # vouched for at the start
+
+
+def test_exact_joints_are_unchanged_by_a_zero_tolerance(model, map1):
+    path = default_suite(model, samplings=(100,))[0]
+    a = Tracker(model, map1).track(path.q, path.X[0])
+    tr = Tracker(model, map1, joint_tolerance=0.0)
+    b = tr.track(path.q, path.X[0])
+    np.testing.assert_array_equal(a.X, b.X)
+    np.testing.assert_array_equal(a.certain, b.certain)
+    assert a.certain.all() and not np.any(b.status == REJECTED)
+
+
+# ----------------------------------------------------------------------------- the outlier gate
+def _noisy_circle(model, n=400, seed=5):
+    X = circle_path(n)
+    from solver import ik
+    exact = ik(model, X, 1)
+    q = Sensor("14-bit", bits=14, noise=1e-3).measure(exact, seed=seed).q
+    q[0] = exact[0]                                   # the tracker starts from a known configuration
+    return X, q
+
+
+def test_an_outlier_is_refused_with_the_state_intact_and_the_next_sample_continues(model, map1):
+    X, q = _noisy_circle(model)
+    tol = Sensor("14-bit", bits=14, noise=1e-3).tolerance(3.0)
+    tr = Tracker(model, map1, joint_tolerance=tol)
+    tr.reset(X[0], q[0])
+    for k in range(1, 200):
+        tr.step(q[k], 1e-3)
+    before = tr.state.as_array()
+    bad = q[200].copy()
+    bad[1] += 0.1
+    Xr, info = tr.step(bad, 1e-3)
+    assert info.status == REJECTED and not info.certain
+    np.testing.assert_array_equal(Xr, tr.state.X)
+    after = tr.state.as_array()
+    same = np.isclose(before, after, equal_nan=True)
+    assert same.sum() == len(before) - 1 and tr.state.refused == 1    # only the refusal count moved
+    ref = Tracker(model, map1, joint_tolerance=tol)
+    ref.reset(X[0], q[0])
+    for k in range(1, 202):
+        if k != 200:
+            Xg, ig = ref.step(q[k], 1e-3 if k != 201 else 2e-3)
+    Xn, info = tr.step(q[201], 1e-3)
+    assert info.status != REJECTED and info.certain == ig.certain
+    np.testing.assert_allclose(Xn, Xg, atol=1e-9)            # as if the outlier had never come
+
+
+def test_a_dropout_is_refused_by_name_and_changes_nothing(model, map1):
+    X, q = _noisy_circle(model)
+    tr = Tracker(model, map1, joint_tolerance=TOL)
+    tr.reset(X[0], q[0])
+    for k in range(1, 50):
+        tr.step(q[k], 1e-3)
+    before = tr.state
+    with pytest.raises(SolverInputError, match="q"):
+        tr.step([q[50, 0], np.nan, q[50, 2]], 1e-3)
+    assert tr.state is before
+    _, info = tr.step(q[51], 1e-3)
+    assert info.certain and info.status != REJECTED
+
+
+def test_a_level_change_is_taken_after_refusals_and_ends_the_vouching(model, map1):
+    X, q = _noisy_circle(model)
+    tr = Tracker(model, map1, joint_tolerance=TOL)
+    tr.reset(X[0], q[0])
+    for k in range(1, 100):
+        tr.step(q[k], 1e-3)
+    shifted = q[100:110].copy()
+    shifted[:, 0] += 0.1                              # a joint that jumps and stays (a stuck encoder let go)
+    statuses = [tr.step(s, 1e-3)[1] for s in shifted]
+    assert [i.status == REJECTED for i in statuses[:3]] == [True, True, False]
+    assert not any(i.certain for i in statuses) and not tr.state.intact
+
+
+def test_joint_tolerance_is_checked(model, map1):
+    for bad in (-1e-3, np.nan, "1e-3"):
+        with pytest.raises(ValueError, match="joint_tolerance"):
+            Tracker(model, map1, joint_tolerance=bad)
