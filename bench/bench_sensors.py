@@ -43,9 +43,9 @@ VOUCHING = ("default", "paper", "newton-separation")
 REJECTED = [k for k, v in STATUS.items() if v == "rejected"][0]
 
 
-def make_methods(model, maps, names, tol):
-    makers = {"default": lambda p: Tracker(model, maps[p], joint_tolerance=tol),
-              "paper": lambda p: Tracker(model, maps[p], mode="paper", joint_tolerance=tol)}
+def make_methods(model, maps, names, tol, speed):
+    makers = {"default": lambda p: Tracker(model, maps[p], joint_tolerance=tol, speed_bound=speed),
+              "paper": lambda p: Tracker(model, maps[p], mode="paper", joint_tolerance=tol, speed_bound=speed)}
     for name, cls in BASELINES.items():
         makers[name] = (lambda c: (lambda p: c(model)))(cls)
     return {n: makers[n] for n in names}
@@ -111,6 +111,9 @@ def main(argv=None):
     ap.add_argument("--limit", type=int, default=0, help="only the first N paths (quick looks)")
     ap.add_argument("--no-tolerance", dest="tolerance", action="store_false",
                     help="run the trackers without the sensor's joint_tolerance (as for exact joints)")
+    ap.add_argument("--speed", type=float, nargs=2, default=None, metavar=("M_PER_S", "RAD_PER_S"),
+                    help="the trackers' speed_bound (default: 1.25 times the fastest path's speeds)")
+    ap.add_argument("--no-speed", action="store_true", help="no speed bound (re-acquisition over the tool space)")
     ap.add_argument("--sigmas", type=float, default=5.0, help="joint_tolerance = this many noise sigmas + half a step")
     ap.add_argument("--out", default="results")
     args = ap.parse_args(argv)
@@ -123,15 +126,21 @@ def main(argv=None):
     if args.limit:
         suite = suite[:args.limit]
     grades = {s.name: s for s in SENSOR_GRADES}
-    maps = {p: cached_map(model, p, DEFAULT_RULE, DEFAULT_STEP) for p in sorted({s.posture for s in suite})}
     dt = 1e-3
+    if args.speed is None and not args.no_speed:
+        v = max(float(np.max(np.hypot(*np.diff(p.X[:, :2], axis=0).T))) for p in suite) / dt
+        w = max(float(np.max(np.abs(wrap_angle(np.diff(p.X[:, 2]))))) for p in suite) / dt
+        args.speed = (1.25 * v, max(1.25 * w, 0.5))
+    speed = None if args.no_speed else tuple(args.speed)
+    maps = {p: cached_map(model, p, DEFAULT_RULE, DEFAULT_STEP) for p in sorted({s.posture for s in suite})}
     rows = {}
     secs = {m: [] for m in args.methods}
     worst = {}
     t_start = time.perf_counter()
     for gname in args.grades:
         sensor = grades[gname]
-        makers = make_methods(model, maps, args.methods, sensor.tolerance(args.sigmas) if args.tolerance else 0.0)
+        makers = make_methods(model, maps, args.methods, sensor.tolerance(args.sigmas) if args.tolerance else 0.0,
+                              speed)
         tot = {m: dict(counted=0, errors=0, silent=0, alarms=0, refused=0, recovery=0) for m in makers}
         for i, path in enumerate(suite):
             stream = sensor.measure(path.q, seed=1000 + i)
@@ -148,7 +157,10 @@ def main(argv=None):
                     worst.setdefault((gname, m), []).append((path.name, sc["errors"], sc["silent"], sc["alarms"]))
         rows[gname] = tot
     elapsed = time.perf_counter() - t_start
-    print(f"{len(suite)} paths at {args.rate} samples per revolution, dt = 1 ms, {elapsed:.0f} s")
+    tol = ", ".join(f"{g} {grades[g].tolerance(args.sigmas) * 1e3:.3g} mrad" for g in args.grades)
+    print(f"{len(suite)} paths at {args.rate} samples per revolution, dt = 1 ms, {elapsed:.0f} s; joint_tolerance "
+          f"{args.sigmas:g} sigma + half a step ({tol if args.tolerance else 'off'}); speed_bound "
+          f"{'none' if speed is None else f'{speed[0]:.2f} m/s, {speed[1]:.2f} rad/s'}")
     print("\n| sensor | method | counted steps | errors | silent errors | false alarms | refused | recovery (samples) |")
     print("|---|---|---|---|---|---|---|---|")
     for gname, tot in rows.items():

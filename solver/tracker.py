@@ -62,6 +62,37 @@ which, until a certificate names the branch again; a chain uses at most
 ``max_tests`` Krawczyk tests (a few per step far from singularities, hundreds
 next to one).  Measured on the suites: ``bench/bench_tracker.py``.
 
+Sensors
+-------
+The certificates above are about the joints the tracker is given.  Joints from
+encoders are not the robot's: near a singularity a few milliradians of noise can
+put the measured joints past a fold that the robot never crosses, and a proof
+about the measured joints then vouches for a branch the robot is not on.  Give
+the tracker a bound on the measurement error, ``joint_tolerance`` (rad, e.g. 3
+noise sigmas plus half an encoder step; :meth:`solver.sensors.Sensor.tolerance`),
+and ``certain`` means a proof for every joint path within that tolerance:
+
+* *tube continuation*: the Krawczyk boxes of the chain hold one solution for
+  every joint vector within ``joint_tolerance`` of the segment (the joint box is
+  split in parts, two levels of halving, where one box is not enough).  The
+  choice still follows the chain along the measured joints; only the vouching
+  needs the tube, and once a tube fails ``certain`` stays False until
+* *re-acquisition* (:mod:`._kernels.exclusion`) proves, from the present sample
+  alone, that one Krawczyk box about the chosen solution holds every pose of the
+  map's posture whose joints are within the tolerance, searched over the tool
+  space, or over the poses the platform can have reached since the last certain
+  step when ``speed_bound`` (m/s, rad/s) is given;
+* an *outlier gate* refuses a sample whose joint step differs from the expected
+  one (constant joint velocity) by more than the tolerance allows plus ``gate``
+  times the recent mean difference: status ``rejected``, pose held, state kept
+  (only the count of refusals moves).  After ``MAX_REFUSED`` refusals in a row
+  the next sample is taken (the joints really moved) and vouching ends until a
+  re-acquisition, which then searches the whole tool space.
+
+The proofs hold while the sensor keeps its tolerance; a joint that sticks for
+many samples breaks that silently (no method can tell it from a joint at rest).
+Measured on noisy streams: ``bench/bench_sensors.py``.
+
 Every step reports a :class:`StepInfo`.
 """
 from __future__ import annotations
@@ -72,15 +103,18 @@ from dataclasses import replace
 import numpy as np
 
 from ._kernels import layout as _lay
-from ._kernels.certify import CERT_CONTINUATION
+from ._kernels.certify import CERT_CONTINUATION, CERT_REACQUIRED
+from ._kernels.layout import MAX_REFUSED
 from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, F_DQ, I_AMBIGUOUS, I_CERTAIN, I_CERTIFICATE, I_JUMP,
                               I_LABEL, I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, INFO_I_SIZE, OUT_CANDS, OUT_INFO,
                               OUT_SIZE, OUT_X, OUT_X_PRED, STATE_CANDS, STATE_DQ_SCALE, STATE_EXT_SCALE,
                               STATE_HAVE_Q2, STATE_HISTORY, STATE_N_CAND, STATE_Q, STATE_Q2, STATE_SIZE,
                               STATE_VERIFIED, STATE_X, STATE_X2, STATUS_UNREACHABLE, STATE_INTACT,
-                              I_INTACT, STATE_A_SCALE, STATE_REFUSED, STATUS_REJECTED, F_INNOV)
+                              I_INTACT, STATE_A_SCALE, STATE_REFUSED, STATUS_REJECTED, F_INNOV, STATE_ANCHOR,
+                              STATE_ANCHOR_AGE)
 from ._kernels.tracker import tracker_step
 from .checks import SolverInputError, as_array
+from .grid import default_bounds
 from .direct_kinematics import kernel_constants
 from .kinematics import wrap_angle
 from .manipulator import Manipulator
@@ -101,6 +135,9 @@ MAX_TESTS = 2000
 #: step differs from the one expected (constant joint velocity) by more than the noise allows,
 #: ``2 tol (1 + r)``, plus ``GATE`` times the running mean of recent differences (see "Sensors").
 GATE = 4.0
+
+#: With measured joints: pose boxes one re-acquisition may examine (see "Sensors").
+REACQUIRE_BOXES = 2000
 
 
 def _check_q(q) -> np.ndarray:
@@ -146,7 +183,7 @@ class _TrackerBase:
             raise SolverInputError(f"X0, q0: expected shapes (3,) and (3,), got {X0.shape} and {q0.shape}")
         X0 = X0.copy()
         X0[2] = wrap_angle(X0[2])
-        self.state = TrackerState(X0, q0.copy(), None, 0.0, 0, float("nan"))
+        self.state = TrackerState(X0, q0.copy(), None, 0.0, 0, float("nan"), anchor=X0, anchor_age=0.0)
 
     def _kernel(self, q, state_pack):                              # pragma: no cover - abstract
         """Run the compiled step on joints ``q`` and the state pack into the output packs."""
@@ -200,6 +237,11 @@ class _TrackerBase:
         pk[STATE_VERIFIED] = 1.0 if st.verified else 0.0
         pk[STATE_INTACT] = 1.0 if st.intact else 0.0
         pk[STATE_A_SCALE], pk[STATE_REFUSED] = st.a_scale, st.refused
+        age = st.anchor_age + dt * (st.refused + 1) if dt is not None else float("nan")
+        if st.anchor is None:
+            pk[STATE_ANCHOR:STATE_ANCHOR + 3], pk[STATE_ANCHOR_AGE] = st.X, float("nan")
+        else:
+            pk[STATE_ANCHOR:STATE_ANCHOR + 3], pk[STATE_ANCHOR_AGE] = st.anchor, age
         self._kernel(q, pk)
         ii, of = self._out_int, self._out_real
         status = int(ii[I_STATUS])
@@ -217,10 +259,15 @@ class _TrackerBase:
             dqn, innov = float(fi[F_DQ]), float(fi[F_INNOV])
             scale = dqn if st.steps == 0 else 0.8 * st.dq_scale + 0.2 * dqn
             cands = of[OUT_CANDS:OUT_CANDS + 3 * n_cand].reshape(n_cand, 3).copy()
+            cert = int(ii[I_CERTIFICATE])
+            # a sample taken after refusals (the joints jumped and stayed): the sensor broke its
+            # tolerance, so the last certain pose no longer bounds where the robot is
+            anchor = None if st.refused >= MAX_REFUSED else st.anchor
             self.state = TrackerState(X, q.copy(), st.X, scale, st.steps + 1,
                                       float("nan") if dt is None else float(dt), st.q, cands,
-                                      int(ii[I_CERTIFICATE]) == CERT_CONTINUATION, since, bool(ii[I_INTACT]),
-                                      innov if st.steps < 2 else 0.8 * st.a_scale + 0.2 * innov, 0)
+                                      cert in (CERT_CONTINUATION, CERT_REACQUIRED), since, bool(ii[I_INTACT]),
+                                      innov if st.steps < 2 else 0.8 * st.a_scale + 0.2 * innov, 0,
+                                      X if certain else anchor, 0.0 if certain else age)
         return X, info
 
     def track(self, q_stream, X0) -> TrackResult:
@@ -284,13 +331,23 @@ class Tracker(_TrackerBase):
         the map's posture; see the module docstring).
     max_tests : int
         Krawczyk tests one chain of certificates may use.
+    joint_tolerance : float
+        Bound on the joints' measurement error, rad (0: the joints are exact).  See "Sensors".
+    gate : float
+        Outlier gate (with ``joint_tolerance > 0``): refuse a sample whose joint step is off the
+        expected one by more than the tolerance allows plus this many recent mean differences.
+    speed_bound : (float, float) or None
+        Bound on the platform's speed (m/s, rad/s) that narrows re-acquisition (needs ``dt``).
+    reacquire_boxes : int
+        Pose boxes one re-acquisition may examine (0: none).
     """
 
     def __init__(self, model: Manipulator, map_tensor: MapTensor, mode: str = "default", r=None,
                  weights=None, ambiguity_ratio: float = 0.25, jump_factor: float = 20.0,
                  singular_tol: float = 1e-4, use_map: bool = True, strategy: int = _lay.STRATEGY_SEGMENT,
                  segment_singular: float = 0.05, posture_certificate: bool = True, max_tests: int = MAX_TESTS,
-                 joint_tolerance: float = 0.0, gate: float = GATE):
+                 joint_tolerance: float = 0.0, gate: float = GATE, speed_bound=None,
+                 reacquire_boxes: int = REACQUIRE_BOXES):
         super().__init__(model)
         if not isinstance(map_tensor, MapTensor):
             raise TrackerError(f"map_tensor: expected a MapTensor, got {type(map_tensor).__name__}")
@@ -307,6 +364,13 @@ class Tracker(_TrackerBase):
             if not (isinstance(val, (int, float, np.floating, np.integer)) and np.isfinite(val) and val >= 0):
                 raise TrackerError(f"{key}: expected a number >= 0, got {val!r}")
         self.joint_tolerance = float(joint_tolerance)
+        speed = (0.0, 0.0) if speed_bound is None else tuple(float(v) for v in as_array("speed_bound", speed_bound,
+                                                                                          (2,)))
+        if min(speed) < 0 or (speed_bound is not None and min(speed) <= 0):
+            raise TrackerError(f"speed_bound: expected (m/s, rad/s), both > 0, or None, got {speed_bound!r}")
+        if not (isinstance(reacquire_boxes, (int, np.integer)) and reacquire_boxes >= 0):
+            raise TrackerError(f"reacquire_boxes: expected an integer >= 0, got {reacquire_boxes!r}")
+        bounds = default_bounds(model)
         self.map = map_tensor
         self.mode = mode
         self.posture = map_tensor.posture
@@ -321,7 +385,8 @@ class Tracker(_TrackerBase):
         self._params = _lay.pack_tracker_params(ambiguity_ratio, jump_factor, SUBSTEP_DQ, MAX_SUBSTEPS, singular_tol,
                                                 use_map, strategy, segment_singular,
                                                 map_tensor.posture - 1 if posture_certificate else -1,
-                                                int(max_tests), float(joint_tolerance), float(gate))
+                                                int(max_tests), float(joint_tolerance), float(gate),
+                                                bounds[:2].ravel(), speed, int(reacquire_boxes))
         self._mode = _lay.MODE_PAPER if mode == "paper" else _lay.MODE_DEFAULT
         self._rule = rule_code(map_tensor.rule)
 

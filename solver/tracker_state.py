@@ -21,7 +21,7 @@ __all__ = ["TrackerState", "StepInfo", "TrackResult", "TrackerError", "STATUS", 
 STATUS = _lay.STATUS
 
 #: Certificates by code (``StepInfo.certificate``), see :mod:`solver.tracker`.
-CERTIFICATES = {0: "none", 1: "continuation", 2: "elimination", 3: "posture"}
+CERTIFICATES = {0: "none", 1: "continuation", 2: "elimination", 3: "posture", 4: "reacquired"}
 
 
 class TrackerError(ValueError):
@@ -68,6 +68,10 @@ class TrackerState:
         Running mean of recent joint innovations (rad): the outlier gate's scale.
     refused : int
         Samples refused in a row since the last accepted one.
+    anchor : ndarray, shape (3,) or None
+        The pose of the last certain step (m, m, rad); None before the first one.
+    anchor_age : float
+        Seconds since that step (NaN when the caller gives no time steps).
     """
 
     X: np.ndarray
@@ -83,6 +87,8 @@ class TrackerState:
     intact: bool = True
     a_scale: float = 0.0
     refused: int = 0
+    anchor: np.ndarray | None = None
+    anchor_age: float = float("nan")
 
     @property
     def history(self) -> int:
@@ -107,6 +113,9 @@ class TrackerState:
         a[_N_CAND], a[_VERIFIED], a[_SINCE] = float(n), float(self.verified), float(self.uncertain_since)
         a[_CANDS:_CANDS + 3 * n] = np.ravel(self.candidates)
         a[_INTACT], a[_A_SCALE], a[_REFUSED] = float(self.intact), self.a_scale, float(self.refused)
+        if self.anchor is not None:
+            a[_ANCHOR:_ANCHOR + 3] = self.anchor
+        a[_AGE] = self.anchor_age
         return a
 
     @classmethod
@@ -124,15 +133,16 @@ class TrackerState:
         return cls(a[_X:_X + 3].copy(), a[_Q:_Q + 3].copy(), None if np.any(np.isnan(x2)) else x2.copy(),
                    float(a[_DQ_SCALE]), int(a[_STEPS]), float(a[_DT]),
                    None if np.any(np.isnan(q2)) else q2.copy(), cands, bool(a[_VERIFIED]), int(a[_SINCE]),
-                   bool(a[_INTACT]), float(a[_A_SCALE]), int(a[_REFUSED]))
+                   bool(a[_INTACT]), float(a[_A_SCALE]), int(a[_REFUSED]),
+                   None if np.any(np.isnan(a[_ANCHOR:_ANCHOR + 3])) else a[_ANCHOR:_ANCHOR + 3].copy(), float(a[_AGE]))
 
 
 #: Fields of TrackerState.as_array: X, q, X2 (NaN after a reset), dq_scale, steps, dt, q2 (NaN after a
 #: reset), number of candidates, verified, uncertain_since, candidates (6 x 3, NaN past the number), intact,
-#: a_scale, refused.
+#: a_scale, refused, anchor (NaN before the first certain step), anchor_age.
 _X, _Q, _X2, _DQ_SCALE, _STEPS, _DT, _Q2, _N_CAND, _VERIFIED, _SINCE, _CANDS = 0, 3, 6, 9, 10, 11, 12, 15, 16, 17, 18
-_INTACT, _A_SCALE, _REFUSED = _CANDS + 18, _CANDS + 19, _CANDS + 20
-STATE_FLOATS = _REFUSED + 1
+_INTACT, _A_SCALE, _REFUSED, _ANCHOR, _AGE = _CANDS + 18, _CANDS + 19, _CANDS + 20, _CANDS + 21, _CANDS + 24
+STATE_FLOATS = _AGE + 1
 _FINITE = [*range(_X, _X + 3), *range(_Q, _Q + 3), _DQ_SCALE, _STEPS, _N_CAND, _VERIFIED, _SINCE, _INTACT, _A_SCALE,
            _REFUSED]
 
@@ -168,7 +178,7 @@ class StepInfo(NamedTuple):
         initial pose (a chain of certificates back to it; see :mod:`solver.tracker`).
     certificate : int
         The certificate of this step (:data:`CERTIFICATES`): 0 none, 1
-        continuation, 2 elimination, 3 posture.
+        continuation, 2 elimination, 3 posture, 4 reacquired (measured joints).
     n_candidates : int
         DK solutions the true branch can be after this step (1 when known).
     uncertain_since : int

@@ -4,7 +4,8 @@ import pytest
 
 from solver import CERTIFICATES, Manipulator, MapTensor, SolverInputError, Tracker, TrackerState, default_bounds, ik, \
     wrap_angle
-from solver._kernels.certify import TINY, follow_branch, krawczyk, newton_on_path, W_SIZE
+from solver._kernels.certify import TINY, follow_branch
+from solver._kernels.krawczyk import W_SIZE, krawczyk, newton_on_path
 from solver._kernels.kinematics import geometry
 from solver.baselines import NewtonSeparationTracker
 from solver.direct_kinematics import kernel_constants
@@ -50,12 +51,12 @@ def test_krawczyk_proves_a_lone_solution_and_refuses_two_or_none(model, geo):
     q = ik(model, X, 1)
     w = np.empty(W_SIZE)
     zero = np.zeros(3)
-    assert krawczyk(X, np.full(3, TINY), q, zero, zero, 0.0, 0.0, 0.0, M, l1, b, l2sq, w)
-    assert krawczyk(X, np.full(3, 1e-3), q, zero, zero, 0.0, 0.0, 0.0, M, l1, b, l2sq, w)
+    assert krawczyk(X, np.full(3, TINY), q, zero, zero, 0.0, 0.0, zero, M, l1, b, l2sq, w)
+    assert krawczyk(X, np.full(3, 1e-3), q, zero, zero, 0.0, 0.0, zero, M, l1, b, l2sq, w)
     # a box that holds no solution: K is not inside it
-    assert not krawczyk(X + [0.01, 0, 0], np.full(3, 1e-3), q, zero, zero, 0.0, 0.0, 0.0, M, l1, b, l2sq, w)
+    assert not krawczyk(X + [0.01, 0, 0], np.full(3, 1e-3), q, zero, zero, 0.0, 0.0, zero, M, l1, b, l2sq, w)
     # a box that holds every solution of q is refused (more than one zero)
-    assert not krawczyk(np.array([0.5, 0.3, 0.0]), np.array([1.0, 1.0, np.pi]), q, zero, zero, 0.0, 0.0, 0.0,
+    assert not krawczyk(np.array([0.5, 0.3, 0.0]), np.array([1.0, 1.0, np.pi]), q, zero, zero, 0.0, 0.0, zero,
                         M, l1, b, l2sq, w)
 
 
@@ -174,7 +175,7 @@ def test_certainty_survives_save_and_restore(model, maps, hard):
     X2, i2 = tr.step(p.q[0])
     np.testing.assert_array_equal(X1, X2)
     assert i1.certain == i2.certain and i1.uncertain_since == i2.uncertain_since
-    with pytest.raises(ValueError, match="39 floats"):
+    with pytest.raises(ValueError, match="43 floats"):
         TrackerState.from_array(np.zeros(12))
 
 
@@ -203,4 +204,4 @@ def test_newton_separation_baseline_vouches_and_can_be_wrong(model, hard):
 
 
 def test_certificate_names():
-    assert CERTIFICATES == {0: "none", 1: "continuation", 2: "elimination", 3: "posture"}
+    assert CERTIFICATES == {0: "none", 1: "continuation", 2: "elimination", 3: "posture", 4: "reacquired"}

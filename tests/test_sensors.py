@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 from solver import STATUS, MapTensor, SolverInputError, Tracker, default_bounds
-from solver._kernels.certify import TINY, W_SIZE, krawczyk, newton_on_path
+from solver._kernels.certify import TINY
+from solver._kernels.krawczyk import W_SIZE, krawczyk, newton_on_path
 from solver._kernels.kinematics import geometry
 from solver.direct_kinematics import kernel_constants
 from solver.sensors import SENSOR_GRADES, Sensor, quantize, sensor_truth
@@ -102,9 +103,9 @@ def test_krawczyk_over_a_joint_box_holds_the_solution_of_every_joint_in_it(model
     zero, w = np.zeros(3), np.empty(W_SIZE)
     eps = 1e-3
     rho = np.full(3, 0.02)
-    assert krawczyk(X, rho, q, zero, zero, 0.0, 0.0, eps, M, l1, b, l2sq, w)
-    assert not krawczyk(X, np.full(3, TINY), q, zero, zero, 0.0, 0.0, eps, M, l1, b, l2sq, w)
-    assert not krawczyk(X, rho, q, zero, zero, 0.0, 0.0, 0.3, M, l1, b, l2sq, w)
+    assert krawczyk(X, rho, q, zero, zero, 0.0, 0.0, np.full(3, eps), M, l1, b, l2sq, w)
+    assert not krawczyk(X, np.full(3, TINY), q, zero, zero, 0.0, 0.0, np.full(3, eps), M, l1, b, l2sq, w)
+    assert not krawczyk(X, rho, q, zero, zero, 0.0, 0.0, np.full(3, 0.3), M, l1, b, l2sq, w)
     for _ in range(50):                            # every joint vector of the box has its solution inside
         qe = q + rng.uniform(-eps, eps, 3)
         Xe = X.copy()
@@ -206,3 +207,50 @@ def test_joint_tolerance_is_checked(model, map1):
     for bad in (-1e-3, np.nan, "1e-3"):
         with pytest.raises(ValueError, match="joint_tolerance"):
             Tracker(model, map1, joint_tolerance=bad)
+
+
+# ----------------------------------------------------------------------------- re-acquisition
+def test_posture_preimage_proof_refuses_a_second_solution_in_the_posture(model):
+    """At this pose two real DK solutions share posture 1: no box about one of them can hold every
+    posture-1 pose of the tool space that reaches the joints; with the region cut to exclude the
+    other one, the proof goes through."""
+    from solver import ik, dk_all, posture_of
+    from solver._kernels.exclusion import posture_preimage_in
+    from solver._kernels.krawczyk import W_TOT
+    M, l1, l2sq, b = geometry(kernel_constants(model)["pack"])
+    X = np.array([0.5, 0.35, 0.1])
+    q = ik(model, X, 1)
+    sol = dk_all(model, q[None])
+    real = sol.poses[0].real[sol.real[0]]
+    same = real[posture_of(model, real, np.repeat(q[None], len(real), 0)) == 1]
+    assert len(same) == 2
+    eps, zero, w = 1e-3, np.zeros(3), np.empty(W_SIZE)
+    rho = np.full(3, 2 * TINY)
+    while not krawczyk(X, rho, q, zero, zero, 0.0, 0.0, np.full(3, eps), M, l1, b, l2sq, w):
+        rho = np.maximum(rho, 1.25 * w[W_TOT:W_TOT + 3] + 2 * TINY)
+    whole = np.array([-0.2, 1.2, -0.3, 1.1, -np.pi, np.pi])
+    assert posture_preimage_in(X, rho, q, eps, 0, whole, M, l1, l2sq, b, 20000) < 0
+    near = np.array([X[0] - 0.1, X[0] + 0.1, X[1] - 0.1, X[1] + 0.1, X[2] - 0.5, X[2] + 0.5])
+    other = same[np.argmax(np.abs(same[:, 2] - X[2]))]
+    assert abs(other[2] - X[2]) > 0.5                              # the other one is outside the region
+    assert posture_preimage_in(X, rho, q, eps, 0, near, M, l1, l2sq, b, 20000) > 0
+
+
+def test_certainty_comes_back_after_a_near_singular_passage(model, map1, near_fold):
+    """The tube cannot be proved next to the singularity; away from it the branch is re-acquired
+    (a speed bound keeps the robot near its last certain pose), and never wrongly."""
+    sensor = Sensor("14-bit", bits=14, noise=1e-3)
+    q = sensor.measure(near_fold.q, seed=1000).q.copy()
+    q[0] = near_fold.q[0]
+    truth, counted = sensor_truth(model, q, near_fold.X)
+    tr = Tracker(model, map1, joint_tolerance=sensor.tolerance(3.0), speed_bound=(3.0, 1.0))
+    X, certain = run(tr, q, near_fold.X[0])
+    lost = np.nonzero(~certain)[0]
+    assert lost.size and certain[lost[0]:].any()                  # lost, then regained
+    assert np.sum(wrong(X, truth) & counted & certain) == 0
+
+
+def test_speed_bound_is_checked(model, map1):
+    for bad in ((0.0, 1.0), (1.0,), "fast"):
+        with pytest.raises(ValueError, match="speed_bound"):
+            Tracker(model, map1, joint_tolerance=1e-3, speed_bound=bad)

@@ -41,7 +41,9 @@ STATE_INTACT = 36         # > 0: every step since the reset was vouched for over
                           # (always, with exact joints)
 STATE_A_SCALE = 37        # running mean of recent joint innovations max|dq - expected dq|, rad (the gate's scale)
 STATE_REFUSED = 38        # samples refused in a row since the last accepted one
-STATE_SIZE = 39
+STATE_ANCHOR = 39         # (3,) the pose of the last certain step (re-acquisition's region)
+STATE_ANCHOR_AGE = 42     # seconds from that step to this one (NaN: unknown)
+STATE_SIZE = 43
 
 # ----------------------------------------------------------------------------- map pack
 # The grid of a map tensor and the procedure-2 neighbourhood (eq. 18-19).
@@ -65,7 +67,10 @@ PARAM_POSTURE_BITS = 8    # posture - 1 for the posture certificate, -1 without 
 PARAM_MAX_TESTS = 9       # Krawczyk tests one chain may use
 PARAM_JOINT_TOL = 10      # bound on the joints' measurement error, rad (0: exact joints)
 PARAM_GATE = 11           # outlier gate: refuse a joint step this many times beyond the expected one
-PARAM_SIZE = 12
+PARAM_ROOT = 12           # (4,) x lo/hi, y lo/hi of the tool space, m
+PARAM_SPEED = 16          # (2,) bound on the platform's speed, m/s and rad/s (0: none)
+PARAM_REACQUIRE = 18      # pose boxes a re-acquisition may examine (0: no re-acquisition)
+PARAM_SIZE = 19
 
 # ----------------------------------------------------------------------------- baseline options
 BASELINE_WEIGHTS = 0      # (3,) eq. 19 weights
@@ -138,7 +143,8 @@ def pack_map(origin, step, periodic: bool, r2: float, weights) -> np.ndarray:
 
 def pack_tracker_params(ambiguity, jump, substep_dq, max_substeps, singular, use_map: bool, strategy: int,
                         segment_singular, posture_bits: int, max_tests: int, joint_tol: float = 0.0,
-                        gate: float = 0.0) -> np.ndarray:
+                        gate: float = 0.0, root=(0.0, 0.0, 0.0, 0.0), speed=(0.0, 0.0),
+                        reacquire_boxes: int = 0) -> np.ndarray:
     """The tracker options (PARAM_SIZE,)."""
     pack = np.empty(PARAM_SIZE)
     pack[PARAM_AMBIGUITY] = ambiguity
@@ -153,6 +159,9 @@ def pack_tracker_params(ambiguity, jump, substep_dq, max_substeps, singular, use
     pack[PARAM_MAX_TESTS] = float(max_tests)
     pack[PARAM_JOINT_TOL] = joint_tol
     pack[PARAM_GATE] = gate
+    pack[PARAM_ROOT:PARAM_ROOT + 4] = root
+    pack[PARAM_SPEED:PARAM_SPEED + 2] = speed
+    pack[PARAM_REACQUIRE] = float(reacquire_boxes)
     return pack
 
 

@@ -11,7 +11,8 @@ import math
 import numpy as np
 from numba import njit
 
-from .certify import CERT_NONE, certify
+from .certify import CERT_NONE, CERT_REACQUIRED, RHO_CAP, certify
+from .exclusion import reacquire
 from .direct_kinematics import dk_one
 from .kinematics import geometry, jacobian, velocity
 from .layout import (F_COND, F_COND_PREV, F_D_BEST, F_D_SECOND, F_DQ, I_AMBIGUOUS, I_JUMP, I_LABEL,
@@ -22,7 +23,8 @@ from .layout import (F_COND, F_COND_PREV, F_D_BEST, F_D_SECOND, F_DQ, I_AMBIGUOU
                      STATE_HISTORY, STATE_Q, STATE_X, STATE_X2, I_CERTAIN, I_CERTIFICATE, I_N_CAND, OUT_CANDS,
                      PARAM_MAX_TESTS, PARAM_POSTURE_BITS, STATE_CANDS, STATE_HAVE_Q2, STATE_N_CAND, STATE_Q2,
                      STATE_VERIFIED, STATE_INTACT, PARAM_JOINT_TOL, I_INTACT, STATUS_OK, F_INNOV,
-                     STATE_A_SCALE, STATE_REFUSED, PARAM_GATE, MAX_REFUSED, STATUS_REJECTED, STATUS_SINGULAR, STATUS_UNREACHABLE,
+                     STATE_A_SCALE, STATE_REFUSED, PARAM_GATE, MAX_REFUSED, STATUS_REJECTED, STATE_ANCHOR,
+                     STATE_ANCHOR_AGE, PARAM_ROOT, PARAM_SPEED, PARAM_REACQUIRE, STATUS_SINGULAR, STATUS_UNREACHABLE,
                      STRATEGY_CONTINUATION, STRATEGY_EXTRAPOLATION, STRATEGY_SEGMENT)
 from .linalg import hadamard, wrap
 from .maptensor import label_at_one, near_mask_one
@@ -131,6 +133,35 @@ def certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred
                                   params[PARAM_JOINT_TOL], poses, real, int(params[PARAM_POSTURE_BITS]),
                                   int(params[PARAM_MAX_TESTS]), model_pack, new_cands, keep)
     intact = intact and intact_before
+    eps = params[PARAM_JOINT_TOL]
+    posture_bits = int(params[PARAM_POSTURE_BITS])
+    if not (cert != CERT_NONE and intact) and eps > 0.0 and params[PARAM_REACQUIRE] > 0.0 and posture_bits >= 0:
+        # measured joints: re-acquire the branch from this sample alone (see .exclusion)
+        region = np.empty(6)
+        region[0:4] = params[PARAM_ROOT:PARAM_ROOT + 4]
+        region[4], region[5] = -math.pi, math.pi
+        age = state[STATE_ANCHOR_AGE]
+        if params[PARAM_SPEED] > 0.0 and math.isfinite(age):
+            a = state[STATE_ANCHOR:STATE_ANCHOR + 3]
+            r, rp = 2.0 * RHO_CAP + params[PARAM_SPEED] * age, 2.0 * RHO_CAP + params[PARAM_SPEED + 1] * age
+            region[0], region[1] = max(region[0], a[0] - r), min(region[1], a[0] + r)
+            region[2], region[3] = max(region[2], a[1] - r), min(region[3], a[1] + r)
+            if rp < math.pi:
+                region[4], region[5] = a[2] - rp, a[2] + rp
+        target = chosen
+        if cert != CERT_NONE:                      # the branch along the measured joints
+            for k in range(6):
+                if keep[k]:
+                    target = k
+        Xc = np.empty(3)
+        for i in range(3):
+            Xc[i] = poses[target, i].real
+        if region[0] <= region[1] and region[2] <= region[3] and \
+                reacquire(Xc, qp + dq, eps, posture_bits, region, int(params[PARAM_REACQUIRE]), model_pack):
+            for k in range(6):
+                keep[k] = k == target
+            new_cands[0, :] = Xc
+            n_new, cert, intact = 1, CERT_REACQUIRED, True
     certain = False
     if cert != CERT_NONE:        # the choice follows the certificates; vouched only with the chain intact
         sole = 0

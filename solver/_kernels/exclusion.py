@@ -1,0 +1,167 @@
+"""Re-acquiring the branch with measured joints: a global proof that one posture-P solution exists.
+
+With exact joints the tracker regains certainty by eliminating candidates along the joint
+path (:mod:`.certify`).  With measured joints that history proves nothing once a sample
+may lie past a fold the robot did not cross, so the tracker regains certainty from the
+present sample alone: for every joint vector ``q`` in the box ``Q = q_meas +- eps``,
+
+1. a Krawczyk box ``B`` about the chosen solution holds exactly one solution of
+   ``F(., q) = 0`` (:func:`.certify.prove_part`), and
+2. every pose of the tool space whose inverse kinematics *in the tracker's posture* lands in
+   ``Q`` lies inside ``B`` (:func:`posture_preimage_in`): a branch and bound over the tool
+   space that drops pose boxes whose interval inverse kinematics misses ``Q`` (or whose legs
+   cannot reach) and pose boxes inside ``B``.
+
+The robot is in the tracker's posture and its true joints are in ``Q``, so its pose is the
+one solution in ``B``, and the chosen solution of the measured joints is on its branch.
+Interval ends are padded by :data:`.certify.PAD` as in :mod:`.certify`.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .certify import TINY, elbow_bits, prove_part, same_pose
+from .krawczyk import PAD, W_SIZE, _smul, icos, isin, krawczyk
+from .kinematics import geometry
+
+TWO_PI = 2.0 * math.pi
+
+
+@njit(cache=True)
+def _sq(lo, hi):
+    """An enclosure of x^2 over [lo, hi]."""
+    if lo >= 0.0:
+        return lo * lo, hi * hi
+    if hi <= 0.0:
+        return hi * hi, lo * lo
+    return 0.0, max(lo * lo, hi * hi)
+
+
+@njit(cache=True)
+def leg_misses(box, i, sign, qlo_t, qhi_t, M, l1, l2sq, b):
+    """True when no pose of ``box`` (x lo/hi, y lo/hi, phi lo/hi) reaches joint ``q_i`` in
+    [qlo_t, qhi_t] (mod 2 pi) with elbow sign ``sign`` (+1 or -1), or leg ``i`` cannot reach it."""
+    clo, chi = icos(box[4], box[5])
+    slo, shi = isin(box[4], box[5])
+    a1lo, a1hi = _smul(b[i, 0], clo, chi)
+    a2lo, a2hi = _smul(-b[i, 1], slo, shi)
+    dxlo, dxhi = box[0] + a1lo + a2lo - M[i, 0] - PAD, box[1] + a1hi + a2hi - M[i, 0] + PAD
+    a1lo, a1hi = _smul(b[i, 0], slo, shi)
+    a2lo, a2hi = _smul(b[i, 1], clo, chi)
+    dylo, dyhi = box[2] + a1lo + a2lo - M[i, 1] - PAD, box[3] + a1hi + a2hi - M[i, 1] + PAD
+    if dxlo <= 0.0 <= dxhi and dylo <= 0.0 <= dyhi:
+        return False                                    # the motor may be inside: no bound on the angle
+    # the angle of M_i -> A_i: extreme at the corners of a box that does not hold the origin
+    tc = math.atan2(0.5 * (dylo + dyhi), 0.5 * (dxlo + dxhi))
+    tlo, thi = np.inf, -np.inf
+    for cx in (dxlo, dxhi):
+        for cy in (dylo, dyhi):
+            d = math.atan2(cy, cx) - tc
+            d -= TWO_PI * math.floor((d + math.pi) / TWO_PI)
+            tlo, thi = min(tlo, tc + d), max(thi, tc + d)
+    tlo, thi = tlo - PAD, thi + PAD
+    x2lo, x2hi = _sq(dxlo, dxhi)
+    y2lo, y2hi = _sq(dylo, dyhi)
+    rlo, rhi = math.sqrt(x2lo + y2lo), math.sqrt(x2hi + y2hi)
+    if rlo < 1e-9:
+        return False
+    # cos alpha = (l1^2 + rho^2 - l2^2) / (2 l1 rho): at both ends and at its minimum rho^2 = l2^2 - l1^2
+    c0 = l1[i] * l1[i] - l2sq[i]
+    fa = (c0 + rlo * rlo) / (2.0 * l1[i] * rlo)
+    fb = (c0 + rhi * rhi) / (2.0 * l1[i] * rhi)
+    flo, fhi = min(fa, fb), max(fa, fb)
+    if c0 < 0.0:
+        rs = math.sqrt(-c0)
+        if rlo < rs < rhi:
+            flo = min(flo, (c0 + rs * rs) / (2.0 * l1[i] * rs))
+    flo, fhi = flo - 1e-12, fhi + 1e-12
+    if flo > 1.0 or fhi < -1.0:
+        return True                                     # the leg cannot reach any pose of the box
+    alo, ahi = math.acos(min(1.0, fhi)) - PAD, math.acos(max(-1.0, flo)) + PAD
+    if sign > 0.0:
+        qlo, qhi = tlo - ahi, thi - alo
+    else:
+        qlo, qhi = tlo + alo, thi + ahi
+    n_lo = math.ceil((qlo_t - qhi) / TWO_PI)
+    n_hi = math.floor((qhi_t - qlo) / TWO_PI)
+    return n_lo > n_hi
+
+
+@njit(cache=True)
+def _inside(box, c, rho):
+    """The pose box lies inside the box ``c +- rho`` (phi compared modulo 2 pi)."""
+    if not (box[0] >= c[0] - rho[0] and box[1] <= c[0] + rho[0] and box[2] >= c[1] - rho[1]
+            and box[3] <= c[1] + rho[1]):
+        return False
+    for n in (-1.0, 0.0, 1.0):
+        if box[4] + n * TWO_PI >= c[2] - rho[2] and box[5] + n * TWO_PI <= c[2] + rho[2]:
+            return True
+    return False
+
+
+@njit(cache=True)
+def posture_preimage_in(c, rho, q, eps, posture_bits, root, M, l1, l2sq, b, max_boxes):
+    """Every pose in the region ``root`` with inverse kinematics (posture ``posture_bits + 1``)
+    in ``q +- eps`` lies in the box ``c +- rho``.
+
+    ``root`` (6,): x lo/hi, y lo/hi, phi lo/hi of a region that holds the robot.  A branch and
+    bound of at most ``max_boxes`` pose boxes.  Returns the number of boxes examined when
+    proved (> 0), minus it when not (a box that can neither be dropped nor split further).
+    """
+    stack = np.empty((64, 6))
+    stack[0, :] = root
+    top = 1
+    seen = 0
+    scale_phi = 0.0
+    for i in range(3):
+        scale_phi = max(scale_phi, math.hypot(b[i, 0], b[i, 1]))
+    while top > 0:
+        top -= 1
+        box = stack[top].copy()
+        seen += 1
+        if seen > max_boxes:
+            return -seen
+        if _inside(box, c, rho):
+            continue
+        dropped = False
+        for i in range(3):
+            sign = 1.0 - 2.0 * ((posture_bits >> i) & 1)
+            if leg_misses(box, i, sign, q[i] - eps, q[i] + eps, M, l1, l2sq, b):
+                dropped = True
+                break
+        if dropped:
+            continue
+        wx, wy, wp = box[1] - box[0], box[3] - box[2], (box[5] - box[4]) * scale_phi
+        if max(wx, max(wy, wp)) < 1e-7 or top + 2 > 64:
+            return -seen
+        k = 0 if wx >= wy and wx >= wp else (2 if wy >= wp else 4)
+        mid = 0.5 * (box[k] + box[k + 1])
+        stack[top, :] = box
+        stack[top, k + 1] = mid
+        stack[top + 1, :] = box
+        stack[top + 1, k] = mid
+        top += 2
+    return seen
+
+
+@njit(cache=True)
+def reacquire(X, q, eps, posture_bits, region, max_boxes, model_pack):
+    """The proof of the module docstring for the solution ``X`` (3,) of the measured joints ``q`` (3,).
+
+    ``region`` (6,): a pose box known to hold the robot (x, y, phi lo/hi).  True when
+    ``X`` is in the posture, a Krawczyk box about it holds one solution for every joint
+    vector in ``q +- eps``, and no other pose of the region in the posture reaches them.
+    """
+    M, l1, l2sq, b = geometry(model_pack)
+    if elbow_bits(X, q, M, l1, b) != posture_bits:
+        return False
+    w = np.empty(W_SIZE)
+    xc, rho, none = np.empty(3), np.empty(3), np.zeros(3)
+    if prove_part(q, np.full(3, eps), np.empty((1, 3)), np.empty((1, 3)), 0, X, M, l1, b, l2sq, w, xc, rho) != 1:
+        return False
+    if not same_pose(xc, X) or not krawczyk(xc, np.full(3, TINY), q, none, none, 0.0, 0.0, none, M, l1, b, l2sq, w):
+        return False
+    return posture_preimage_in(xc, rho, q, eps, posture_bits, region, M, l1, l2sq, b, max_boxes) > 0
