@@ -21,7 +21,8 @@ least three times farther and the sample is not a glitch.  On counted steps:
 * false alarms: right steps not reported ``certain`` (vouching methods only);
 * refused: samples the method refused (a dropout's NaN raises ``SolverInputError``,
   an outlier is status ``rejected``), counted or not;
-* recovery: the most good samples after a glitch before the method is right again.
+* recovery: after a glitch that found the method right, the most good samples it
+  then spent wrong (0: right at the first good sample).
 
 Step time: the median over all steps of each method, measured in the same run.
 """
@@ -91,12 +92,17 @@ def score(X, certain, refused, truth, counted, glitch, vouching):
     silent = wrong & certain if vouching else wrong
     alarms = c & right & ~certain if vouching else np.zeros_like(c)
     recovery = 0
-    ends = np.nonzero(glitch[:-1] & ~glitch[1:])[0] + 1          # first good sample after each glitch
-    for k in ends:
-        j = k
-        while j < len(right) and not (right[j] or not counted[j]):
+    starts = np.nonzero(glitch[1:] & ~glitch[:-1])[0] + 1          # first glitch sample of each glitch
+    for g in starts:
+        if not (counted[g - 1] and right[g - 1]):
+            continue                                             # wrong already before: not the glitch's doing
+        k = g
+        while k < len(right) and glitch[k]:
+            k += 1
+        j = k                                                    # the good samples until right again
+        while j < len(right) and counted[j] and not right[j]:
             j += 1
-        recovery = max(recovery, j - k + 1 if j > k or not right[k] else 0)
+        recovery = max(recovery, j - k + (1 if j < len(right) and not right[j] else 0))
     return dict(counted=int(c.sum()), errors=int(wrong.sum()), silent=int(silent.sum()), alarms=int(alarms.sum()),
                 refused=int(refused.sum()), recovery=recovery)
 

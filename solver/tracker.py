@@ -87,7 +87,12 @@ and ``certain`` means a proof for every joint path within that tolerance:
   times the recent mean difference: status ``rejected``, pose held, state kept
   (only the count of refusals moves).  After ``MAX_REFUSED`` refusals in a row
   the next sample is taken (the joints really moved) and vouching ends until a
-  re-acquisition, which then searches the whole tool space.
+  re-acquisition, which then searches the whole tool space;
+* with ``speed_bound``, a *speed gate* holds the previous pose (status
+  ``unreachable``) when the chosen solution is farther than the platform can
+  have moved since the last sample (plus 0.1 m / 0.1 rad): the measured joints
+  crossed a fold that the robot did not, and the branch it is on has no real
+  solution at them.  At most ``MAX_HELD`` samples in a row.
 
 The proofs hold while the sensor keeps its tolerance; a joint that sticks for
 many samples breaks that silently (no method can tell it from a joint at rest).
@@ -111,7 +116,7 @@ from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, F_DQ, I_AMBIGUOUS, I
                               STATE_HAVE_Q2, STATE_HISTORY, STATE_N_CAND, STATE_Q, STATE_Q2, STATE_SIZE,
                               STATE_VERIFIED, STATE_X, STATE_X2, STATUS_UNREACHABLE, STATE_INTACT,
                               I_INTACT, STATE_A_SCALE, STATE_REFUSED, STATUS_REJECTED, F_INNOV, STATE_ANCHOR,
-                              STATE_ANCHOR_AGE)
+                              STATE_ANCHOR_AGE, STATE_STEP_DT)
 from ._kernels.tracker import tracker_step
 from .checks import SolverInputError, as_array
 from .grid import default_bounds
@@ -135,6 +140,10 @@ MAX_TESTS = 2000
 #: step differs from the one expected (constant joint velocity) by more than the noise allows,
 #: ``2 tol (1 + r)``, plus ``GATE`` times the running mean of recent differences (see "Sensors").
 GATE = 4.0
+
+#: With measured joints and a speed bound: samples held in a row (a pose the platform cannot have
+#: reached) after which the next pose is taken whatever its distance (see "Sensors").
+MAX_HELD = 10
 
 #: With measured joints: pose boxes one re-acquisition may examine (see "Sensors").
 REACQUIRE_BOXES = 2000
@@ -224,7 +233,11 @@ class _TrackerBase:
         pk[STATE_X:STATE_X + 3], pk[STATE_Q:STATE_Q + 3] = st.X, st.q
         pk[STATE_X2:STATE_X2 + 3] = st.X if st.X2 is None else st.X2
         pk[STATE_HISTORY], pk[STATE_DQ_SCALE] = st.history, st.dq_scale
-        pk[STATE_EXT_SCALE] = (dt / st.dt if dt is not None and np.isfinite(st.dt) else 1.0) * (st.refused + 1)
+        pk[STATE_EXT_SCALE] = (dt / st.dt if dt is not None and np.isfinite(st.dt) else 1.0) * (st.skipped + 1)
+        # the speed gate (measured joints): not after the sensor broke its tolerance (a forced sample)
+        # nor after MAX_HELD samples held in a row (the robot moved on: follow the joints again)
+        gate_on = dt is not None and st.refused < MAX_REFUSED and st.skipped < MAX_HELD
+        pk[STATE_STEP_DT] = dt * (st.skipped + 1) if gate_on else float("nan")
         if st.q2 is None:
             pk[STATE_HAVE_Q2] = 0.0
         else:
@@ -237,7 +250,7 @@ class _TrackerBase:
         pk[STATE_VERIFIED] = 1.0 if st.verified else 0.0
         pk[STATE_INTACT] = 1.0 if st.intact else 0.0
         pk[STATE_A_SCALE], pk[STATE_REFUSED] = st.a_scale, st.refused
-        age = st.anchor_age + dt * (st.refused + 1) if dt is not None else float("nan")
+        age = st.anchor_age + dt * (st.skipped + 1) if dt is not None else float("nan")
         if st.anchor is None:
             pk[STATE_ANCHOR:STATE_ANCHOR + 3], pk[STATE_ANCHOR_AGE] = st.X, float("nan")
         else:
@@ -253,9 +266,11 @@ class _TrackerBase:
                         int(ii[I_N_REAL]), float(fi[F_COND]), bool(ii[I_AMBIGUOUS]), status,
                         bool(ii[I_JUMP]), float(fi[F_D_BEST]), float(fi[F_D_SECOND]), certain,
                         int(ii[I_CERTIFICATE]), n_cand, since)
-        if status == STATUS_REJECTED:                       # an outlier: only the count of refusals moves
-            self.state = replace(st, refused=st.refused + 1)
-        elif status != STATUS_UNREACHABLE:
+        if status == STATUS_REJECTED:                       # an outlier: only the counts of refusals move
+            self.state = replace(st, refused=st.refused + 1, skipped=st.skipped + 1)
+        elif status == STATUS_UNREACHABLE:                  # pose held: only the count of skipped samples
+            self.state = replace(st, skipped=st.skipped + 1)
+        else:
             dqn, innov = float(fi[F_DQ]), float(fi[F_INNOV])
             scale = dqn if st.steps == 0 else 0.8 * st.dq_scale + 0.2 * dqn
             cands = of[OUT_CANDS:OUT_CANDS + 3 * n_cand].reshape(n_cand, 3).copy()
@@ -264,7 +279,7 @@ class _TrackerBase:
             # tolerance, so the last certain pose no longer bounds where the robot is
             anchor = None if st.refused >= MAX_REFUSED else st.anchor
             self.state = TrackerState(X, q.copy(), st.X, scale, st.steps + 1,
-                                      float("nan") if dt is None else float(dt), st.q, cands,
+                                      float("nan") if dt is None else float(dt) * (st.skipped + 1), st.q, cands,
                                       cert in (CERT_CONTINUATION, CERT_REACQUIRED), since, bool(ii[I_INTACT]),
                                       innov if st.steps < 2 else 0.8 * st.a_scale + 0.2 * innov, 0,
                                       X if certain else anchor, 0.0 if certain else age)

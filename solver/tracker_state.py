@@ -72,6 +72,8 @@ class TrackerState:
         The pose of the last certain step (m, m, rad); None before the first one.
     anchor_age : float
         Seconds since that step (NaN when the caller gives no time steps).
+    skipped : int
+        Samples since the last accepted one (refused or held), for the time between samples.
     """
 
     X: np.ndarray
@@ -89,6 +91,7 @@ class TrackerState:
     refused: int = 0
     anchor: np.ndarray | None = None
     anchor_age: float = float("nan")
+    skipped: int = 0
 
     @property
     def history(self) -> int:
@@ -115,7 +118,7 @@ class TrackerState:
         a[_INTACT], a[_A_SCALE], a[_REFUSED] = float(self.intact), self.a_scale, float(self.refused)
         if self.anchor is not None:
             a[_ANCHOR:_ANCHOR + 3] = self.anchor
-        a[_AGE] = self.anchor_age
+        a[_AGE], a[_SKIPPED] = self.anchor_age, float(self.skipped)
         return a
 
     @classmethod
@@ -134,17 +137,19 @@ class TrackerState:
                    float(a[_DQ_SCALE]), int(a[_STEPS]), float(a[_DT]),
                    None if np.any(np.isnan(q2)) else q2.copy(), cands, bool(a[_VERIFIED]), int(a[_SINCE]),
                    bool(a[_INTACT]), float(a[_A_SCALE]), int(a[_REFUSED]),
-                   None if np.any(np.isnan(a[_ANCHOR:_ANCHOR + 3])) else a[_ANCHOR:_ANCHOR + 3].copy(), float(a[_AGE]))
+                   None if np.any(np.isnan(a[_ANCHOR:_ANCHOR + 3])) else a[_ANCHOR:_ANCHOR + 3].copy(), float(a[_AGE]),
+                   int(a[_SKIPPED]))
 
 
 #: Fields of TrackerState.as_array: X, q, X2 (NaN after a reset), dq_scale, steps, dt, q2 (NaN after a
 #: reset), number of candidates, verified, uncertain_since, candidates (6 x 3, NaN past the number), intact,
-#: a_scale, refused, anchor (NaN before the first certain step), anchor_age.
+#: a_scale, refused, anchor (NaN before the first certain step), anchor_age, skipped.
 _X, _Q, _X2, _DQ_SCALE, _STEPS, _DT, _Q2, _N_CAND, _VERIFIED, _SINCE, _CANDS = 0, 3, 6, 9, 10, 11, 12, 15, 16, 17, 18
 _INTACT, _A_SCALE, _REFUSED, _ANCHOR, _AGE = _CANDS + 18, _CANDS + 19, _CANDS + 20, _CANDS + 21, _CANDS + 24
-STATE_FLOATS = _AGE + 1
+_SKIPPED = _AGE + 1
+STATE_FLOATS = _SKIPPED + 1
 _FINITE = [*range(_X, _X + 3), *range(_Q, _Q + 3), _DQ_SCALE, _STEPS, _N_CAND, _VERIFIED, _SINCE, _INTACT, _A_SCALE,
-           _REFUSED]
+           _REFUSED, _SKIPPED]
 
 
 class StepInfo(NamedTuple):

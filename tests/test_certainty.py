@@ -5,6 +5,7 @@ import pytest
 from solver import CERTIFICATES, Manipulator, MapTensor, SolverInputError, Tracker, TrackerState, default_bounds, ik, \
     wrap_angle
 from solver._kernels.certify import TINY, follow_branch
+from solver.tracker_state import STATE_FLOATS
 from solver._kernels.krawczyk import W_SIZE, krawczyk, newton_on_path
 from solver._kernels.kinematics import geometry
 from solver.baselines import NewtonSeparationTracker
@@ -175,7 +176,7 @@ def test_certainty_survives_save_and_restore(model, maps, hard):
     X2, i2 = tr.step(p.q[0])
     np.testing.assert_array_equal(X1, X2)
     assert i1.certain == i2.certain and i1.uncertain_since == i2.uncertain_since
-    with pytest.raises(ValueError, match="43 floats"):
+    with pytest.raises(ValueError, match=f"{STATE_FLOATS} floats"):
         TrackerState.from_array(np.zeros(12))
 
 

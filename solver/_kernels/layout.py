@@ -43,7 +43,8 @@ STATE_A_SCALE = 37        # running mean of recent joint innovations max|dq - ex
 STATE_REFUSED = 38        # samples refused in a row since the last accepted one
 STATE_ANCHOR = 39         # (3,) the pose of the last certain step (re-acquisition's region)
 STATE_ANCHOR_AGE = 42     # seconds from that step to this one (NaN: unknown)
-STATE_SIZE = 43
+STATE_STEP_DT = 43        # seconds from the last accepted sample to this one (NaN: unknown)
+STATE_SIZE = 44
 
 # ----------------------------------------------------------------------------- map pack
 # The grid of a map tensor and the procedure-2 neighbourhood (eq. 18-19).

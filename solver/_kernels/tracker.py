@@ -24,7 +24,7 @@ from .layout import (F_COND, F_COND_PREV, F_D_BEST, F_D_SECOND, F_DQ, I_AMBIGUOU
                      PARAM_MAX_TESTS, PARAM_POSTURE_BITS, STATE_CANDS, STATE_HAVE_Q2, STATE_N_CAND, STATE_Q2,
                      STATE_VERIFIED, STATE_INTACT, PARAM_JOINT_TOL, I_INTACT, STATUS_OK, F_INNOV,
                      STATE_A_SCALE, STATE_REFUSED, PARAM_GATE, MAX_REFUSED, STATUS_REJECTED, STATE_ANCHOR,
-                     STATE_ANCHOR_AGE, PARAM_ROOT, PARAM_SPEED, PARAM_REACQUIRE, STATUS_SINGULAR, STATUS_UNREACHABLE,
+                     STATE_ANCHOR_AGE, PARAM_ROOT, PARAM_SPEED, PARAM_REACQUIRE, STATE_STEP_DT, STATUS_SINGULAR, STATUS_UNREACHABLE,
                      STRATEGY_CONTINUATION, STRATEGY_EXTRAPOLATION, STRATEGY_SEGMENT)
 from .linalg import hadamard, wrap
 from .maptensor import label_at_one, near_mask_one
@@ -351,6 +351,20 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
     info_f[F_D_SECOND] = d_second
     for i in range(3):
         X_out[i] = Xr[i]
+    step_dt = state[STATE_STEP_DT]
+    if params[PARAM_JOINT_TOL] > 0.0 and params[PARAM_SPEED] > 0.0 and math.isfinite(step_dt):
+        # measured joints: a pose the platform cannot have reached since the last sample (the
+        # measured joints crossed a fold the robot did not) is not taken; the previous pose is held
+        r = params[PARAM_SPEED] * step_dt + 2.0 * RHO_CAP
+        rp = params[PARAM_SPEED + 1] * step_dt + 2.0 * RHO_CAP
+        if abs(X_out[0] - Xp[0]) > r or abs(X_out[1] - Xp[1]) > r or abs(wrap(X_out[2] - Xp[2])) > rp:
+            X_out[:] = Xp
+            info_i[I_STATUS] = STATUS_UNREACHABLE
+            info_i[I_CERTAIN] = 0
+            info_i[I_AMBIGUOUS] = 1
+            info_i[I_N_CAND] = int(state[STATE_N_CAND])
+            info_i[I_INTACT] = 1 if state[STATE_INTACT] > 0.0 else 0
+            return
     J = np.empty((3, 3))
     kd = np.empty(3)
     jacobian(X_out, qu, M, l1, b, J, kd)
