@@ -140,6 +140,7 @@ def main(argv=None):
     speed = None if args.no_speed else tuple(args.speed)
     maps = {p: cached_map(model, p, DEFAULT_RULE, DEFAULT_STEP) for p in sorted({s.posture for s in suite})}
     rows = {}
+    per_path = {}
     secs = {m: [] for m in args.methods}
     worst = {}
     t_start = time.perf_counter()
@@ -161,6 +162,7 @@ def main(argv=None):
                     tot[m][key] = max(tot[m][key], sc[key]) if key == "recovery" else tot[m][key] + sc[key]
                 if sc["silent"] or (m == "default" and sc["errors"] > 0):
                     worst.setdefault((gname, m), []).append((path.name, sc["errors"], sc["silent"], sc["alarms"]))
+                per_path[gname, path.name, m] = sc["errors"]
         rows[gname] = tot
     elapsed = time.perf_counter() - t_start
     tol = ", ".join(f"{g} {grades[g].tolerance(args.sigmas) * 1e3:.3g} mrad" for g in args.grades)
@@ -180,6 +182,10 @@ def main(argv=None):
         print(f"| {m} | {v:.1f} |")
     if "newton" in med and "default" in med:
         print(f"\nstep time default / newton: {med['default'] / med['newton']:.2f}x (<= 3x)")
+        for gname in args.grades:
+            worse = [p.name for p in suite if per_path[gname, p.name, "default"] > per_path[gname, p.name, "newton"]]
+            print(f"{gname}: paths where the default mode errs more often than newton: {len(worse)} of {len(suite)}"
+                  + (f" ({', '.join(worse[:6])}{' ...' if len(worse) > 6 else ''})" if worse else ""))
     if worst:
         print("\npaths with silent errors, or default-mode errors (path, errors, silent, alarms):")
         for (g, m), lst in worst.items():

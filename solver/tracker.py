@@ -149,6 +149,17 @@ MAX_HELD = 10
 REACQUIRE_BOXES = 2000
 
 
+_TOOL_SPACE: dict = {}
+
+
+def _tool_space(model: Manipulator) -> np.ndarray:
+    """``default_bounds(model)`` (3, 2), computed once per geometry (it samples 7201 orientations)."""
+    key = model.digest()
+    if key not in _TOOL_SPACE:
+        _TOOL_SPACE[key] = default_bounds(model)
+    return _TOOL_SPACE[key]
+
+
 def _check_q(q) -> np.ndarray:
     """q as a float array (3,), or SolverInputError naming ``q`` (fast path for the common case)."""
     if isinstance(q, np.ndarray) and q.shape == (3,) and q.dtype == np.float64 and np.isfinite(q).all():
@@ -383,9 +394,10 @@ class Tracker(_TrackerBase):
                                                                                           (2,)))
         if min(speed) < 0 or (speed_bound is not None and min(speed) <= 0):
             raise TrackerError(f"speed_bound: expected (m/s, rad/s), both > 0, or None, got {speed_bound!r}")
+        self.speed_bound = None if speed_bound is None else speed
         if not (isinstance(reacquire_boxes, (int, np.integer)) and reacquire_boxes >= 0):
             raise TrackerError(f"reacquire_boxes: expected an integer >= 0, got {reacquire_boxes!r}")
-        bounds = default_bounds(model)
+        bounds = _tool_space(model)
         self.map = map_tensor
         self.mode = mode
         self.posture = map_tensor.posture
