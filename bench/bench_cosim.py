@@ -1,28 +1,32 @@
-"""Speed of the closed loop of issue 6 (``python -m dynamics.cosim``): where each 1 ms step goes.
+"""Speed of the closed loop (``python -m dynamics.cosim``): per-step wall time against the tracker.
 
-    python bench/bench_cosim.py [--build-dir build] [--rebuild] [--repeat 5] [--t-end 2.5]
+    python bench/bench_cosim.py [--build-dir build] [--rebuild] [--repeat 7] [--t-end 2.5]
 
 The FMUs are built once into ``--build-dir`` by :func:`dynamics.cosim.build_fmus` (reused when
 present; ``--rebuild`` forces it).  Then, in one process (FMUs extracted and instantiated once):
 
 1. the default scenario (2.5 s at h = 1 ms, Gauss-Seidel, three FMUs) is run ``--repeat`` times by
    the master itself (:meth:`dynamics.cosim.ClosedLoop.run`, timed as ``python -m dynamics.cosim``
-   times it: the step loop, FMUs initialized); prints the wall time and real-time factor of each
-   run, their median and best, and the wall time per 1 ms step (target: real-time factor >= 5,
-   i.e. < 200 us per step);
+   times it: the step loop and the result's columns, FMUs initialized), with the DK's flags
+   (status, region... as ``python -m dynamics.cosim`` records them) and without
+   (``flags=False``: one set, doStep and get per FMU and step); each run alternates with an
+   in-process pass of ``solver.Tracker.step(q, dt=h)`` over the joints of the same run (the
+   closed loop's own DK path, same embedded map).  Prints the wall time per step of each
+   (mean over a run, median over the runs), the real-time factor and the ratio of the loop's step
+   to one in-process tracker step (target: ratio <= 4, >= 10x real time);
 2. one more run of the same loop (the same fmpy calls in the same order as ``ClosedLoop.run``) with
    a clock around every FMU call, and a clock inside every slave's ``do_step``, ``get_*`` and
    ``set_real`` (the Python code of the slave, what the FMU's C wrapper calls); prints per call
    the median and mean over the steps, split into the slave's Python and the call overhead
    (fmpy's ctypes wrapper + pythonfmu's C wrapper + taking the GIL), the master's own overhead
-   (its numpy arrays and bookkeeping between the calls) and "where the time goes" as a table
-   (mean us per step and share; the means include the machine's noise, the medians do not).
+   (copies between the calls, keeping the rows) and "where the time goes" as a table (mean us per
+   step and share; the means include the machine's noise, the medians do not).
 
 The slaves import the host's ``dynamics``, ``solver`` and ``fmu_src`` runtime (imported first, as
 the master does); the script also says whether the DK FMU's bundled copy of that runtime is the
 working tree's (if not, the FMU predates its last change: ``--rebuild``).
 
-The machine is shared (2 cores): the load average is printed; compare medians.
+The machine is shared (2 cores): the load average is printed; compare medians and ratios.
 """
 from __future__ import annotations
 
@@ -39,6 +43,7 @@ import dynamics  # noqa: F401  (before any FMU, as the master does)
 from dynamics.cosim import FMU_NAMES, INSTANCES, ClosedLoop, Scenario, build_fmus
 from fmu_src.packaging import bundled_files
 from fmu_src.table_slave import TableSlave
+from solver import Manipulator, MapTensor, Tracker
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -104,19 +109,21 @@ class _SlaveClock:
 
 
 def instrumented_run(loop: ClosedLoop, sc: Scenario, on_start=None):
-    """The loop of ClosedLoop.run (Gauss-Seidel) with a clock around every FMU call; ``on_start()``
-    is called right before the first step.
+    """The loop of ClosedLoop.run (Gauss-Seidel, with the DK's flags) with a clock around every FMU
+    call; ``on_start()`` is called right before the first step.
 
     Returns (calls (n, 11) s, step (n,) s): the duration of each call and of each whole step.
     """
     loop.initialize(sc, 0.0)
-    steps = [loop.ports[inst].calls()[:2] for inst in INSTANCES]        # set_inputs, doStep
-    reads = [[call for _, call in loop.ports[inst].read_calls()] for inst in INSTANCES]
-    (dk_set, dk_step), (ct_set, ct_step), (pl_set, pl_step) = steps
+    ports = [loop.ports[inst] for inst in INSTANCES]
+    (dk_set, ct_set, pl_set) = (p.set_inputs for p in ports)
+    (dk_step, ct_step, pl_step) = (p.step_call() for p in ports)
+    reads = [[call for _, call in p.read_calls()] for p in ports]
     (dk_real, dk_int, dk_bool), (ct_real,), (pl_real,) = reads
     assert [_KIND[k] for k, _ in loop.ports["dk"].read_calls()] == [m for _, _, m in CALLS[2:5]]
+    bufs = [p.buffers[kind] for p in ports for kind in p.buffers]
+    kept = [[] for _ in bufs]
     n, h = sc.n_steps, sc.h
-    out = np.zeros((n, 27))
     calls = np.zeros((n, len(CALLS)))
     step = np.zeros(n)
     clock = time.perf_counter
@@ -141,19 +148,33 @@ def instrumented_run(loop: ClosedLoop, sc: Scenario, on_start=None):
         e = clock(); c[5], c[6], c[7] = b - a, d - b, e - d
         a = clock(); pl_set()
         b = clock(); pl_step(t, h, 1)
-        d = clock(); c[8], c[9] = b - a, d - b
-        loop.fill_row(out[k], t)
-        a = clock(); pl_real()
-        b = clock(); c[10] = b - a
-        step[k] = b - s0
+        d = clock(); pl_real()
+        e = clock(); c[8], c[9], c[10] = b - a, d - b, e - d
+        for buf, rows in zip(bufs, kept):
+            rows.append(buf[:])
+        step[k] = clock() - s0
     return calls, step
+
+
+def tracker_pass(tracker, res, h: float) -> tuple[float, float]:
+    """Mean wall and CPU time (s) of ``tracker.step(q, dt=h)`` over the joints of a closed-loop run."""
+    Q = np.stack([res["q1"], res["q2"], res["q3"]], axis=1)
+    X0 = np.array([res["x"][0], res["y"][0], res["phi"][0]])
+    tracker.reset(X0, Q[0])
+    step = tracker.step
+    c0 = time.process_time()
+    t0 = time.perf_counter()
+    for k in range(1, len(Q)):
+        step(Q[k], h)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    return wall / (len(Q) - 1), cpu / (len(Q) - 1)
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--build-dir", default=str(ROOT / "build"))
     ap.add_argument("--rebuild", action="store_true", help="rebuild the three FMUs")
-    ap.add_argument("--repeat", type=int, default=5, help="timed runs of the default scenario")
+    ap.add_argument("--repeat", type=int, default=7, help="timed runs of the default scenario")
     ap.add_argument("--t-end", type=float, default=Scenario.t_end)
     args = ap.parse_args(argv)
 
@@ -169,18 +190,36 @@ def main(argv=None):
         t0 = time.perf_counter()
         loop.run(Scenario(t_end=0.05))                       # numba caches loaded, first calls done
         print(f"warm-up (instantiate + first steps): {time.perf_counter() - t0:.2f} s")
-        print(f"\n1. the master's loop (ClosedLoop.run, as `python -m dynamics.cosim`), {args.repeat} runs:")
-        walls = []
+        dk_dir = loop.units["RRRDirectKinematics"].unzip_dir
+        tracker = Tracker(Manipulator.paper(), MapTensor.load(Path(dk_dir) / "resources" / "maps" / "posture1.npz"))
+        print(f"\n1. the master's loop (ClosedLoop.run, as `python -m dynamics.cosim`), {args.repeat} runs each, "
+              f"alternating with the in-process tracker on each run's joints:")
+        per = {(key, clock): [] for key in ("flags", "no flags", "tracker") for clock in ("wall", "cpu")}
         for r in range(args.repeat):
-            res = loop.run(sc)
-            walls.append(res.wall_seconds)
+            for key, kw in (("flags", {}), ("no flags", {"flags": False})):
+                res = loop.run(sc, **kw)
+                per[key, "wall"].append(res.wall_seconds / sc.n_steps)
+                per[key, "cpu"].append(res.cpu_seconds / sc.n_steps)
+                wall, cpu = tracker_pass(tracker, res, sc.h)
+                per["tracker", "wall"].append(wall)
+                per["tracker", "cpu"].append(cpu)
             m = res.metrics()
-            print(f"   run {r + 1}: {res.wall_seconds:.3f} s wall, {res.realtime_factor:.2f}x real time, "
-                  f"{1e6 * res.wall_seconds / sc.n_steps:.0f} us per step  (RMS joint error after 0.5 s "
-                  f"{m['rms_joint_error_after_0.5s']:.3e} rad, max |DK - true| {m['max_dk_vs_true']:.1e})")
-        med, best = float(np.median(walls)), float(np.min(walls))
-        print(f"   median {med:.3f} s = {sc.t_end / med:.2f}x real time ({1e6 * med / sc.n_steps:.0f} us per "
-              f"step); best {best:.3f} s = {sc.t_end / best:.2f}x; target >= 5x (< 200 us per step)")
+            print(f"   run {r + 1}: wall per step {1e6 * per['flags', 'wall'][-1]:.1f} us with flags, "
+                  f"{1e6 * per['no flags', 'wall'][-1]:.1f} without, tracker {1e6 * per['tracker', 'wall'][-1]:.1f} us"
+                  f"  (RMS joint error after 0.5 s {m['rms_joint_error_after_0.5s']:.3e} rad, "
+                  f"max |DK - true| {m['max_dk_vs_true']:.1e})")
+        med = {k: float(np.median(v)) for k, v in per.items()}
+        for clock_name in ("wall", "cpu"):
+            trk = med["tracker", clock_name]
+            print(f"   {clock_name} time (median of the runs' mean per step), one in-process tracker step "
+                  f"{1e6 * trk:.1f} us:")
+            for key in ("flags", "no flags"):
+                v = med[key, clock_name]
+                ratio = v / trk
+                print(f"     {key:8s}: {1e6 * v:6.1f} us per step = {sc.h / v:5.2f}x real time, {ratio:.2f}x the "
+                      f"tracker step  [target <= 4x and >= 10x real time: "
+                      f"{'meets' if ratio <= 4 and sc.h / v >= 10 else 'MISSES'}]")
+        print("   (CPU time leaves out what other processes took; on an idle machine the two agree)")
 
         clock = _SlaveClock(loop)
         try:
@@ -213,7 +252,7 @@ def main(argv=None):
         print(f"   {label:30s} {np.median(calls[:, j]):7.1f}  {calls[:, j].mean():7.1f}   {np.median(mine):11.1f} "
               f"{mine.mean():8.1f}   {np.median(over):12.1f}")
     master = step - calls.sum(axis=1)
-    print(f"   {'master (numpy, bookkeeping)':30s} {np.median(master):7.1f}  {master.mean():7.1f}")
+    print(f"   {'master (copies, rows)':30s} {np.median(master):7.1f}  {master.mean():7.1f}")
 
     print("\n   per-step median of each FMU's doStep (the whole fmpy call):")
     for label, fmu, meth, c, mine, over in rows:
@@ -228,7 +267,7 @@ def main(argv=None):
               ("plant doStep: slave (compiled RK4 + outputs)", [r for r in rows if r[2] == "do_step" and r[1] == FMU_NAMES[2]], 4),
               ("8 get/set calls: slave Python", [r for r in rows if r[2] != "do_step"], 4),
               ("11 fmpy calls: fmpy + ctypes + pythonfmu C wrapper", rows, 5)]
-    print(f"\n   where the time goes (mean per 1 ms step; wall budget for 5x real time: 200 us)")
+    print("\n   where the time goes (mean per 1 ms step; wall budget for 10x real time: 100 us)")
     print(f"   | {'part':55s} | {'us/step':>7s} | {'share':>6s} |")
     print(f"   |{'-' * 57}|{'-' * 9}|{'-' * 8}|")
     acc = 0.0
@@ -238,7 +277,7 @@ def main(argv=None):
         print(f"   | {name:55s} | {v:7.1f} | {100 * v / total:5.1f}% |")
     v = float(master.mean())
     acc += v
-    print(f"   | {'master: numpy arrays, concatenate, result rows':55s} | {v:7.1f} | {100 * v / total:5.1f}% |")
+    print(f"   | {'master: input copies, kept rows, bookkeeping':55s} | {v:7.1f} | {100 * v / total:5.1f}% |")
     print(f"   | {'total (instrumented; clocks add ~2 us)':55s} | {total:7.1f} | {100 * acc / total:5.1f}% |")
 
 

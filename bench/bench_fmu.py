@@ -1,159 +1,306 @@
-"""Speed of the direct-kinematics FMU through fmpy's FMU2Slave, against the in-process tracker.
+"""Speed of each FMU through fmpy's FMU2Slave against its in-process computation, as ratios.
 
-    python bench/bench_fmu.py [--fmu build/RRRDirectKinematics.fmu] [--n 1000] [--repeat 5]
+    python bench/bench_fmu.py [--build-dir build] [--n 1000] [--passes 7]
 
-Builds the FMU with the default options first if ``--fmu`` does not exist (``fmu_src.builds.build_dk``).
-Prints:
+The three FMUs are built into ``--build-dir`` first if missing (:func:`fmu_src.builds.build_fmus`).
+The host imports ``solver`` and ``dynamics`` before loading the FMUs (as any host that runs them
+repeatedly should), so the FMUs run this process's compiled kernels.  The machine is shared: every
+figure is a median, and each FMU pass alternates with an in-process pass over the same inputs, so
+that a ratio compares times measured in the same minutes of the same run.  Prints:
 
-- the FMU file size;
-- instantiation time: extraction (fmpy.extract), the first fmi2Instantiate of the process (imports
-  the slave module, reads and checks the embedded map) and the median of later ones, each followed
-  by setupExperiment / enterInitializationMode / exitInitializationMode;
-- per communication step over the paper's circle (``solver.circle_path(n)`` -> ``solver.ik``
-  posture 1), median and 90th percentile of
-  ``setReal(q1..q3) + doStep + getReal(x, y, phi, cond) + getInteger(region, n_real, status) +
-  getBoolean(near_border, ambiguous)`` (all outputs), and of the minimal cycle
-  ``setReal(q1..q3) + doStep + getReal(x, y, phi)`` (target <= 100 us);
-- ``Tracker.step`` on the same joints and the same embedded map, measured in the same run, and the
-  overhead of the FMU over it.
-
-The host imports ``solver`` before loading the FMU (as any host that runs it repeatedly should), so
-the FMU runs this process's compiled kernels.  Numbers, no assertions.
+- the DK FMU file size and its instantiation time (the first of the process, later ones);
+- **DK**: per communication step over the paper's circle (``solver.circle_path(n)`` -> ``ik``
+  posture 1, h = 1 ms), ``fmi2SetReal(q1..q3) + fmi2DoStep + fmi2GetReal(x, y, phi)`` with the
+  value references and value buffers made once (what the master does), against the in-process
+  ``Tracker.step(q, dt=h)`` on the same map and joints; ratio (target <= 1.5).  Also the cycle that
+  reads all 11 outputs (three more calls), the same cycle through fmpy's convenience
+  ``setReal``/``getReal`` (which build ctypes arrays at every call), and whether the poses are
+  identical;
+- **plant** and **controller**: the inputs of a closed-loop run (``dynamics.cosim.ClosedLoop``,
+  default scenario) replayed into each FMU alone: the ``fmi2DoStep`` call against the in-process
+  computation it wraps (``PlantStepper.step`` / ``ControllerStepper.step`` with the same inputs),
+  target <= 1.5x or <= 10 us more, whichever is larger; and the whole set + doStep + get cycle.
 """
 from __future__ import annotations
 
 import argparse
 import os
 import platform
-import shutil
 import time
 from pathlib import Path
 
 import numpy as np
 
-import solver  # noqa: F401  (first: the FMU then uses this copy of the package)
-from fmu_src.unit import FMUUnit, exit_process, import_hygiene
+import dynamics  # noqa: F401  (first: the FMUs then use the host's packages)
+import solver
+from fmu_src.builds import build_fmus
+from fmu_src.unit import FMUUnit, exit_process
 from solver import Manipulator, MapTensor, Tracker, circle_path
 
 ROOT = Path(__file__).resolve().parents[1]
+H = 1e-3
 
 
-def _initialize(unit, X0, q0):
-    unit.initialize(0.0, {"x0": X0[0], "y0": X0[1], "phi0": X0[2], "q1": q0[0], "q2": q0[1], "q3": q0[2]})
+def _arrays(unit, names, ctype):
+    from fmpy.fmi2 import fmi2ValueReference
+
+    return (fmi2ValueReference * len(names))(*unit.vr(*names)), (ctype * len(names))()
+
+
+def _median_us(times) -> float:
+    return float(np.median(times) * 1e6)
+
+
+def bench_dk(unit: FMUUnit, n: int, passes: int) -> dict:
+    """DK: the FMU cycles and the in-process tracker, alternating passes over the circle."""
+    from fmpy.fmi2 import fmi2Boolean, fmi2Integer, fmi2Real, fmi2True
+
+    model = Manipulator.paper()
+    X = circle_path(n)
+    Q = solver.ik(model, X, 1)
+    rows = [tuple(map(float, q)) for q in Q]
+    start = {"x0": X[0][0], "y0": X[0][1], "phi0": X[0][2], "q1": Q[0][0], "q2": Q[0][1], "q3": Q[0][2]}
+    fmu = unit.fmu
+    q_vr, q_buf = _arrays(unit, ("q1", "q2", "q3"), fmi2Real)
+    x_vr, x_buf = _arrays(unit, ("x", "y", "phi"), fmi2Real)
+    r_vr, r_buf = _arrays(unit, ("x", "y", "phi", "cond", "uncertain_since"), fmi2Real)
+    i_vr, i_buf = _arrays(unit, ("region", "n_real", "status"), fmi2Integer)
+    b_vr, b_buf = _arrays(unit, ("near_border", "ambiguous", "certain"), fmi2Boolean)
+    mt = MapTensor.load(Path(unit.unzip_dir) / "resources" / "maps" / "posture1.npz")
+    tracker = Tracker(model, mt)
+    pc = time.perf_counter
+    t = {"minimal": [], "all": [], "convenience": [], "tracker": []}
+    poses_fmu, poses_tr = np.empty((n, 3)), np.empty((n, 3))
+
+    def fresh():
+        unit.reset()
+        unit.initialize(0.0, start)
+        return fmu.component
+
+    for _ in range(passes):
+        c = fresh()
+        set_real, do_step, get_real = fmu.fmi2SetReal, fmu.fmi2DoStep, fmu.fmi2GetReal
+        for k, q in enumerate(rows):
+            tk = k * H
+            t0 = pc()
+            q_buf[:] = q
+            set_real(c, q_vr, 3, q_buf)
+            do_step(c, tk, H, fmi2True)
+            get_real(c, x_vr, 3, x_buf)
+            t["minimal"].append(pc() - t0)
+            poses_fmu[k] = x_buf
+        tracker.reset(X[0], Q[0])
+        step = tracker.step
+        for k in range(n):
+            q = Q[k]
+            t0 = pc()
+            Xk, _ = step(q, H)
+            t["tracker"].append(pc() - t0)
+            poses_tr[k] = Xk
+        c = fresh()
+        get_int, get_bool = fmu.fmi2GetInteger, fmu.fmi2GetBoolean
+        for k, q in enumerate(rows):
+            t0 = pc()
+            q_buf[:] = q
+            set_real(c, q_vr, 3, q_buf)
+            do_step(c, k * H, H, fmi2True)
+            get_real(c, r_vr, 5, r_buf)
+            get_int(c, i_vr, 3, i_buf)
+            get_bool(c, b_vr, 3, b_buf)
+            t["all"].append(pc() - t0)
+        fresh()
+        q_list, x_list = list(q_vr), list(x_vr)
+        for k, q in enumerate(rows):
+            t0 = pc()
+            fmu.setReal(q_list, q)
+            fmu.doStep(k * H, H)
+            fmu.getReal(x_list)
+            t["convenience"].append(pc() - t0)
+    out = {k: _median_us(v) for k, v in t.items()}
+    out["identical"] = bool(np.array_equal(poses_fmu, poses_tr))
+    return out
+
+
+def _closed_loop_inputs(paths) -> dict:
+    """The default scenario's time series (the plant's and the controller's inputs at every step)."""
+    from dynamics.cosim import ClosedLoop, Scenario
+
+    with ClosedLoop(paths) as loop:
+        try:
+            res = loop.run(Scenario(), flags=False)
+        except TypeError:                    # a master from before issue 12 (for before/after runs)
+            res = loop.run(Scenario())
+    return res.columns
+
+
+def bench_plant(unit: FMUUnit, cols: dict, passes: int) -> dict:
+    """The plant FMU replaying the closed loop's torques, against PlantStepper.step on them."""
+    from fmpy.fmi2 import fmi2Real, fmi2True
+    from dynamics import DynamicParameters, PlantStepper
+
+    tau = np.stack([cols[f"tau{i}"] for i in (1, 2, 3)], axis=1)
+    taus = [tuple(map(float, r)) for r in tau]
+    X0 = (cols["x_true"][0], cols["y_true"][0], cols["phi_true"][0])
+    start = {"x0": X0[0], "y0": X0[1], "phi0": X0[2]}
+    fmu = unit.fmu
+    u_vr, u_buf = _arrays(unit, ("tau1", "tau2", "tau3"), fmi2Real)
+    y_names = ("q1", "q2", "q3", "dq1", "dq2", "dq3", "x_true", "y_true", "phi_true")
+    y_vr, y_buf = _arrays(unit, y_names, fmi2Real)
+    stepper = PlantStepper(DynamicParameters(), Manipulator.paper(), 1)
+    pc = time.perf_counter
+    t = {"doStep": [], "cycle": [], "in-process": []}
+    same = True
+    for _ in range(passes):
+        unit.reset()
+        unit.initialize(0.0, start)
+        c = fmu.component
+        set_real, do_step, get_real = fmu.fmi2SetReal, fmu.fmi2DoStep, fmu.fmi2GetReal
+        q_fmu = np.empty((len(taus), 3))
+        for k, u in enumerate(taus):
+            t0 = pc()
+            u_buf[:] = u
+            set_real(c, u_vr, 3, u_buf)
+            t1 = pc()
+            do_step(c, k * H, H, fmi2True)
+            t2 = pc()
+            get_real(c, y_vr, 9, y_buf)
+            t3 = pc()
+            t["doStep"].append(t2 - t1)
+            t["cycle"].append(t3 - t0)
+            q_fmu[k] = y_buf[0:3]
+        x = np.array([*X0, 0.0, 0.0, 0.0])
+        outs = (np.empty(stepper.OUT_SIZE), np.empty(stepper.OUT_SIZE))
+        q_in = np.empty((len(taus), 3))
+        for k, u in enumerate(taus):
+            out = outs[k % 2]
+            t0 = pc()
+            stepper.step(u[0], u[1], u[2], H, 1, x, out)
+            t["in-process"].append(pc() - t0)
+            x = out[:6]
+            q_in[k] = out[6:9]
+        same = same and bool(np.array_equal(q_fmu, q_in))
+    res = {k: _median_us(v) for k, v in t.items()}
+    res["identical"] = same
+    return res
+
+
+def bench_controller(unit: FMUUnit, cols: dict, passes: int, params: dict) -> dict:
+    """The controller FMU replaying the closed loop's measurements, against ControllerStepper.step."""
+    from fmpy.fmi2 import fmi2Real, fmi2True
+    from dynamics import CircleTrajectory, ComputedTorqueGains, ControllerStepper, DynamicParameters
+
+    names = ("q1", "q2", "q3", "dq1", "dq2", "dq3", "x", "y", "phi")
+    inputs = [tuple(map(float, r)) for r in np.stack([cols[n] for n in names], axis=1)]
+    fmu = unit.fmu
+    u_vr, u_buf = _arrays(unit, names, fmi2Real)
+    y_vr, y_buf = _arrays(unit, ("tau1", "tau2", "tau3", "x_ref", "y_ref", "phi_ref_out", "q1_ref", "q2_ref",
+                                 "q3_ref"), fmi2Real)
+    model = Manipulator.paper()
+    traj = CircleTrajectory(center=params["center"], radius=params["radius"], phi=params["phi"], posture=1,
+                            period=params["period"], ramp_time=params["ramp_time"])
+    stepper = ControllerStepper(DynamicParameters(), model, ComputedTorqueGains.design(params["bandwidth"],
+                                                                                        params["damping"]), traj)
+    start = {"bandwidth": params["bandwidth"], "damping": params["damping"], "center_x": params["center"][0],
+             "center_y": params["center"][1], "radius": params["radius"], "phi_ref": params["phi"],
+             "period": params["period"], "ramp_time": params["ramp_time"],
+             **dict(zip(names, inputs[0]))}
+    pc = time.perf_counter
+    t = {"doStep": [], "cycle": [], "in-process": []}
+    out = np.empty(stepper.OUT_SIZE)
+    same = True
+    for _ in range(passes):
+        unit.reset()
+        unit.initialize(0.0, start)
+        c = fmu.component
+        set_real, do_step, get_real = fmu.fmi2SetReal, fmu.fmi2DoStep, fmu.fmi2GetReal
+        tau_fmu = np.empty((len(inputs), 3))
+        for k, u in enumerate(inputs):
+            t0 = pc()
+            u_buf[:] = u
+            set_real(c, u_vr, 9, u_buf)
+            t1 = pc()
+            do_step(c, k * H, H, fmi2True)
+            t2 = pc()
+            get_real(c, y_vr, 9, y_buf)
+            t3 = pc()
+            t["doStep"].append(t2 - t1)
+            t["cycle"].append(t3 - t0)
+            tau_fmu[k] = y_buf[0:3]
+        tau_in = np.empty((len(inputs), 3))
+        step = stepper.step
+        for k, u in enumerate(inputs):
+            tk = k * H
+            t0 = pc()
+            step(tk, u[0], u[1], u[2], u[3], u[4], u[5], u[6], u[7], u[8], out)
+            t["in-process"].append(pc() - t0)
+            tau_in[k] = out[0:3]
+        same = same and bool(np.array_equal(tau_fmu, tau_in))
+    res = {k: _median_us(v) for k, v in t.items()}
+    res["identical"] = same
+    return res
+
+
+def _verdict(fmu_us, inproc_us, ratio=1.5, extra_us=None) -> str:
+    limit = ratio * inproc_us if extra_us is None else max(ratio * inproc_us, inproc_us + extra_us)
+    return "meets" if fmu_us <= limit else "MISSES"
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--fmu", default=str(ROOT / "build" / "RRRDirectKinematics.fmu"))
-    ap.add_argument("--n", type=int, default=1000, help="points of the circle")
-    ap.add_argument("--repeat", type=int, default=5, help="passes over the circle")
-    ap.add_argument("--instances", type=int, default=10, help="instantiations timed")
+    ap.add_argument("--build-dir", default=str(ROOT / "build"))
+    ap.add_argument("--n", type=int, default=1000, help="points of the circle (DK)")
+    ap.add_argument("--passes", type=int, default=7, help="alternating FMU / in-process passes")
+    ap.add_argument("--instances", type=int, default=6, help="instantiations timed")
     args = ap.parse_args(argv)
+    paths = build_fmus(args.build_dir, log=lambda m: print(m, flush=True))
+    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, python "
+          f"{platform.python_version()}, numpy {np.__version__}, load average {os.getloadavg()[0]:.2f}")
+    dk_path = paths["RRRDirectKinematics"]
+    print(f"DK FMU {dk_path}: {dk_path.stat().st_size / 1e6:.3f} MB")
+    X0 = circle_path(3)[0]
+    q0 = solver.ik(Manipulator.paper(), X0, 1)
+    start = {"x0": X0[0], "y0": X0[1], "phi0": X0[2], "q1": q0[0], "q2": q0[1], "q3": q0[2]}
+    times, units = [], []
+    for k in range(args.instances):
+        t0 = time.perf_counter()
+        unit = FMUUnit(dk_path, f"bench{k}")
+        unit.initialize(0.0, start)
+        times.append(time.perf_counter() - t0)
+        units.append(unit)
+    for unit in units[1:]:
+        unit.close()
+    print(f"DK instantiation + initialization: first {times[0] * 1e3:.1f} ms (extraction, slave module, map read "
+          f"and check), later median {np.median(times[1:]) * 1e3:.1f} ms")
 
-    from fmpy import extract, read_model_description
+    dk = bench_dk(units[0], args.n, args.passes)
+    units[0].close()
+    ratio = dk["minimal"] / dk["tracker"]
+    print(f"\nDK, per step over the circle ({args.n} points x {args.passes} passes, h = 1 ms), median:")
+    print(f"  FMU: fmi2SetReal(q) + fmi2DoStep + fmi2GetReal(x, y, phi)   {dk['minimal']:6.1f} us")
+    print(f"  in-process Tracker.step(q, dt=h), same map and joints        {dk['tracker']:6.1f} us")
+    print(f"  ratio {ratio:.2f}  (target <= 1.5: {_verdict(dk['minimal'], dk['tracker'])})")
+    print(f"  FMU, reading all 11 outputs (+ getInteger, getBoolean)       {dk['all']:6.1f} us "
+          f"(x{dk['all'] / dk['tracker']:.2f})")
+    print(f"  FMU through fmpy's setReal/getReal (arrays per call)         {dk['convenience']:6.1f} us "
+          f"(x{dk['convenience'] / dk['tracker']:.2f})")
+    print(f"  FMU poses identical to the in-process tracker's: {dk['identical']}")
 
-    fmu_path = Path(args.fmu)
-    if not fmu_path.is_file():
-        from fmu_src.builds import build_dk
-
-        print(f"{fmu_path} missing: building it with the default options")
-        fmu_path = build_dk(fmu_path.parent).fmu
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-          f"python {platform.python_version()}, numpy {np.__version__}")
-    size = fmu_path.stat().st_size
-    print(f"FMU {fmu_path}: {size / 1e6:.3f} MB ({size:,} bytes)")
-
-    model = Manipulator.paper()
-    X = circle_path(args.n)
-    q = solver.ik(model, X, 1)
-    h = 1e-3
-
-    md = read_model_description(str(fmu_path))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    t0 = time.perf_counter()
-    unzipdir = extract(str(fmu_path))
-    t_extract = time.perf_counter() - t0
-    hygiene = import_hygiene()
-    hygiene.__enter__()
-    instances = []
-    try:
-        times = []
-        for k in range(args.instances):
-            t0 = time.perf_counter()
-            unit = FMUUnit(fmu_path, f"bench{k}", unzip_dir=unzipdir)
-            _initialize(unit, X[0], q[0])
-            times.append(time.perf_counter() - t0)
-            instances.append(unit)
-        later = np.array(times[1:]) * 1e3
-        print(f"instantiation + initialization: extract {t_extract * 1e3:.1f} ms, first {times[0] * 1e3:.1f} ms "
-              f"(imports, map read and check), later median {np.median(later):.1f} ms")
-        for unit in instances[1:]:
-            unit.close()
-        unit = instances[0]
-        instances = [unit]
-        fmu = unit.fmu
-
-        q_vr = [vr["q1"], vr["q2"], vr["q3"]]
-        pose_vr = [vr["x"], vr["y"], vr["phi"]]
-        real_vr = pose_vr + [vr["cond"]]
-        int_vr = [vr["region"], vr["n_real"], vr["status"]]
-        bool_vr = [vr["near_border"], vr["ambiguous"]]
-        rows = [list(map(float, qk)) for qk in q]
-        full, minimal, tracker_t = [], [], []
-        pc = time.perf_counter
-        poses_fmu = np.empty((args.n, 3))
-        for rep in range(args.repeat):
-            unit.reset()
-            _initialize(unit, X[0], q[0])
-            t = 0.0
-            for k, qk in enumerate(rows):
-                t0 = pc()
-                fmu.setReal(q_vr, qk)
-                fmu.doStep(t, h)
-                out = fmu.getReal(real_vr)
-                fmu.getInteger(int_vr)
-                fmu.getBoolean(bool_vr)
-                full.append(pc() - t0)
-                poses_fmu[k] = out[:3]
-                t += h
-            unit.reset()
-            _initialize(unit, X[0], q[0])
-            t = 0.0
-            for qk in rows:
-                t0 = pc()
-                fmu.setReal(q_vr, qk)
-                fmu.doStep(t, h)
-                fmu.getReal(pose_vr)
-                minimal.append(pc() - t0)
-                t += h
-        # the in-process tracker on the same map (read from the extracted FMU) and joints
-        mt = MapTensor.load(Path(unzipdir) / "resources" / "maps" / "posture1.npz")
-        tr = Tracker(model, mt)
-        poses_tr = np.empty((args.n, 3))
-        for rep in range(args.repeat):
-            tr.reset(X[0], q[0])
-            for k in range(args.n):
-                qk = q[k]
-                t0 = pc()
-                Xk, _ = tr.step(qk)
-                tracker_t.append(pc() - t0)
-                poses_tr[k] = Xk
-        same = bool(np.array_equal(poses_fmu, poses_tr))
-        full, minimal, tracker_t = (np.array(a) * 1e6 for a in (full, minimal, tracker_t))
-        med_t = np.median(tracker_t)
-        print(f"per step over the circle ({args.n} points x {args.repeat} passes), median / p90:")
-        print(f"  FMU2Slave setReal(q) + doStep + get all 9 outputs: {np.median(full):6.1f} / "
-              f"{np.percentile(full, 90):6.1f} us  (overhead over Tracker.step {np.median(full) - med_t:.1f} us, "
-              f"x{np.median(full) / med_t:.1f})")
-        print(f"  FMU2Slave setReal(q) + doStep + getReal(x, y, phi): {np.median(minimal):6.1f} / "
-              f"{np.percentile(minimal, 90):6.1f} us  (target <= 100 us; overhead {np.median(minimal) - med_t:.1f} us)")
-        print(f"  in-process Tracker.step (same map, same joints):   {med_t:6.1f} / {np.percentile(tracker_t, 90):6.1f} us")
-        print(f"  FMU poses identical to the in-process tracker's: {same}")
-    finally:
-        for unit in instances:
-            unit.close()
-        hygiene.__exit__(None, None, None)
-        shutil.rmtree(unzipdir, ignore_errors=True)
+    cols = _closed_loop_inputs(paths)
+    from dynamics.cosim import Scenario
+    sc = Scenario()
+    params = {"center": sc.center, "radius": sc.radius, "phi": sc.phi, "period": sc.period,
+              "ramp_time": sc.ramp_time, "bandwidth": sc.bandwidth, "damping": sc.damping}
+    n_steps = len(cols["time"])
+    for name, fn, extra in (("RRRPlant", bench_plant, ()), ("ComputedTorqueController", bench_controller, (params,))):
+        with FMUUnit(paths[name], f"bench-{name}") as unit:
+            r = fn(unit, cols, args.passes, *extra)
+        print(f"\n{name}, the closed loop's {n_steps} steps replayed x {args.passes} passes, median:")
+        print(f"  FMU fmi2DoStep                              {r['doStep']:6.1f} us")
+        print(f"  in-process step (the compiled call)         {r['in-process']:6.1f} us")
+        print(f"  ratio {r['doStep'] / r['in-process']:.2f}, +{r['doStep'] - r['in-process']:.1f} us  "
+              f"(target <= 1.5x or <= +10 us: {_verdict(r['doStep'], r['in-process'], extra_us=10.0)})")
+        print(f"  FMU set + doStep + get cycle                {r['cycle']:6.1f} us")
+        print(f"  FMU outputs identical to the in-process step's: {r['identical']}")
     return 0
 
 

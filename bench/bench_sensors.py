@@ -120,7 +120,7 @@ def main(argv=None):
     ap.add_argument("--speed", type=float, nargs=2, default=None, metavar=("M_PER_S", "RAD_PER_S"),
                     help="the trackers' speed_bound (default: 1.25 times the fastest path's speeds)")
     ap.add_argument("--no-speed", action="store_true", help="no speed bound (re-acquisition over the tool space)")
-    ap.add_argument("--sigmas", type=float, default=5.0, help="joint_tolerance = this many noise sigmas + half a step")
+    ap.add_argument("--sigmas", type=float, default=3.0, help="joint_tolerance = this many noise sigmas + half a step")
     ap.add_argument("--out", default="results")
     args = ap.parse_args(argv)
     model = Manipulator.paper()

@@ -24,7 +24,11 @@ through :class:`dynamics.ControllerStepper`.
 """
 from __future__ import annotations
 
+import json
+import os
 from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
 from typing import Callable, NamedTuple
 
 import numpy as np
@@ -112,17 +116,31 @@ class ComputedTorqueGains:
         -------
         ComputedTorqueGains
             With ``kp = w^2`` and ``kd = 2 zeta w`` up to rounding.
+
+        Notes
+        -----
+        Importing python-control takes ~0.8 s (it imports scipy.signal and matplotlib), more than
+        a whole closed-loop run: the placed gains are kept, per python-control and numpy version,
+        in memory and in ``<cache>/rrr-dk/designed-gains.json`` (:func:`_designed_gains`), and a
+        process imports python-control only for a design it has never seen.
         """
+        cls.requested_poles(bandwidth, damping)                  # checks the arguments
+        kp, kd = _designed_gains(bandwidth, damping)
+        return cls(kp=np.full(3, kp), kd=np.full(3, kd))
+
+    @staticmethod
+    def place(bandwidth: float, damping: float) -> tuple[float, float]:
+        """``(K_p, K_d)`` placed by python-control (what :meth:`design` returns, without its cache)."""
         import control
 
-        poles = cls.requested_poles(bandwidth, damping)
+        poles = ComputedTorqueGains.requested_poles(bandwidth, damping)
         A, B = _double_integrator()
         if abs(poles[0] - poles[1]) <= 1e-9 * abs(poles[0]):
             acker = getattr(control, "place_acker", None) or control.acker
             K = np.asarray(acker(A, B, poles), dtype=float).reshape(2)
         else:
             K = np.asarray(control.place(A, B, poles), dtype=float).reshape(2)
-        return cls(kp=np.full(3, K[0]), kd=np.full(3, K[1]))
+        return float(K[0]), float(K[1])
 
     def error_dynamics(self):
         """Closed-loop error dynamics of the three joints as a :class:`control.StateSpace`.
@@ -136,6 +154,64 @@ class ComputedTorqueGains:
         Z, I = np.zeros((3, 3)), np.eye(3)
         A = np.block([[Z, I], [-np.diag(self.kp), -np.diag(self.kd)]])
         return control.ss(A, np.vstack([Z, I]), np.hstack([I, Z]), np.zeros((3, 3)))
+
+
+def gains_cache_file() -> Path:
+    """The file of designed gains: ``$XDG_CACHE_HOME/rrr-dk/designed-gains.json`` (default
+    ``~/.cache``)."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "rrr-dk" / "designed-gains.json"
+
+
+def _gains_key(bandwidth, damping) -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        control_version = version("control")
+    except PackageNotFoundError:
+        control_version = "none"
+    return (f"control {control_version}, numpy {np.__version__}: "
+            f"{type(bandwidth).__name__} {bandwidth!r}, {type(damping).__name__} {damping!r}")
+
+
+def _places(kp, kd, bandwidth, damping) -> bool:
+    """Whether ``s^2 + kd s + kp`` has the requested poles (to 1e-9): a cached entry is sound."""
+    p = ComputedTorqueGains.requested_poles(bandwidth, damping)
+    scale = 1.0 + abs(p[0] * p[1]) + abs(p[0] + p[1])
+    return (isinstance(kp, float) and isinstance(kd, float) and kp > 0 and kd > 0
+            and abs(kp - (p[0] * p[1]).real) <= 1e-9 * scale and abs(kd + (p[0] + p[1]).real) <= 1e-9 * scale)
+
+
+def _read_gains(path: Path) -> dict:
+    try:
+        table = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return table if isinstance(table, dict) else {}
+
+
+@lru_cache(maxsize=64, typed=True)
+def _designed_gains(bandwidth, damping) -> tuple[float, float]:
+    """``(K_p, K_d)`` of :meth:`ComputedTorqueGains.place`, from the cache file when it has them
+    for these python-control and numpy versions (bit for bit what they computed, checked against
+    the requested poles), else placed now and added to the file.  A file that cannot be read or
+    written is ignored."""
+    path = gains_cache_file()
+    key = _gains_key(bandwidth, damping)
+    table = _read_gains(path)
+    entry = table.get(key)
+    if isinstance(entry, list) and len(entry) == 2 and _places(*entry, bandwidth, damping):
+        return entry[0], entry[1]
+    kp, kd = ComputedTorqueGains.place(bandwidth, damping)
+    table[key] = [kp, kd]
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(table, indent=0, sort_keys=True))     # floats as repr: exact
+        os.replace(tmp, path)
+    except OSError:
+        pass
+    return kp, kd
 
 
 def computed_torque(params: DynamicParameters, model: Manipulator, gains: ComputedTorqueGains,

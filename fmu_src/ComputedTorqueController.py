@@ -21,6 +21,12 @@ Speed: a step is one compiled call (:class:`dynamics.ControllerStepper`: the ref
 :func:`dynamics.computed_torque`).  What it refuses (a pose outside the tool space, a reference
 outside it...) raises :class:`dynamics.DynamicsError`, refused here as a step.
 """
+# first: a host without the packages this FMU imports learns which and how to install them
+# (fmu_src.requirements; the list is resources/requirements.txt)
+from fmu_src.requirements import require
+
+require(__file__)
+
 import numpy as np
 
 from fmu_src.table_slave import StepRefused, TableSlave, Var
@@ -70,6 +76,8 @@ class ComputedTorqueController(TableSlave):
     # _stepper: the compiled step (dynamics.ControllerStepper); _out: its result buffer (scratch,
     # read right after every call)
     CONSTANT = ("_model", "_params", "_gains", "_traj", "_stepper", "_out")
+    # no STATE: a doStep's rollback is the table values (references)
+    IMMUTABLE_STATE = True
 
     def setup(self):
         self._model = self._params = self._gains = self._traj = None

@@ -8,6 +8,12 @@ equations, initialization, status codes and bad-input behaviour: ``fmu_src/RRRDi
 Module-level code: imports, two build constants (rewritten by build_fmu.py in the staged copy), a
 helper and the class (pythonfmu's C wrapper re-executes this module at every instantiation).
 """
+# first: a host without the packages this FMU imports learns which and how to install them
+# (fmu_src.requirements; the list is resources/requirements.txt)
+from fmu_src.requirements import require
+
+require(__file__)
+
 import hashlib
 import json
 import math
@@ -64,6 +70,14 @@ class RRRDirectKinematics(TableSlave):
             description="IK branch 1..8 (CONVENTIONS.md); needs an embedded map of that posture"),
         Var("mode", "Integer", "parameter", "fixed", start=MODES.index(BUILD_MODE), min=0, max=1,
             description="tracker mode: 0 default (RK4 continuation + map), 1 paper (procedures 2-3 as written)"),
+        Var("joint_tolerance", "Real", "parameter", "fixed", start=0.0, unit="rad", min=0.0,
+            description="bound on the joints' measurement error (encoders: about 3 noise sigmas plus half a "
+                        "step); 0: exact joints.  certain is then a proof for every joint path within it"),
+        Var("speed_bound_linear", "Real", "parameter", "fixed", start=0.0, unit="m/s", min=0.0,
+            description="with joint_tolerance: bound on the platform's speed, for re-acquisition and the "
+                        "speed gate; 0: none (then also speed_bound_angular = 0)"),
+        Var("speed_bound_angular", "Real", "parameter", "fixed", start=0.0, unit="rad/s", min=0.0,
+            description="with joint_tolerance: bound on the platform's angular speed; 0: none"),
         Var("x", "Real", "output", unit="m", depends_on=("q1", "q2", "q3"),
             description="platform centre x"),
         Var("y", "Real", "output", unit="m", depends_on=("q1", "q2", "q3"),
@@ -79,7 +93,8 @@ class RRRDirectKinematics(TableSlave):
         Var("ambiguous", "Boolean", "output", depends_on=("q1", "q2", "q3"),
             description="the choice of solution is not certain"),
         Var("status", "Integer", "output", depends_on=("q1", "q2", "q3"),
-            description="0 ok, 1 unreachable (pose held), 2 singular, 3 rejected input (step refused), "
+            description="0 ok, 1 unreachable (pose held), 2 singular, 3 rejected: an outlier the tracker's "
+                        "gate refused (pose held, doStep ok) or an input the FMU refused (doStep discarded), "
                         "4 diverged"),
         Var("cond", "Real", "output", unit="1", depends_on=("q1", "q2", "q3"),
             description="|det J| / prod |rows of J| at the pose (0 singular, 1 best)"),
@@ -100,9 +115,12 @@ class RRRDirectKinematics(TableSlave):
     # (posture, mode), rebuilt by set_state if a state of other parameters is set; _cache: the last
     # tentative step, keyed by the q and the TrackerState object it started from (never stale)
     CONSTANT = ("_maps", "_model", "_tracker", "_cache")
+    # a doStep's rollback keeps references: every STATE value is replaced, never changed in place
+    # (a TrackerState is frozen and its arrays are never written; the others are tuples and ints)
+    IMMUTABLE_STATE = True
+    # step() publishes the outputs of the joints it stepped to, the current inputs
+    EVALUATE_AFTER_STEP = False
     SINGULAR_TOL = 1e-4                           # cond below this: status 2 (the tracker's default)
-    OUTPUTS = ("x", "y", "phi", "region", "near_border", "n_real", "ambiguous", "status", "cond", "certain",
-               "uncertain_since")
 
     # ------------------------------------------------------------------ instantiation
     def setup(self):
@@ -160,13 +178,26 @@ class RRRDirectKinematics(TableSlave):
             maps[posture] = mt
         return maps, model
 
+    def _sensor_options(self):
+        """(joint_tolerance, speed_bound) of the parameters, checked."""
+        tol, v, w = self.joint_tolerance, self.speed_bound_linear, self.speed_bound_angular
+        for name, value in (("joint_tolerance", tol), ("speed_bound_linear", v), ("speed_bound_angular", w)):
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"parameter {name!r} = {value!r}: expected a finite number >= 0")
+        if (v > 0.0) != (w > 0.0):
+            raise ValueError(f"parameters 'speed_bound_linear' = {v!r} and 'speed_bound_angular' = {w!r}: "
+                             "expected both > 0 (a speed bound) or both 0 (none)")
+        return float(tol), ((float(v), float(w)) if v > 0.0 else None)
+
     def _make_tracker(self, posture, mode):
         if posture not in self._maps:
             raise ValueError(f"parameter 'posture' = {posture!r}: this FMU embeds maps of posture(s) "
                              f"{sorted(self._maps)} only (build_fmu.py --posture)")
         if not 0 <= mode < len(self.MODES):
             raise ValueError(f"parameter 'mode' = {mode!r}: expected 0 (default) or 1 (paper)")
-        return Tracker(self._model, self._maps[posture], mode=self.MODES[mode], singular_tol=self.SINGULAR_TOL)
+        tol, speed = self._sensor_options()
+        return Tracker(self._model, self._maps[posture], mode=self.MODES[mode], singular_tol=self.SINGULAR_TOL,
+                       joint_tolerance=tol, speed_bound=speed)
 
     # ------------------------------------------------------------------ initialization
     def on_initialized(self):
@@ -231,9 +262,15 @@ class RRRDirectKinematics(TableSlave):
             self._report(f"initialization: the initial pose is {STATUS[self.status]} (cond {cond:.3g})",
                          Fmi2Status.warning)
 
+    def initial_outputs(self):
+        """In Initialization Mode: the initial pose (x0, y0, phi0), given, hence certain."""
+        self.x, self.y, self.phi = float(self.x0), float(self.y0), float(wrap_angle(self.phi0))
+        self.certain, self.uncertain_since = True, -1.0
+
     # ------------------------------------------------------------------ stepping
     def _outputs(self):
-        return tuple(getattr(self, name) for name in self.OUTPUTS)
+        """The output values, in table order (``_output_attrs``)."""
+        return self._output_values(self)
 
     def _solve(self, q, dt=None):
         """The tracker's step to ``q`` from the committed state, not committed: (X, info, state after).
@@ -258,7 +295,7 @@ class RRRDirectKinematics(TableSlave):
 
     def _publish(self, X, info, t):
         """Set the outputs of a step whose sample is at time ``t``; returns ``_since`` after that step."""
-        self.x, self.y, self.phi = float(X[0]), float(X[1]), float(X[2])
+        self.x, self.y, self.phi = X.tolist()
         self.region = int(info.label)
         self.near_border = bool(info.near_border)
         self.n_real = int(info.n_real)
@@ -295,8 +332,9 @@ class RRRDirectKinematics(TableSlave):
         if self._track is None:
             return
         q = (self.q1, self.q2, self.q3)
-        if q == self._committed[0]:
-            for name, value in zip(self.OUTPUTS, self._committed[1]):
+        committed_q, outputs = self._committed
+        if q == committed_q:
+            for name, value in zip(self._output_attrs, outputs):
                 setattr(self, name, value)
             return
         X, info, _ = self._solve(q)
@@ -319,12 +357,11 @@ class RRRDirectKinematics(TableSlave):
             self._pylog.info("%s", msg)
         self._episode = info.status
 
-    def do_step(self, current_time, step_size):
-        ok = super().do_step(current_time, step_size)
-        if not ok:
-            # refused (fmi2Discard): the state is that of the start of the step; the outputs keep the
-            # last pose and say why nothing moved
-            self.status = 3
+    def _refuse(self, t, dt, msg):
+        # every refused doStep ends here (after the rollback): the state is that of the start of the
+        # step; the outputs keep the last pose and say why nothing moved
+        ok = super()._refuse(t, dt, msg)
+        self.status = 3
         return ok
 
     # ------------------------------------------------------------------ FMU state
@@ -340,5 +377,7 @@ class RRRDirectKinematics(TableSlave):
         self._track = None if track is None else TrackerState.from_array(track)
         self._cache = None
         if track is not None and (self._tracker is None or self._tracker.posture != self.posture
-                                  or self._tracker.mode != self.MODES[self.mode]):
+                                  or self._tracker.mode != self.MODES[self.mode]
+                                  or (self._tracker.joint_tolerance, self._tracker.speed_bound)
+                                  != self._sensor_options()):
             self._tracker = self._make_tracker(self.posture, self.mode)

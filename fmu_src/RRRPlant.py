@@ -16,6 +16,12 @@ substeps, the same operations as :func:`dynamics.rk4_step`, then ``q`` with the 
 :func:`solver.ik`, ``dq = J_q dX`` and the energy).  What it refuses (the platform leaves the tool
 space, a non-finite value) raises :class:`dynamics.DynamicsError`, refused here as a step.
 """
+# first: a host without the packages this FMU imports learns which and how to install them
+# (fmu_src.requirements; the list is resources/requirements.txt)
+from fmu_src.requirements import require
+
+require(__file__)
+
 from dataclasses import replace
 
 import numpy as np
@@ -59,12 +65,17 @@ class RRRPlant(TableSlave):
     )
     UNITS = {"J": {"kg": 1, "m": 2, "s": -2}}
     STATE = ("_x",)
-    # _stepper: the compiled step (dynamics.PlantStepper)
-    CONSTANT = ("_model", "_params", "_stepper")
+    # _stepper: the compiled step (dynamics.PlantStepper); _bufs: two result buffers the steps write
+    # in turn, _views: their first six values (the state after the step)
+    CONSTANT = ("_model", "_params", "_stepper", "_bufs", "_views")
+    # a doStep's rollback keeps a reference to _x: a step writes the buffer _x does not view and then
+    # makes _x that buffer's view (the compiled step never writes its input state)
+    IMMUTABLE_STATE = True
 
     def setup(self):
         self._x = None
         self._model = self._params = self._stepper = None
+        self._bufs = self._views = None
 
     def on_initialized(self):
         from dynamics import DynamicParameters, PlantStepper
@@ -77,33 +88,45 @@ class RRRPlant(TableSlave):
             changes.update(friction_active=0.0, friction_elbow=0.0, friction_platform=0.0)
         self._params = replace(params, **changes)
         self._stepper = PlantStepper(self._params, self._model, int(self.posture))
+        self._bufs = (np.empty(self._stepper.OUT_SIZE), np.empty(self._stepper.OUT_SIZE))
+        self._views = (self._bufs[0][:6], self._bufs[1][:6])
         self._x = np.array([self.x0, self.y0, self.phi0, 0.0, 0.0, 0.0])
         self._outputs()
 
+    def initial_outputs(self):
+        """In Initialization Mode: q, dq, the true pose and the energy of the initial state (what a
+        host passes on to the DK FMU before exitInitializationMode)."""
+        self.on_initialized()
+
+    def _free(self):
+        """Index of the result buffer that ``_x`` does not view (the next step writes it)."""
+        return 1 if self._x is self._views[0] else 0
+
     def step(self, t, dt):
         n = int(self.substeps)
-        out = np.empty(self._stepper.OUT_SIZE)
+        i = self._free()
         try:
-            self._stepper.step(self.tau1, self.tau2, self.tau3, dt / n, n, self._x, out)
+            self._stepper.step(self.tau1, self.tau2, self.tau3, dt / n, n, self._x, self._bufs[i])
         except ValueError as exc:                       # dynamics.DynamicsError: the step is refused
             raise StepRefused(f"the platform left the tool space of posture {self.posture}: {exc}") from None
-        self._publish(out)
+        self._publish(i)
 
     def _outputs(self):
         # the compiled step with no substep: the outputs of the state (and its machine code is loaded
         # now, at initialization, not in the first doStep)
-        out = np.empty(self._stepper.OUT_SIZE)
+        i = self._free()
         try:
-            self._stepper.outputs(self._x, out)
+            self._stepper.outputs(self._x, self._bufs[i])
         except ValueError as exc:                       # dynamics.DynamicsError
             if getattr(exc, "reason", None) != "outside":
                 raise StepRefused(f"the outputs of the state {self._x.tolist()} are refused: {exc}") from None
             raise StepRefused(f"pose {self._x[:3].tolist()} is outside the tool space of posture "
                               f"{self.posture}") from None
-        self._publish(out)
+        self._publish(i)
 
-    def _publish(self, out):
-        """New state ``out[:6]`` and the outputs ``q = out[6:9]``, ``dq = out[9:12]``, energy ``out[12]``."""
-        self._x = out[:6]
+    def _publish(self, i):
+        """From result buffer ``i``: the new state ``[:6]`` and the outputs ``q = [6:9]``, ``dq = [9:12]``,
+        energy ``[12]``."""
+        self._x = self._views[i]
         (self.x_true, self.y_true, self.phi_true, _, _, _, self.q1, self.q2, self.q3,
-         self.dq1, self.dq2, self.dq3, self.energy) = out.tolist()
+         self.dq1, self.dq2, self.dq3, self.energy) = self._bufs[i].tolist()

@@ -5,7 +5,9 @@ robot's dynamics) and ``ComputedTorqueController``, one script and one readme ea
 
 The runtime, bundled into every FMU (standard library and pythonfmu only): ``table_slave`` (the base
 class: a slave = a variable table + ``step``; the FMI adapter), ``variables`` (the table rows and
-their FMI rules), ``slave_state`` (FMU state and rollback snapshots).
+their FMI rules), ``slave_state`` (FMU state and rollback snapshots), ``value_access`` (fmi2Get/Set by
+value reference), ``kernel_cache`` (numba's cache for the bundled kernels, keyed by the FMU's content),
+``requirements`` (the packages the FMU needs from its host, checked first at instantiation).
 
 The host side, never bundled: ``model_description`` (modelDescription.xml from the table),
 ``packaging`` (``build_fmu``: pythonfmu, only the modules the slave imports, deterministic zip),

@@ -2,7 +2,7 @@
 
     python build_fmu.py [--out build] [--posture 1 [2 ...]] [--resolution 10mm,2deg]
                         [--map FILE [FILE ...]] [--mode default|paper] [--rule real-phi]
-                        [--only NAME [NAME ...]] [--no-reference]
+                        [--only NAME [NAME ...]] [--no-reference] [--ssp]
     python build_fmu.py --write-reference      # regenerate fmu_src/reference/<FMU>.csv
 
 1. The FMUs (:mod:`fmu_src.builds`) are built into ``--out`` and validated: ``RRRDirectKinematics``
@@ -12,6 +12,13 @@
 2. The reference run of each FMU (:mod:`fmu_src.references`) is built into ``<out>/reference/`` and
    written as ``<out>/reference/<FMU>.csv``; each is compared with the kept
    ``fmu_src/reference/<FMU>.csv`` (the tests compare with those).  ``--no-reference`` skips it.
+
+3. ``--ssp``: the closed loop of the three FMUs in ``--out`` as the SSP 1.0 package
+   ``<out>/RRRClosedLoop.ssp`` (the FMUs inside, the connections and the default scenario's start
+   values; :func:`dynamics.cosim.system_files.write_ssp_system`), checked against the SSP 1.0
+   schemas when ``pyssp-standard`` is installed (:func:`fmu_src.ssp.schema_problems`).  Only
+   through ``build_fmu.py``: the closed loop is defined on the co-simulation side, which
+   :mod:`fmu_src` never imports (``main(write_ssp=...)``).
 
 ``--write-reference`` does step 2 only and rewrites the kept CSVs.  Same options and the same map
 files give byte-identical FMUs.  ``--resolution`` accepts ``"10mm,2deg"``, ``"0.04m 6deg"``,
@@ -51,6 +58,8 @@ def _parser(default_out) -> argparse.ArgumentParser:
     ap.add_argument("--no-reference", action="store_true", help="do not run and write the reference CSVs")
     ap.add_argument("--write-reference", action="store_true",
                     help="build the reference configurations and rewrite fmu_src/reference/<FMU>.csv")
+    ap.add_argument("--ssp", action="store_true",
+                    help="also write <out>/RRRClosedLoop.ssp, the closed loop of the three FMUs (SSP 1.0)")
     return ap
 
 
@@ -98,8 +107,32 @@ def _references(out, csv_dir) -> None:
     print(f"reference runs in {time.perf_counter() - t0:.1f} s")
 
 
-def main(argv=None, default_out="build") -> int:
-    """The command line (see the module docstring); returns the exit status."""
+def _ssp(out, write_ssp) -> int:
+    """Step 3 (see the module docstring); the exit status."""
+    from .ssp import SchemaUnavailable, schema_problems
+
+    if write_ssp is None:
+        raise ValueError("--ssp: the closed loop is written by `python build_fmu.py --ssp` "
+                         "(dynamics.cosim.system_files), not by python -m fmu_src.cli")
+    path = Path(write_ssp(Path(out)))
+    print(f"{path}: {path.stat().st_size / 1e6:.3f} MB")
+    try:
+        problems = schema_problems(path)
+    except SchemaUnavailable as exc:
+        print(f"SSP schema check skipped: {exc}")
+        return 0
+    if problems:
+        print("SSP 1.0 schema: FAILED\n  " + "\n  ".join(problems))
+        return 1
+    print("SSP 1.0 schema: OK (SystemStructureDescription.xsd, SystemStructureParameterValues.xsd)")
+    return 0
+
+
+def main(argv=None, default_out="build", write_ssp=None) -> int:
+    """The command line (see the module docstring); returns the exit status.
+
+    ``write_ssp``: ``write_ssp(out_dir) -> path`` writes the closed loop's SSP package (``--ssp``).
+    """
     args = _parser(default_out).parse_args(argv)
     try:
         if args.write_reference:
@@ -108,6 +141,8 @@ def main(argv=None, default_out="build") -> int:
         status = _build(args)
         if status == 0 and not args.no_reference:
             _references(args.out, Path(args.out) / "reference")
+        if status == 0 and args.ssp:
+            status = _ssp(args.out, write_ssp)
     except (ValueError, MapTensorFileError, RuntimeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -116,6 +116,10 @@ def _run_libcosim(fmu_path, step_ns, n_steps, inputs, start_values, outputs, ins
     step_size = step_ns * 1e-9
     execution = CosimExecution.CosimExecution.from_step_size(step_ns)
     local = CosimSlave.CosimLocalSlave(fmu_path=str(Path(fmu_path).resolve()), instance_name=instance_name)
+    if not local.ptr():
+        # the FMU could not be loaded or instantiated (libcosimpy 0.0.6 would pass the NULL slave
+        # on to cosim_execution_add_slave, which crashes the process)
+        raise LibcosimError(with_slave_log(f"libcosim could not instantiate {fmu_path}: {last_error()}", records))
     slave = execution.add_local_slave(local)
     if slave < 0:
         raise LibcosimError(f"libcosim could not load {fmu_path}: {last_error()}")
@@ -220,7 +224,7 @@ def run_osp_system(osp_path: str | os.PathLike, *, n_steps: int, observe: Sequen
             else:
                 execution = CosimExecution.CosimExecution.from_osp_config_file(str(osp_path))
         except AssertionError as exc:
-            raise LibcosimError(str(exc)) from exc
+            raise LibcosimError(with_slave_log(f"{exc} {osp_path}: {last_error()}", records)) from exc
         slaves = {info.name.decode(): info.index for info in execution.slave_infos()}
         indexes = {name: _variable_index(execution, idx) for name, idx in slaves.items()}
         targets = []

@@ -5,8 +5,11 @@
 1. stages the FMU's ``resources/`` folder: the slave script, the modules of ``fmu_src`` and of the
    project packages that the slave imports (:func:`bundled_files`: every import statement of the
    script and, transitively, of the package modules it reaches, also those inside functions; for
-   ``fmu_src`` that is its runtime, ``table_slave`` and what it imports) and the data files under
-   the names given;
+   ``fmu_src`` that is its runtime, ``table_slave`` and what it imports), the data files under
+   the names given, and ``requirements.txt``: the third-party packages that code imports (but
+   pythonfmu, which pythonfmu's builder bundles), with the version ranges of the project's
+   dependencies (:func:`declared_requirements`; checked by the
+   slave's first statement on the host that runs it, :mod:`fmu_src.requirements`);
 2. imports the slave class in isolation and checks it: class name == module name == modelIdentifier
    (pythonfmu FMUs of one process share ``sys.modules``, so a module name may exist only once and must
    not shadow anything importable), it is the class the C wrapper will pick (deepest ``Fmi2Slave``
@@ -29,6 +32,7 @@ import importlib.machinery
 import importlib.util
 import inspect
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -38,13 +42,16 @@ import zipfile
 from pathlib import Path
 from typing import Mapping, Sequence
 
+from . import requirements
 from .checks import validate
 from .model_description import UNIT_DEFINITIONS, ModelDescriptionError, cross_check, model_description_xml
 from .table_slave import TableSlave
 
-__all__ = ["BuildError", "build_fmu", "bundled_files"]
+__all__ = ["BuildError", "build_fmu", "bundled_files", "third_party_modules", "declared_requirements",
+           "project_dependencies"]
 
 _ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
+_PROJECT = "rrr-dk"
 _GUID_NAMESPACE = uuid.UUID("6f1c54d2-5b8e-4d67-9a4c-0d1f3e2a7b90")
 _HERE = Path(__file__).resolve().parent
 
@@ -106,6 +113,69 @@ def bundled_files(script: Path, packages: Mapping[str, Path]) -> dict[str, Path]
     return dict(sorted(out.items()))
 
 
+def third_party_modules(files, local) -> dict[str, list[str]]:
+    """The top-level modules that ``files`` import and that are neither the standard library nor
+    ``local`` (the bundled packages): ``{module: [importing file names]}``."""
+    out: dict[str, set[str]] = {}
+    skip = set(sys.stdlib_module_names) | set(local) | {"__future__"}
+    for path in files:
+        for name in _imported_names(Path(path), None, False):
+            top = name.split(".")[0] if name else ""
+            if top and top not in skip:
+                out.setdefault(top, set()).add(Path(path).name)
+    return {k: sorted(v) for k, v in sorted(out.items())}
+
+
+def _normalized(dist: str) -> str:
+    return re.sub(r"[-_.]+", "-", dist).lower()
+
+
+def project_dependencies() -> dict[str, requirements.Requirement]:
+    """The project's runtime dependencies: ``{normalized distribution name: Requirement}``.
+
+    Read from ``pyproject.toml`` next to the package (a source tree), else from the installed
+    project's metadata; dependencies with an environment marker or an extra are left out.
+    """
+    import importlib.metadata
+    import tomllib
+
+    pyproject = _HERE.parent / "pyproject.toml"
+    specs = None
+    if pyproject.is_file():
+        project = tomllib.loads(pyproject.read_text()).get("project", {})
+        if project.get("name") == _PROJECT:
+            specs = list(project.get("dependencies", []))
+    if specs is None:
+        specs = [s for s in (importlib.metadata.requires(_PROJECT) or []) if ";" not in s]
+    reqs = requirements.parse_requirements("\n".join(s.split(";")[0] for s in specs))
+    return {_normalized(r.dist): r for r in reqs}
+
+
+def declared_requirements(modules: Mapping[str, list[str]]) -> list[requirements.Requirement]:
+    """The requirement of each third-party module (``{module: importing files}``, see
+    :func:`third_party_modules`): the project dependency that provides it, with its version range.
+
+    Raises :class:`BuildError` for a module no project dependency provides (declare it in
+    ``pyproject.toml``: the FMU's host must be told to install it).
+    """
+    import importlib.metadata
+
+    deps = project_dependencies()
+    providers = importlib.metadata.packages_distributions()
+    out, unknown = [], []
+    for module, files in modules.items():
+        dists = [_normalized(d) for d in providers.get(module, [module])]
+        found = next((deps[d] for d in dists if d in deps), None)
+        if found is None:
+            unknown.append(f"{module} (imported by {', '.join(files)})")
+        else:
+            out.append(requirements.Requirement(found.dist, found.specifiers, module))
+    if unknown:
+        raise BuildError(f"the FMU's code imports {'; '.join(unknown)}, which no dependency of the project "
+                         f"provides: add it to [project] dependencies in pyproject.toml")
+    return out
+
+
 def build_fmu(script: str | os.PathLike, dest_dir: str | os.PathLike = ".", *,
               project_packages: Sequence[str | os.PathLike] = (),
               data_files: Mapping[str, str | os.PathLike] | None = None,
@@ -146,9 +216,13 @@ def build_fmu(script: str | os.PathLike, dest_dir: str | os.PathLike = ".", *,
             if pkg.name in packages:
                 raise BuildError(f"two resources entries named {pkg.name!r}")
             packages[pkg.name] = pkg
-        for rel, src in bundled_files(script, packages).items():
+        bundled = bundled_files(script, packages)
+        for rel, src in bundled.items():
             (staging / rel).parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(src, staging / rel)
+        # pythonfmu's builder bundles the pythonfmu package itself into resources/: not a requirement
+        needs = declared_requirements(third_party_modules([script, *bundled.values()], {*packages, "pythonfmu"}))
+        (staging / requirements.FILE).write_text(requirements.format_requirements(module, needs))
         for rel, src in sorted((data_files or {}).items()):
             rel_path = Path(rel)
             if rel_path.is_absolute() or ".." in rel_path.parts or "\\" in rel:

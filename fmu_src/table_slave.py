@@ -26,6 +26,9 @@ Hooks a slave may define
                        which makes a fresh instance); attributes it creates must be listed in
                        ``STATE`` (mutable, rolled back) or ``CONSTANT`` (never changed after setup).
 ``on_initialized()``   after fmi2ExitInitializationMode, when parameters and inputs are final.
+``initial_outputs()``  in Initialization Mode: the outputs of the current parameters and start values
+                       (a host reads them to pass them on before exitInitializationMode).  Called on
+                       entering it and lazily by fmi2Get* after any fmi2Set* there.
 ``step(t, dt)``        advance the internal state over [t, t+dt]; raise :class:`StepRefused` to
                        refuse the step with a message.
 ``evaluate()``         direct feedthrough: recompute the outputs whose ``depends_on`` is not empty from
@@ -36,10 +39,24 @@ Hooks a slave may define
 ``get_state()`` / ``set_state(snapshot)``  override only if the default (table values + ``STATE``
                        attributes, deep-copied through pickle; :mod:`fmu_src.slave_state`) does not fit.
 
+Class attributes a slave may set
+--------------------------------
+``IMMUTABLE_STATE = True``   ``step``/``evaluate`` never change a ``STATE`` value in place, they
+                       only assign new values to the attributes: a doStep's rollback then keeps
+                       references (no copy, no pickle; :mod:`fmu_src.slave_state`).
+``EVALUATE_AFTER_STEP = False``  ``step`` itself leaves the outputs of the current inputs (no
+                       ``evaluate`` after it).
+``CHECK_OUTPUTS = False``    do not refuse a step whose Real outputs are not finite.
+
+Speed (the per-step path)
+-------------------------
 FMU state and rollback snapshots (what a refused step restores): :mod:`fmu_src.slave_state`.
-The finiteness and range checks of each doStep have a fast path (one sum over the Real
+The finiteness and range checks of each doStep cost O(1) per variable (one sum over the Real
 values: finite iff all are; the exact per-variable loop only when it is not, to name the
-culprit).
+culprit).  ``fmi2Set*``/``fmi2Get*`` take one dictionary lookup per value reference
+(:mod:`fmu_src.value_access`).
+Compiled kernels of bundled packages are cached on disk per FMU content
+(:mod:`fmu_src.kernel_cache`, installed when this module is imported).
 
 Rules for slave scripts: import only the runtime of ``fmu_src`` (``table_slave``, ``variables``,
 ``slave_state``; the host side is not bundled); keep module-level code to imports and the class
@@ -72,8 +89,12 @@ from typing import Any, ClassVar
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
 from pythonfmu.enums import Fmi2Status
 
+from . import kernel_cache
 from .slave_state import StateHandling, values_getter
+from .value_access import ValueAccess
 from .variables import CAUSALITIES, INITIALS, VARIABILITIES, TableError, Var, check_table
+
+kernel_cache.install()
 
 __all__ = ["Var", "TableSlave", "StepRefused", "TableError", "check_table"]
 
@@ -90,7 +111,7 @@ class StepRefused(Exception):
     """Raised by ``step``/``evaluate`` to refuse a step; the message reaches the master's log."""
 
 
-class TableSlave(StateHandling, Fmi2Slave):
+class TableSlave(StateHandling, ValueAccess, Fmi2Slave):
     """pythonfmu slave whose interface is the class attribute ``VARIABLES`` (see the module doc)."""
 
     VARIABLES: ClassVar[tuple[Var, ...]] = ()
@@ -98,15 +119,30 @@ class TableSlave(StateHandling, Fmi2Slave):
     CONSTANT: ClassVar[tuple[str, ...]] = ()
     UNITS: ClassVar[dict[str, dict[str, float]]] = {}
     CHECK_OUTPUTS: ClassVar[bool] = True
+    IMMUTABLE_STATE: ClassVar[bool] = False
+    EVALUATE_AFTER_STEP: ClassVar[bool] = True
 
     # filled by __init_subclass__
     _table: ClassVar[tuple[Var, ...]] = ()
     VR: ClassVar[dict[str, int]] = {}
     _feedthrough: ClassVar[bool] = False
+    _evaluate_after_step: ClassVar[bool] = False
     _table_values: ClassVar[Any] = None
+    _rollback_attrs: ClassVar[tuple[str, ...]] = ()
+    _rollback_values: ClassVar[Any] = None
+    _output_attrs: ClassVar[tuple[str, ...]] = ()
+    _output_values: ClassVar[Any] = None
     _state_values: ClassVar[Any] = None
     _default_state: ClassVar[bool] = False
     _checks: ClassVar[dict] = {}
+    _in_check: ClassVar[tuple] = (None, ())
+    _out_check: ClassVar[tuple] = (None, ())
+    # value reference -> attribute, per FMI type; value references whose set marks the outputs stale;
+    # value references of outputs that a get refreshes first (direct feedthrough)
+    _attrs: ClassVar[dict[str, dict[int, str]]] = {}
+    _real_attrs: ClassVar[dict[int, str]] = {}
+    _marks_dirty: ClassVar[frozenset] = frozenset()
+    _refreshing: ClassVar[frozenset] = frozenset()
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -139,8 +175,18 @@ class TableSlave(StateHandling, Fmi2Slave):
         cls._table = table
         cls.VR = {v.name: i for i, v in enumerate(table)}
         cls._feedthrough = has_evaluate
+        cls._evaluate_after_step = has_evaluate and bool(cls.EVALUATE_AFTER_STEP)
+        cls._attrs = {kind: {i: v.attr for i, v in enumerate(table) if v.type == kind} for kind in _PY_TYPE}
+        cls._real_attrs = cls._attrs["Real"]
+        cls._marks_dirty = frozenset(i for i, v in enumerate(table) if has_evaluate
+                                     and (v.causality == "input" or v.variability == "tunable"))
+        cls._refreshing = frozenset(i for i, v in enumerate(table) if has_evaluate and v.is_output)
         # per-step fast paths: all table values at once, the finiteness and range checks of each group
         cls._table_values = staticmethod(values_getter(tuple(v.attr for v in table)))
+        cls._rollback_attrs = (*cls._BOOKKEEPING, *(v.attr for v in table), *cls.STATE)
+        cls._rollback_values = staticmethod(values_getter(cls._rollback_attrs))
+        cls._output_attrs = tuple(v.attr for v in table if v.is_output)
+        cls._output_values = staticmethod(values_getter(cls._output_attrs))
         cls._checks = {}
         for causalities, check_range in ((_IN_PAR, True), (_OUT, False)):
             rows = [v for v in table if v.causality in causalities and v.type != "Boolean"]
@@ -148,6 +194,7 @@ class TableSlave(StateHandling, Fmi2Slave):
             ranged = tuple((v.attr, -math.inf if v.min is None else v.min, math.inf if v.max is None else v.max)
                            for v in rows if check_range and (v.min is not None or v.max is not None))
             cls._checks[causalities, check_range] = (reals, ranged)
+        cls._in_check, cls._out_check = cls._checks[_IN_PAR, True], cls._checks[_OUT, False]
 
     # ------------------------------------------------------------------ construction
     def __init__(self, **kwargs):
@@ -159,6 +206,7 @@ class TableSlave(StateHandling, Fmi2Slave):
         self._time = 0.0
         self._dirty = False
         self._initialized = False
+        self._init_mode = False         # between enter- and exitInitializationMode
         self._init_error: str | None = None
         self._broken: str | None = None
         self.refused_steps = 0          # diagnostics only, not part of the FMU state
@@ -173,21 +221,20 @@ class TableSlave(StateHandling, Fmi2Slave):
     def _make_variable(self, v: Var):
         attr, conv = v.attr, _PY_TYPE[v.type]
         marks_dirty = self._feedthrough and (v.causality == "input" or v.variability == "tunable")
-        if v.is_output and self._feedthrough:
+        refreshing = v.is_output and self._feedthrough
+        if v.is_output:
             def getter():
-                if self._dirty:
+                if self._dirty and (refreshing or self._init_mode):
                     self._refresh()
                 return getattr(self, attr)
         else:
             def getter():
                 return getattr(self, attr)
-        if marks_dirty:
-            def setter(value):
-                setattr(self, attr, conv(value))
+
+        def setter(value):
+            setattr(self, attr, conv(value))
+            if marks_dirty or self._init_mode:
                 self._dirty = True
-        else:
-            def setter(value):
-                setattr(self, attr, conv(value))
         kwargs = dict(causality=_ENUM_CAUSALITY[v.causality], variability=_ENUM_VARIABILITY[v.variability],
                       description=v.description or None, getter=getter, setter=setter)
         if v.initial is not None:
@@ -207,15 +254,23 @@ class TableSlave(StateHandling, Fmi2Slave):
     def evaluate(self) -> None:
         """Recompute the direct-feedthrough outputs from inputs and state (optional)."""
 
+    def initial_outputs(self) -> None:
+        """The outputs of the parameters and start values, in Initialization Mode (optional)."""
+
     # ------------------------------------------------------------------ pythonfmu interface
     def setup_experiment(self, start_time: float, stop_time=None, tolerance=None):
         self._time = float(start_time)
 
+    def enter_initialization_mode(self):
+        self._init_mode = True
+        self._dirty = True                     # the first fmi2Get* computes the initial outputs
+
     def exit_initialization_mode(self):
+        self._init_mode = False
         self._initialized = True
         try:
             self.on_initialized()
-            if self._feedthrough and not self._non_finite(("input", "parameter")):
+            if self._feedthrough and not self._non_finite(_IN_PAR):
                 self.evaluate()
             self._dirty = False
         except Exception as exc:  # never let an exception reach the C wrapper (it would be fmi2Fatal)
@@ -223,25 +278,25 @@ class TableSlave(StateHandling, Fmi2Slave):
             self._report(f"initialization failed: {self._init_error}", Fmi2Status.error)
 
     def do_step(self, current_time: float, step_size: float) -> bool:
-        if self._broken:
-            return self._refuse(current_time, step_size, f"instance unusable: {self._broken}")
-        if self._init_error:
-            return self._refuse(current_time, step_size, f"initialization failed: {self._init_error}")
-        if not (math.isfinite(current_time) and math.isfinite(step_size) and step_size >= 0.0):
-            return self._refuse(current_time, step_size, f"invalid communication step size {step_size!r}")
-        bad = self._non_finite(("input", "parameter"))
-        if bad:
-            return self._refuse(current_time, step_size, "invalid " + "; ".join(bad))
-        try:
-            snapshot = self._capture()
-        except Exception as exc:
-            return self._refuse(current_time, step_size, f"the state does not pickle: {type(exc).__name__}: {exc}")
+        if (self._broken or self._init_error or not self._all_finite(self._in_check)
+                or not (math.isfinite(current_time) and math.isfinite(step_size) and step_size >= 0.0)):
+            reason = self._step_refusal(current_time, step_size)
+            if reason:
+                return self._refuse(current_time, step_size, reason)
+        if self.IMMUTABLE_STATE:
+            snapshot = self._rollback_values(self)           # references (fmu_src.slave_state)
+        else:
+            try:
+                snapshot = self._capture()
+            except Exception as exc:
+                return self._refuse(current_time, step_size,
+                                    f"the state does not pickle: {type(exc).__name__}: {exc}")
         try:
             self.step(current_time, step_size)
-            if self._feedthrough:
+            if self._evaluate_after_step:
                 self.evaluate()
-            if self.CHECK_OUTPUTS:
-                bad = self._non_finite(("output",), check_range=False)
+            if self.CHECK_OUTPUTS and not self._all_finite(self._out_check):
+                bad = self._non_finite(_OUT, check_range=False)
                 if bad:
                     raise StepRefused("step produced non-finite " + "; ".join(bad))
         except StepRefused as exc:
@@ -254,24 +309,44 @@ class TableSlave(StateHandling, Fmi2Slave):
         self._dirty = False
         return True
 
+    def _step_refusal(self, t: float, dt: float) -> str:
+        """Why a doStep cannot start (in this order: the instance, the step size, the inputs and
+        parameters); "" if it can."""
+        if self._broken:
+            return f"instance unusable: {self._broken}"
+        if self._init_error:
+            return f"initialization failed: {self._init_error}"
+        if not (math.isfinite(t) and math.isfinite(dt) and dt >= 0.0):
+            return f"invalid communication step size {dt!r}"
+        bad = self._non_finite(_IN_PAR)
+        return "invalid " + "; ".join(bad) if bad else ""
+
     # ------------------------------------------------------------------ internals
+    def _all_finite(self, check: tuple) -> bool:
+        """The fast path of :meth:`_non_finite`: True if every Real value of the group is finite
+        and every ranged value in its range (False: ask :meth:`_non_finite` which).
+
+        All Real values are finite iff their sum is (NaN and inf propagate; a finite overflow to
+        inf only sends the caller to the exact loop, which then finds nothing).
+        """
+        reals, ranged = check
+        try:
+            if not math.isfinite(sum(reals(self))):
+                return False
+        except TypeError:
+            return False
+        for attr, lo, hi in ranged:
+            value = getattr(self, attr)
+            if value < lo or value > hi:
+                return False
+        return True
+
     def _non_finite(self, causalities: tuple[str, ...], check_range: bool = True) -> list[str]:
+        """Descriptions of the non-finite (and, with ``check_range``, out-of-range) values of the
+        variables of ``causalities``; [] if there are none."""
         fast = self._checks.get((causalities, check_range))
-        if fast is not None:
-            # all Real values finite <=> their sum is (NaN and inf propagate; a finite overflow to inf
-            # only sends us to the exact loop below), then the declared ranges
-            reals, ranged = fast
-            try:
-                ok = math.isfinite(sum(reals(self)))
-            except TypeError:
-                ok = False
-            if ok:
-                for attr, lo, hi in ranged:
-                    value = getattr(self, attr)
-                    if value < lo or value > hi:
-                        break
-                else:
-                    return []
+        if fast is not None and self._all_finite(fast):
+            return []
         bad = []
         for v in self._table:
             if v.causality not in causalities or v.type == "Boolean":
@@ -286,7 +361,10 @@ class TableSlave(StateHandling, Fmi2Slave):
     def _refresh(self) -> None:
         """Lazy direct feedthrough for fmi2Get*: never raises (that would be fmi2Fatal)."""
         self._dirty = False
-        bad = self._non_finite(("input", "parameter"))
+        if self._init_mode:
+            self._refresh_initial()
+            return
+        bad = self._non_finite(_IN_PAR)
         if bad:
             self._report("outputs not updated, invalid " + "; ".join(bad), Fmi2Status.warning)
             return
@@ -300,7 +378,22 @@ class TableSlave(StateHandling, Fmi2Slave):
             self._report(f"outputs not updated, evaluate() failed: {type(exc).__name__}: {exc}",
                          Fmi2Status.warning)
 
+    def _refresh_initial(self) -> None:
+        """The outputs in Initialization Mode (:meth:`initial_outputs`); never raises."""
+        if type(self).initial_outputs is TableSlave.initial_outputs:
+            return
+        bad = self._non_finite(_IN_PAR)
+        if bad:
+            self._report("initial outputs not computed, invalid " + "; ".join(bad), Fmi2Status.warning)
+            return
+        try:
+            self.initial_outputs()
+        except Exception as exc:
+            self._report(f"initial outputs not computed: {type(exc).__name__}: {exc}", Fmi2Status.warning)
+
     def _refuse(self, t: float, dt: float, msg: str) -> bool:
+        """Refuse a doStep (after its rollback, if any): count, log, return False (fmi2Discard).
+        Every refusal ends here; a slave may extend it (the DK FMU sets its status output)."""
         full = (f"{type(self).__name__} instance {self.instance_name!r}: step [{t!r}, {t + dt!r}] refused "
                 f"(fmi2Discard, state kept at t={self._time!r}): {msg}")
         self.refused_steps += 1

@@ -32,9 +32,10 @@ def pose_distance(a, b):
     return d.max(axis=-1)
 
 
-# pythonfmu 0.7's libraries may abort the process at exit once several of its FMUs were loaded
-# (NTNU-IHB/PythonFMU#228; see fmu_src.unit.exit_process).  The session's outcome is known and
-# printed by then: end the process with that status, skipping the libraries' finalizers.
+# A process that ran pythonfmu 0.7 FMUs may abort at exit, in the C runtime's finalizers, on a heap
+# corrupted earlier (tests/test_exit.py reproduces it with a plain fmpy script; README, known issues).
+# The session's outcome is known and printed by then: a session that loaded FMUs ends with that
+# status through fmu_src.unit.exit_process (no finalizers); one that loaded none exits normally.
 _SESSION = {}
 
 

@@ -51,7 +51,9 @@ def test_model_description(md, map1):
                 "q3": ("input", "continuous", "rad"),
                 "x0": ("parameter", "fixed", "m"), "y0": ("parameter", "fixed", "m"),
                 "phi0": ("parameter", "fixed", "rad"), "posture": ("parameter", "fixed", None),
-                "mode": ("parameter", "fixed", None),
+                "mode": ("parameter", "fixed", None), "joint_tolerance": ("parameter", "fixed", "rad"),
+                "speed_bound_linear": ("parameter", "fixed", "m/s"),
+                "speed_bound_angular": ("parameter", "fixed", "rad/s"),
                 "x": ("output", "continuous", "m"), "y": ("output", "continuous", "m"),
                 "phi": ("output", "continuous", "rad"), "cond": ("output", "continuous", "1"),
                 "region": ("output", "discrete", None), "near_border": ("output", "discrete", None),
@@ -66,7 +68,7 @@ def test_model_description(md, map1):
     assert {u.variable.name: sorted(d.name for d in u.dependencies) for u in md.outputs} == \
         {n: ["q1", "q2", "q3"] for n in OUTPUTS + CERTAINTY}
     assert {u.variable.name for u in md.initialUnknowns} == set(OUTPUTS)
-    assert {u.name for u in md.unitDefinitions} == {"1", "m", "rad", "s"}
+    assert {u.name for u in md.unitDefinitions} == {"1", "m", "rad", "s", "m/s", "rad/s"}
     assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate
     # start values: the home pose and its joints in posture 1; posture 1 (1..8), default mode
     assert [float(v[n].start) for n in ("x0", "y0", "phi0")] == list(HOME_POSE)

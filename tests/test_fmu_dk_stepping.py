@@ -224,3 +224,50 @@ def _certainty(m, stream):
         m.step(q)
         out.append(tuple(m.get_values(CERTAINTY)))
     return out
+
+
+def test_a_noisy_stream_with_an_outlier_matches_the_tracker(make, map1):
+    """Joints as a 12-bit encoder with 1e-3 rad of noise gives them, one outlier: with the sensor
+    parameters the FMU outputs what the in-process tracker with the same options returns, step by step."""
+    from solver.sensors import Sensor
+    sensor = Sensor("12-bit", bits=12, noise=1e-3)
+    stream = sensor.measure(Q, seed=11).q
+    stream[0] = Q[0]
+    stream[150, 2] += 0.1                                     # an outlier the gate refuses
+    tol, speed = sensor.tolerance(3.0), (2.0, 1.0)
+    tr = Tracker(MODEL, map1, joint_tolerance=tol, speed_bound=speed)
+    tr.reset(X0, stream[0])
+    m = make(**circle_start(), joint_tolerance=tol, speed_bound_linear=speed[0], speed_bound_angular=speed[1])
+    statuses = []
+    for k in range(1, len(stream)):
+        X, info = tr.step(stream[k], H)
+        x, y, phi, status, certain = m.step(stream[k])[0:3] + tuple(m.get_values(("status", "certain")))
+        assert (x, y, phi) == tuple(X.tolist()) and status == info.status and certain == info.certain, k
+        statuses.append(status)
+    assert statuses[149] == [k for k, v in STATUS.items() if v == "rejected"][0]
+    assert statuses.count(statuses[149]) == 1
+
+
+def test_sensor_parameters_are_checked_at_initialization(make):
+    m = make(**circle_start(), speed_bound_linear=1.0)        # an angular bound is missing
+    assert any("'speed_bound_angular' = 0.0" in msg for msg in m.errors())
+    assert m.outputs()[OUTPUTS.index("status")] == 3
+    with pytest.raises(FMICallException) as info:
+        m.step(Q[0])
+    assert info.value.status == fmi2Discard
+
+
+def test_outputs_hold_the_initial_pose_in_initialization_mode(fmu, unzipdir):
+    from fmu_src.unit import FMUUnit
+    unit = FMUUnit(fmu, "dk-init", unzip_dir=unzipdir)
+    try:
+        unit.fmu.setupExperiment(startTime=0.0)
+        unit.fmu.enterInitializationMode()
+        start = [float(unit.vars[n].start) for n in ("x0", "y0", "phi0")]
+        assert unit.get_values(["x", "y", "phi", "certain"]) == [*start, True]
+        unit.set_values(circle_start())
+        assert unit.get_values(["x", "y", "phi"]) == [float(v) for v in X0]
+        unit.fmu.exitInitializationMode()
+        assert unit.get_values(["x", "y", "phi"]) == [float(v) for v in X0]
+    finally:
+        unit.close()

@@ -97,3 +97,29 @@ def test_bundles_only_what_the_slave_imports(fmus, name):
     assert "resources/dynamics/steppers.py" in names and "resources/solver/tracker.py" in names
     assert not [n for n in names if n.startswith(("resources/dynamics/cosim/", "resources/dynamics/batch/"))]
     assert "resources/fmu_src/checks.py" not in names
+
+
+def test_plant_outputs_hold_the_initial_state_in_initialization_mode(fmus):
+    """A host reads the plant's outputs before fmi2ExitInitializationMode to hand q to the DK FMU: they
+    are the initial state's, as soon as Initialization Mode is entered, and follow a parameter set there."""
+    from fmu_src.unit import FMUUnit
+    model = solver.Manipulator.paper()
+    unit = FMUUnit(fmus["RRRPlant"], "plant")
+    try:
+        unit.fmu.setupExperiment(startTime=0.0)
+        unit.fmu.enterInitializationMode()
+        names = ["q1", "q2", "q3", "dq1", "x_true", "y_true", "phi_true"]
+        got = unit.get_values(names)
+        start = [float(unit.vars[n].start) for n in ("x0", "y0", "phi0")]
+        np.testing.assert_allclose(got[4:], start, atol=1e-15)
+        np.testing.assert_allclose(got[:3], solver.ik(model, np.array(start), 1), atol=1e-12)
+        assert got[3] == 0.0
+        unit.set_values({"x0": start[0] + 0.02})                    # a parameter changed in Initialization Mode
+        moved = unit.get_values(names)
+        assert moved[4] == pytest.approx(start[0] + 0.02, abs=1e-15)
+        np.testing.assert_allclose(moved[:3], solver.ik(model, np.array([start[0] + 0.02, *start[1:]]), 1),
+                                   atol=1e-12)
+        unit.fmu.exitInitializationMode()
+        assert unit.get_values(names) == moved                      # the same values after it
+    finally:
+        unit.close()

@@ -3,7 +3,8 @@
 Runs the default scenario (the robot starts at rest on the circle and follows it for 2.5 s at a
 1 ms step, Gauss-Seidel master; options below change it), writes ``<out>/closed_loop.csv`` and the
 plots in ``<out>/figures/``, and prints the tracking metrics.  The FMUs are built into
-``--build-dir`` by :func:`fmu_src.builds.build_fmus` when missing or stale.
+``--build-dir`` by :func:`fmu_src.builds.build_fmus` when missing or stale, and packed with the
+closed loop's system structure into ``<build-dir>/RRRClosedLoop.ssp``.
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from fmu_src.unit import exit_process
 from .master import ClosedLoop
 from .results import plot_closed_loop, write_csv
 from .scenario import Scenario
+from .system_files import write_closed_loop_ssp
 
 
 def main(argv=None) -> int:
@@ -32,6 +34,7 @@ def main(argv=None) -> int:
     ap.add_argument("--no-plots", action="store_true")
     args = ap.parse_args(argv)
     paths = build_fmus(args.build_dir, force=args.rebuild)
+    print(f"wrote {write_closed_loop_ssp(args.build_dir)} (the closed loop as SSP 1.0, for Ecos and SSP tools)")
     sc = Scenario(h=args.h, t_end=args.t_end, order=args.order, plant_mass_scale=args.plant_mass_scale)
     with ClosedLoop(paths) as loop:
         res = loop.run(sc)

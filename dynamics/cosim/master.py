@@ -18,6 +18,13 @@ Each macro step ``[t_k, t_k + h)``, ``order="gauss-seidel"`` (the default)::
     plant:      set tau;          doStep(t_k, h);  state at t_k + h
 
 Every link carries the value at ``t_k``: no delay beyond the controller's zero-order hold.
+Per step and instance the master makes one fmi2SetReal (all its connected inputs), one fmi2DoStep
+and one fmi2GetReal (every Real output the loop or the result needs), with value references and
+value buffers made once: 9 FMI calls a step, 11 when the DK's Integer and Boolean outputs are
+recorded too (``run(..., flags=True)``, the default; the CSV has them).  Inputs that are one run
+of one instance's output buffer are passed as a view of it (the DK's q, the plant's tau), the
+controller's are copied from two; each step's output buffers are kept as rows and the result's
+columns are built once at the end (:data:`SAMPLE_ROW`).
 ``order="jacobi"``: all inputs are set from the outputs available at ``t_k`` before any doStep,
 so the DK pose and the torque each lag one step (the controller sees the pose of ``q_{k-1}``, the
 plant gets ``tau_{k-1}``).  Which input comes from which output is :data:`~dynamics.cosim.wiring.
@@ -36,6 +43,7 @@ same saved state.
 """
 from __future__ import annotations
 
+import ctypes
 import functools
 import time
 
@@ -45,19 +53,26 @@ from dynamics import forward_dynamics, rk4_step
 from fmu_src.unit import FMUUnit
 from solver import Manipulator
 
-from .results import COLUMN_SOURCES, COLUMNS, ClosedLoopResult
+from .results import COLUMN_SOURCES, FLAG_COLUMNS, ClosedLoopResult
 from .scenario import Scenario
 from .wiring import INSTANCES, copy_plan, inputs_of, outputs_of, sources_of, start_values
 
-__all__ = ["ClosedLoop", "Port", "simulate_fig3"]
+__all__ = ["ClosedLoop", "Port", "SAMPLE_ROW", "simulate_fig3"]
+
+
+#: Row of an instance's reads that holds its value at ``t_k``: reads after step ``k`` are row ``k + 1``
+#: (row 0: the reads at initialization).  The DK's pose of ``q(t_k)`` and the controller's torque held
+#: from ``t_k`` come from step ``k``; the plant's outputs after step ``k`` are those at ``t_{k+1}``.
+SAMPLE_ROW = {"dk": 1, "controller": 1, "plant": 0}
 
 
 class Port:
     """One instance's FMI calls in a step: its connected inputs and the outputs the master reads.
 
-    ``u``: the input values (ctypes, in :func:`~dynamics.cosim.wiring.inputs_of` order);
-    ``buffers``: {FMI type: ctypes array} of the outputs read (:func:`~dynamics.cosim.wiring.outputs_of`,
-    grouped by type, order kept); ``where``: ``"instance.output"`` -> (buffer, index).
+    Value references and value buffers are ctypes arrays made once.  ``buffers``: {FMI type: ctypes
+    array} of the outputs read (:func:`~dynamics.cosim.wiring.outputs_of`, grouped by type, order
+    kept; the Real ones come first); ``where``: ``"instance.output"`` -> (FMI type, index).
+    ``set_inputs`` is bound by :meth:`bind`.
     """
 
     def __init__(self, instance: str, unit: FMUUnit):
@@ -70,46 +85,58 @@ class Port:
         inputs = inputs_of(instance)
         if any(unit.vars[n].type != "Real" for n in inputs):
             raise TypeError(f"{instance}: connected inputs must be Real")
-        self.n_in, self.in_vr, self.u = len(inputs), refs(inputs), (fmi2Real * len(inputs))()
-        groups: dict[str, list[str]] = {}
+        self.n_in, self.in_vr = len(inputs), refs(inputs)
+        groups: dict[str, list[str]] = {"Real": []}
         for name in outputs_of(instance):
             groups.setdefault(unit.vars[name].type, []).append(name)
         ctype = {"Real": fmi2Real, "Integer": fmi2Integer, "Boolean": fmi2Boolean}
         self.buffers = {kind: (ctype[kind] * len(names))() for kind, names in groups.items()}
-        self._reads = [(kind, refs(names), len(names)) for kind, names in groups.items()]
-        self.where = {f"{instance}.{name}": (self.buffers[kind], i)
-                      for kind, names in groups.items() for i, name in enumerate(names)}
-        self.feed = ()
+        self._reads = {kind: (refs(names), len(names)) for kind, names in groups.items()}
+        self.where = {f"{instance}.{name}": (kind, i) for kind, names in groups.items() for i, name in enumerate(names)}
+        self.set_inputs = None
 
     def bind(self, ports: dict) -> None:
-        """Plan the copies that fill ``u`` from the other ports' buffers (the connections)."""
-        where = {k: v for p in ports.values() for k, v in p.where.items()}
-        self.feed = copy_plan(sources_of(self.instance), where)
+        """Plan ``set_inputs()``: one fmi2SetReal of the inputs, taken from the other ports' buffers.
 
-    def read_calls(self) -> tuple:
-        """One ``(FMI type, call)`` per type of the outputs read: ``call()`` fills that type's buffer."""
+        Inputs that are one run of one Real buffer are passed as a view of it (no copy); otherwise
+        they are copied into this port's input buffer first (the connections,
+        :func:`~dynamics.cosim.wiring.copy_plan`).
+        """
+        from fmpy.fmi2 import fmi2Real
+
+        where = {}
+        for p in ports.values():
+            for key, (kind, i) in p.where.items():
+                if kind == "Real":
+                    where[key] = (p.buffers["Real"], i)
+        plan = copy_plan(sources_of(self.instance), where)
+        fmu = self.unit.fmu
+        c, vr, n = fmu.component, self.in_vr, self.n_in
+        set_real = fmu.fmi2SetReal
+        if len(plan) == 1 and plan[0][:2] == (0, n):
+            _, _, buf, c0, _ = plan[0]
+            view = (fmi2Real * n).from_buffer(buf, c0 * ctypes.sizeof(fmi2Real))
+            self.set_inputs = functools.partial(set_real, c, vr, n, view)
+            return
+        u = (fmi2Real * n)()
+
+        def set_inputs():
+            for a, b, buf, c0, d in plan:
+                u[a:b] = buf[c0:d]
+            set_real(c, vr, n, u)
+        self.set_inputs = set_inputs
+
+    def read_calls(self, flags: bool = True) -> tuple:
+        """One ``(FMI type, call)`` per type of the outputs read, Real first: ``call()`` fills that
+        type's buffer.  ``flags=False``: the Real one only."""
         fmu = self.unit.fmu
         getters = {"Real": fmu.fmi2GetReal, "Integer": fmu.fmi2GetInteger, "Boolean": fmu.fmi2GetBoolean}
         return tuple((kind, functools.partial(getters[kind], fmu.component, vrs, m, self.buffers[kind]))
-                     for kind, vrs, m in self._reads)
+                     for kind, (vrs, m) in self._reads.items() if m and (flags or kind == "Real"))
 
-    def calls(self):
-        """The FMI calls of the current instance: ``set_inputs()``, ``step(t, h, fmi2True)``, ``read()``."""
-        fmu = self.unit.fmu
-        c = fmu.component
-        u, feed, n, vr = self.u, self.feed, self.n_in, self.in_vr
-        set_real = fmu.fmi2SetReal
-        reads = tuple(call for _, call in self.read_calls())
-
-        def set_inputs():
-            for a, b, buf, c0, d in feed:
-                u[a:b] = buf[c0:d]
-            set_real(c, vr, n, u)
-
-        def read():
-            for call in reads:
-                call()
-        return set_inputs, functools.partial(fmu.fmi2DoStep, c), read
+    def step_call(self):
+        """``step(t, h, fmi2True)``: this instance's fmi2DoStep."""
+        return functools.partial(self.unit.fmu.fmi2DoStep, self.unit.fmu.component)
 
 
 class ClosedLoop:
@@ -134,11 +161,6 @@ class ClosedLoop:
             self.close()
             raise
         self.ports = {inst: Port(inst, self.units[name]) for inst, name in INSTANCES.items()}
-        for port in self.ports.values():
-            port.bind(self.ports)
-        where = {k: v for p in self.ports.values() for k, v in p.where.items()}
-        #: the copies that fill a result row from the ports' buffers (column 0, the time, apart)
-        self.record = copy_plan(list(COLUMN_SOURCES.values()), where)
         self._fresh = True
 
     def close(self):
@@ -153,7 +175,8 @@ class ClosedLoop:
         self.close()
 
     def initialize(self, sc: Scenario, t0: float) -> None:
-        """Fresh instances (after the first run), initialized for ``sc`` at ``t0``."""
+        """Fresh instances (after the first run), initialized for ``sc`` at ``t0``; binds the ports
+        to them."""
         values = start_values(sc)
         if not self._fresh:
             for unit in self.units.values():
@@ -161,39 +184,51 @@ class ClosedLoop:
         self._fresh = False
         for inst in ("plant", "dk", "controller"):
             self.units[INSTANCES[inst]].initialize(t0, values[inst])
+        for port in self.ports.values():
+            port.bind(self.ports)
 
-    def fill_row(self, row, t) -> None:
-        """One result row (:data:`~dynamics.cosim.results.COLUMNS`) from the ports' buffers at ``t``."""
-        row[0] = t
-        for a, b, buf, c, d in self.record:
-            row[a:b] = buf[c:d]
+    def run(self, scenario: Scenario | None = None, t0: float = 0.0, flags: bool = True) -> ClosedLoopResult:
+        """Run one scenario from ``t0``; returns the time series (one row per communication point).
 
-    def run(self, scenario: Scenario | None = None, t0: float = 0.0) -> ClosedLoopResult:
-        """Run one scenario from ``t0``; returns the time series (one row per communication point)."""
+        Per step and instance: one fmi2SetReal (its connected inputs), fmi2DoStep and one
+        fmi2GetReal (its Real outputs that the loop or the result needs).  ``flags``: also read the
+        DK's Integer and Boolean outputs (status, region, n_real, near_border, ambiguous: two more
+        calls per step); without it the result has no such columns (:data:`FLAG_COLUMNS`).
+        """
+        from fmpy.fmi2 import fmi2True
+
         sc = Scenario() if scenario is None else scenario
         self.initialize(sc, t0)
         n, h = sc.n_steps, sc.h
-        out = np.zeros((n, len(COLUMNS)))
-        # fmpy's getReal/setReal build two ctypes arrays per call (~1.5 us each): the value references
-        # and the value buffers are ctypes arrays made once; the fmi2* calls check the status as before
-        from fmpy.fmi2 import fmi2True
-
-        (dk_set, dk_step, dk_read), (ct_set, ct_step, ct_read), (pl_set, pl_step, pl_read) = (
-            self.ports[inst].calls() for inst in INSTANCES)
-        fill_row = self.fill_row
-        for read in (pl_read, dk_read, ct_read):
-            read()
+        ports = [self.ports[inst] for inst in INSTANCES]
+        (dk_set, ct_set, pl_set) = (p.set_inputs for p in ports)
+        (dk_step, ct_step, pl_step) = (p.step_call() for p in ports)
+        reads = [p.read_calls(flags) for p in ports]
+        (dk_real, *dk_flags), (ct_real,), (pl_real,) = ((call for _, call in r) for r in reads)
+        dk_int, dk_bool = (dk_flags + [None, None])[:2]
+        # what each instance's reads are kept as: one list of rows per buffer read
+        kept = {(p.instance, kind): [] for p, r in zip(ports, reads) for kind, _ in r}
+        rows = {key: (self.ports[key[0]].buffers[key[1]], kept[key]) for key in kept}
+        (dk_buf, dk_rows), (ct_buf, ct_rows), (pl_buf, pl_rows) = (rows[inst, "Real"] for inst in INSTANCES)
+        dk_int_buf, dk_int_rows = rows.get(("dk", "Integer"), (None, None))
+        dk_bool_buf, dk_bool_rows = rows.get(("dk", "Boolean"), (None, None))
+        for r in reads:                                   # the outputs at initialization: row 0
+            for kind, call in r:
+                call()
+        for buf, dest in rows.values():
+            dest.append(buf[:])
         gauss_seidel = sc.order == "gauss-seidel"
+        cpu = time.process_time()
         wall = time.perf_counter()
         for k in range(n):
             t = t0 + k * h
             if gauss_seidel:
                 dk_set()
                 dk_step(t, h, fmi2True)
-                dk_read()
+                dk_real()
                 ct_set()
                 ct_step(t, h, fmi2True)
-                ct_read()
+                ct_real()
                 pl_set()
                 pl_step(t, h, fmi2True)
             else:
@@ -203,12 +238,33 @@ class ClosedLoop:
                 dk_step(t, h, fmi2True)
                 ct_step(t, h, fmi2True)
                 pl_step(t, h, fmi2True)
-                dk_read()
-                ct_read()
-            fill_row(out[k], t)
-            pl_read()
+                dk_real()
+                ct_real()
+            pl_real()
+            dk_rows.append(dk_buf[:])
+            ct_rows.append(ct_buf[:])
+            pl_rows.append(pl_buf[:])
+            if flags:
+                dk_int()
+                dk_bool()
+                dk_int_rows.append(dk_int_buf[:])
+                dk_bool_rows.append(dk_bool_buf[:])
+        columns = self._columns(kept, t0, n, h, flags)
         wall = time.perf_counter() - wall
-        return ClosedLoopResult(sc, {name: out[:, i] for i, name in enumerate(COLUMNS)}, wall)
+        return ClosedLoopResult(sc, columns, wall, time.process_time() - cpu)
+
+    def _columns(self, kept: dict, t0: float, n: int, h: float, flags: bool) -> dict:
+        """The result's columns (float64, :data:`COLUMNS` order) from the rows the run kept."""
+        where = {k: (p.instance, *v) for p in self.ports.values() for k, v in p.where.items()}
+        tables = {key: np.array(rows, dtype=float) for key, rows in kept.items()}
+        columns = {"time": t0 + np.arange(n) * h}                    # t0 + k h, as in the loop
+        for name, source in COLUMN_SOURCES.items():
+            if source is None or (not flags and name in FLAG_COLUMNS):
+                continue
+            inst, kind, j = where[source]
+            r = SAMPLE_ROW[inst]
+            columns[name] = tables[inst, kind][r:r + n, j].copy()
+        return columns
 
 
 def simulate_fig3(dk_fmu, params, q0, dq0, t_end: float, h: float, tau=None, X0=None, posture: int = 1,
@@ -242,20 +298,30 @@ def simulate_fig3(dk_fmu, params, q0, dq0, t_end: float, h: float, tau=None, X0=
         if X0 is not None:
             start.update(x0=X0[0], y0=X0[1], phi0=X0[2])
         unit.initialize(0.0, start)
+        from fmpy.fmi2 import fmi2Real, fmi2True, fmi2ValueReference
+
         fmu = unit.fmu
-        vin, vout = unit.vr("q1", "q2", "q3"), unit.vr("x", "y", "phi")
+        c = fmu.component
+        # value references and value buffers made once
+        vin = (fmi2ValueReference * 3)(*unit.vr("q1", "q2", "q3"))
+        vout = (fmi2ValueReference * 3)(*unit.vr("x", "y", "phi"))
+        q_buf, x_buf = (fmi2Real * 3)(), (fmi2Real * 3)()
         n = int(round(t_end / h))
         t = np.arange(n + 1) * h
         Q, DQ, XX = np.zeros((n + 1, 3)), np.zeros((n + 1, 3)), np.zeros((n + 1, 3))
-        fmu.setReal(vin, q0)
+        q_buf[:] = q0
+        fmu.fmi2SetReal(c, vin, 3, q_buf)
         Q[0], DQ[0] = q0, dq0
-        XX[0] = fmu.getReal(vout)
+        fmu.fmi2GetReal(c, vout, 3, x_buf)
+        XX[0] = x_buf
 
         def pose(saved, t_n, q, dt):
             fmu.setFMUstate(saved)
-            fmu.setReal(vin, q)
-            fmu.doStep(t_n, dt)
-            return np.array(fmu.getReal(vout))
+            q_buf[:] = q
+            fmu.fmi2SetReal(c, vin, 3, q_buf)
+            fmu.fmi2DoStep(c, t_n, dt, fmi2True)
+            fmu.fmi2GetReal(c, vout, 3, x_buf)
+            return np.array(x_buf[:])
 
         for k in range(n):
             tk = t[k]

@@ -16,7 +16,7 @@ from solver import STATUS, wrap_angle
 
 from .scenario import Scenario
 
-__all__ = ["ClosedLoopResult", "COLUMNS", "COLUMN_SOURCES", "write_csv", "plot_closed_loop"]
+__all__ = ["ClosedLoopResult", "COLUMNS", "COLUMN_SOURCES", "FLAG_COLUMNS", "write_csv", "plot_closed_loop"]
 
 #: Result column -> the "instance.output" it records (None: the time).
 COLUMN_SOURCES = {
@@ -33,15 +33,23 @@ COLUMN_SOURCES = {
 }
 #: Columns of :meth:`dynamics.cosim.ClosedLoop.run`'s result, in order.
 COLUMNS = tuple(COLUMN_SOURCES)
+#: The columns of the DK's Integer and Boolean outputs (``ClosedLoop.run(..., flags=False)`` omits them).
+FLAG_COLUMNS = ("dk_status", "region", "n_real", "near_border", "ambiguous")
 
 
 @dataclass
 class ClosedLoopResult:
-    """Time series of a closed-loop run (row ``k`` is time ``t0 + k h``) and its metrics."""
+    """Time series of a closed-loop run (row ``k`` is time ``t0 + k h``) and its metrics.
+
+    ``wall_seconds``: wall-clock time of the step loop (and of building the columns);
+    ``cpu_seconds``: the process's CPU time over the same span (the same on an idle machine, and
+    free of the time other processes took on a loaded one).
+    """
 
     scenario: Scenario
     columns: dict
     wall_seconds: float
+    cpu_seconds: float = float("nan")
 
     def __getitem__(self, key):
         return self.columns[key]
@@ -72,8 +80,9 @@ class ClosedLoopResult:
         return self.scenario.t_end / self.wall_seconds
 
     def metrics(self) -> dict:
+        status = self.columns.get("dk_status")                       # None: run without flags
         return {"rms_joint_error_after_0.5s": self.rms_joint_error(0.5), "max_dk_vs_true": self.max_dk_error(),
-                "dk_status_nonzero": int(np.count_nonzero(self.columns["dk_status"])),
+                "dk_status_nonzero": None if status is None else int(np.count_nonzero(status)),
                 "wall_seconds": self.wall_seconds, "realtime_factor": self.realtime_factor}
 
 

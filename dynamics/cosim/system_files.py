@@ -1,16 +1,28 @@
-"""The closed loop as a system file for other co-simulation masters: libcosim's OspSystemStructure.xml."""
+"""The closed loop as system files for other co-simulation masters: libcosim's OspSystemStructure.xml
+(:func:`write_osp_system`) and an SSP 1.0 package (:func:`write_ssp_system`), both from
+:data:`~dynamics.cosim.wiring.CONNECTIONS` and :func:`~dynamics.cosim.wiring.start_values`."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
 
+from fmu_src.builds import FMU_NAMES
 from fmu_src.libcosim import write_osp_system_structure
+from fmu_src.ssp import write_ssp
 
 from .scenario import Scenario
 from .wiring import CONNECTIONS, INSTANCES, start_values
 
-__all__ = ["write_osp_system"]
+__all__ = ["write_osp_system", "write_ssp_system", "write_closed_loop_ssp", "SSP_NAME"]
+
+#: File name of the closed loop's SSP package (next to the FMUs: ``build/RRRClosedLoop.ssp``).
+SSP_NAME = "RRRClosedLoop.ssp"
+
+
+def _values(sc: Scenario) -> dict:
+    return {k: {n: (int(v) if isinstance(v, (int, np.integer)) else float(v)) for n, v in d.items()}
+            for k, d in start_values(sc).items()}
 
 
 def write_osp_system(paths: dict, folder, scenario: Scenario | None = None) -> Path:
@@ -26,6 +38,34 @@ def write_osp_system(paths: dict, folder, scenario: Scenario | None = None) -> P
     folder.mkdir(parents=True, exist_ok=True)
     return write_osp_system_structure(
         folder / "OspSystemStructure.xml", {inst: paths[name] for inst, name in INSTANCES.items()},
-        base_step_size=sc.h, connections=CONNECTIONS,
-        initial_values={k: {n: (int(v) if isinstance(v, (int, np.integer)) else float(v)) for n, v in d.items()}
-                        for k, d in start_values(sc).items()})
+        base_step_size=sc.h, connections=CONNECTIONS, initial_values=_values(sc))
+
+
+def write_ssp_system(paths: dict, path, scenario: Scenario | None = None) -> Path:
+    """The closed loop as the SSP 1.0 package ``path`` (e.g. ``build/RRRClosedLoop.ssp``).
+
+    ``paths``: {FMU name: path}; the FMUs go inside the package.  Components dk, controller, plant
+    (:data:`~dynamics.cosim.wiring.INSTANCES`), the connections
+    :data:`~dynamics.cosim.wiring.CONNECTIONS`, and the scenario's parameters and initial inputs
+    (:func:`~dynamics.cosim.wiring.start_values`: the DK FMU's joints q1..q3 are those of the start
+    pose) as the parameter set :data:`fmu_src.ssp.PARAMETER_SET`; the default experiment is
+    ``[0, t_end]`` at the step ``h`` (see :mod:`fmu_src.ssp`).  Ecos and libcosim step all FMUs
+    from the same inputs and then move the outputs along the connections: the ``order="jacobi"``
+    scheme of :class:`dynamics.cosim.ClosedLoop`.
+    """
+    sc = Scenario() if scenario is None else scenario
+    return write_ssp(path, {inst: paths[name] for inst, name in INSTANCES.items()}, connections=CONNECTIONS,
+                     parameter_values=_values(sc), name=Path(path).stem, start_time=0.0, stop_time=sc.t_end,
+                     step_size=sc.h)
+
+
+def write_closed_loop_ssp(build_dir, scenario: Scenario | None = None) -> Path:
+    """``<build_dir>/RRRClosedLoop.ssp`` from the three FMUs in ``build_dir`` (:func:`write_ssp_system`;
+    ``python build_fmu.py --ssp`` and the main command write it after building the FMUs)."""
+    build_dir = Path(build_dir)
+    paths = {name: build_dir / f"{name}.fmu" for name in FMU_NAMES}
+    missing = [p.name for p in paths.values() if not p.is_file()]
+    if missing:
+        raise ValueError(f"build_dir {str(build_dir)!r}: no {', '.join(missing)}; the SSP needs all three FMUs "
+                         f"(python build_fmu.py --ssp, without --only)")
+    return write_ssp_system(paths, build_dir / SSP_NAME, scenario)

@@ -1,0 +1,233 @@
+"""Cold start: ``python -m dynamics.cosim`` from process start to exit, where its time goes, the
+first run of a batch worker, and the FMUs' own compiled kernels in a host without our packages.
+
+    python bench/bench_startup.py [--build-dir build] [--repeat 5] [--skip-compile]
+
+The FMUs are built into ``--build-dir`` first if missing.  Every measurement runs in fresh
+processes (``sys.executable``, the environment of this one, so ``PYTHONPATH=<another tree>``
+measures that tree); each figure is the median over ``--repeat`` processes.  Prints:
+
+1. the whole command, ``python -m dynamics.cosim --build-dir ... --out <tmp>`` (the default 2.5 s
+   scenario, CSV and plots; and with ``--no-plots``): wall time from process start to exit and its
+   ratio to the 2.5 s it simulates (target: faster than real time, ratio < 1);
+2. the cold-start split of that command, measured inside one such process: interpreter start,
+   imports (the command's own imports), FMU load (extraction, instantiation and initialization of
+   the three FMUs, without the kernel loads inside), kernel load (numba's cached machine code,
+   loaded at the first call of each kernel: numba's ``Cache.load_overload``, wherever it
+   happens), kernel compilation (0 when every cache is warm), the simulation loop, the CSV and the
+   plots;
+3. a batch worker's warm-up: a fresh process imports :mod:`dynamics.batch.worker` and runs two
+   short tasks (:func:`dynamics.batch.run_task`, 0.05 s simulated): imports, FMU load (the first
+   task's ``load_seconds``), the first-run warm-up (its ``init_seconds`` minus the second task's,
+   as ``bench/bench_batch.py`` counts it; target: a few tenths of a second) and the whole
+   start-up;
+4. (unless ``--skip-compile``) the DK FMU in a host that has not imported ``solver``, so the FMU
+   runs its bundled copy: ``fmpy.simulate_fmu`` of 10 steps in a fresh process with an empty
+   kernel cache (``NUMBA_CACHE_DIR`` = a new folder: numba compiles), then in a second and a third
+   fresh process (the kernels of that FMU content load from the cache).
+
+Numbers, no assertions.  The machine is shared: the load average is printed.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SIMULATED = 2.5          # s, the default scenario
+#: the children's working folder: not a source tree (``python -m``/``-c`` put it first on sys.path,
+#: before PYTHONPATH), so the packages come from PYTHONPATH or the installed project
+_NEUTRAL = tempfile.gettempdir()
+
+#: the cold-start probe: the steps of ``python -m dynamics.cosim`` with clocks (argv: build dir, out dir)
+PROBE = r"""
+import sys, time
+T = {"start": time.perf_counter()}
+import numba.core.caching as _caching, numba.core.dispatcher as _dispatcher
+T["numba"] = time.perf_counter()
+K = {"load": 0.0, "compile": 0.0}
+_load = _caching.Cache.load_overload
+def load_overload(self, *a, **k):
+    t0 = time.perf_counter()
+    try:
+        return _load(self, *a, **k)
+    finally:
+        K["load"] += time.perf_counter() - t0
+_caching.Cache.load_overload = load_overload
+_compile = _dispatcher.Dispatcher.compile
+def compile(self, sig):
+    t0, l0 = time.perf_counter(), K["load"]
+    try:
+        return _compile(self, sig)
+    finally:
+        K["compile"] += time.perf_counter() - t0 - (K["load"] - l0)
+_dispatcher.Dispatcher.compile = compile
+def mark(name):
+    T[name] = time.perf_counter()
+    K[name] = (K["load"], K["compile"])
+from dynamics.cosim.__main__ import main          # the command's imports
+from dynamics.cosim import ClosedLoop, Scenario, build_fmus
+from dynamics.cosim.results import plot_closed_loop, write_csv
+mark("imports")
+paths = build_fmus(sys.argv[1], log=lambda m: None)
+loop = ClosedLoop(paths)                           # extract and instantiate
+mark("fmu")
+res = loop.run(Scenario())                         # initialize, then the loop (res.wall_seconds)
+mark("run")
+write_csv(res, sys.argv[2] + "/closed_loop.csv")
+mark("csv")
+plot_closed_loop(res, sys.argv[2] + "/figures")
+mark("plots")
+import json
+out = {"total": T["plots"] - T["start"], "numba": T["numba"] - T["start"]}
+prev, (l0, c0) = "numba", (0.0, 0.0)
+for name in ("imports", "fmu", "run", "csv", "plots"):
+    l1, c1 = K[name]
+    out[name] = T[name] - T[prev] - (l1 - l0) - (c1 - c0)
+    out[name + "_kernels"], out[name + "_compile"] = l1 - l0, c1 - c0
+    prev, (l0, c0) = name, (l1, c1)
+out["loop"] = res.wall_seconds
+out["fmu"] += out["run"] - res.wall_seconds        # the run's initialization is FMU load
+out["run"] = res.wall_seconds
+print("PROBE " + json.dumps(out))
+from fmu_src.unit import exit_process
+exit_process(0)
+"""
+
+#: a batch worker's first tasks (argv: build dir)
+WORKER = r"""
+import sys, time, json
+t0 = time.perf_counter()
+from dynamics.batch.worker import run_task
+from dynamics.batch.fmu_files import fmu_spec
+from dynamics.cosim import build_fmus
+t_import = time.perf_counter() - t0
+spec = fmu_spec(build_fmus(sys.argv[1], log=lambda m: None))
+rows = [run_task(i, {"t_end": 0.05}, spec) for i in range(2)]
+assert all(r["status"] == "ok" for r in rows), rows
+print("WORKER " + json.dumps({"imports": t_import, "load": rows[0]["load_seconds"], "init1": rows[0]["init_seconds"],
+                              "init2": rows[1]["init_seconds"], "sim": rows[1]["sim_seconds"]}))
+from fmu_src.unit import exit_process
+exit_process(0)
+"""
+
+#: the DK FMU in a host without our packages (argv: the FMU)
+BARE_HOST = r"""
+import sys, time, json
+import fmpy
+t0 = time.perf_counter()
+fmpy.simulate_fmu(sys.argv[1], stop_time=0.01, step_size=1e-3, output_interval=1e-3, fmi_type="CoSimulation")
+print("BARE " + json.dumps({"seconds": time.perf_counter() - t0, "bundled": "solver" not in sys.modules
+                            or "resources" in (sys.modules["solver"].__file__ or "")}))
+import os
+os._exit(0)
+"""
+
+
+def _python(code: str, *args, env=None, marker: str) -> tuple[dict, float]:
+    """Run ``code`` in a fresh interpreter; its ``marker`` JSON line and the process's wall time."""
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, env=env,
+                          cwd=_NEUTRAL)
+    wall = time.perf_counter() - t0
+    for line in proc.stdout.splitlines():
+        if line.startswith(marker + " "):
+            return json.loads(line[len(marker) + 1:]), wall
+    raise RuntimeError(f"{marker} probe failed ({proc.returncode}):\n{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}")
+
+
+def _command(build_dir, out_dir, plots: bool) -> float:
+    args = [sys.executable, "-m", "dynamics.cosim", "--build-dir", str(build_dir), "--out", str(out_dir)]
+    if not plots:
+        args.append("--no-plots")
+    t0 = time.perf_counter()
+    proc = subprocess.run(args, capture_output=True, text=True, cwd=_NEUTRAL)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(args)} failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
+    return wall
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--build-dir", default=str(ROOT / "build"))
+    ap.add_argument("--repeat", type=int, default=5, help="fresh processes per measurement")
+    ap.add_argument("--skip-compile", action="store_true", help="skip the cold kernel compilation (4.)")
+    args = ap.parse_args(argv)
+    build = Path(args.build_dir).resolve()
+    proc = subprocess.run([sys.executable, "-c", "import sys; from dynamics.cosim import build_fmus; "
+                           "build_fmus(sys.argv[1]); from fmu_src.unit import exit_process; exit_process(0)",
+                           str(build)], cwd=_NEUTRAL)
+    if proc.returncode:
+        return proc.returncode
+    print(f"python {platform.python_version()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}; "
+          f"FMUs in {build}; {args.repeat} fresh processes per figure (medians)")
+    tmp = Path(tempfile.mkdtemp(prefix="bench_startup_"))
+    # the command, process start to exit (alternating with and without plots)
+    walls = {"with plots": [], "--no-plots": []}
+    for _ in range(args.repeat):
+        walls["with plots"].append(_command(build, tmp / "a", True))
+        walls["--no-plots"].append(_command(build, tmp / "b", False))
+    print(f"\n1. `python -m dynamics.cosim` ({SIMULATED:g} s simulated), process start to exit:")
+    for key, v in walls.items():
+        med = float(np.median(v))
+        print(f"   {key:10s}: {med:5.2f} s wall = {med / SIMULATED:.2f}x the simulated time "
+              f"[target < 1: {'meets' if med < SIMULATED else 'MISSES'}]  (runs: {', '.join(f'{w:.2f}' for w in v)})")
+
+    probes = [_python(PROBE, str(build), str(tmp / "p"), marker="PROBE") for _ in range(args.repeat)]
+    split = {k: float(np.median([p[k] for p, _ in probes])) for k in probes[0][0]}
+    whole = float(np.median([w for _, w in probes]))
+    print(f"\n2. cold-start split of that command (one process each, median of {args.repeat}; whole process "
+          f"{whole:.2f} s):")
+    rows = [("interpreter start and exit (python, site, os._exit)", whole - split["total"]),
+            ("import numba", split["numba"]),
+            ("the command's imports (dynamics, solver, fmu_src, fmpy)", split["imports"]),
+            ("FMU load: extract, instantiate, initialize (3 FMUs)", split["fmu"]),
+            ("kernel load: numba cache, all kernels of the process",
+             sum(split[k + "_kernels"] for k in ("imports", "fmu", "run", "csv", "plots"))),
+            ("kernel compilation (0: every cache warm)",
+             sum(split[k + "_compile"] for k in ("imports", "fmu", "run", "csv", "plots"))),
+            ("simulation: the loop of 2500 steps (wall_seconds)", split["run"]),
+            ("CSV", split["csv"]),
+            ("plots (matplotlib import + 3 figures)", split["plots"])]
+    for label, v in rows:
+        print(f"   {label:58s} {v:6.3f} s")
+    print(f"   (of the kernel load: during the FMU load {split['fmu_kernels']:.3f} s, during the run's "
+          f"initialization and loop {split['run_kernels']:.3f} s)")
+
+    env = dict(os.environ)
+    workers = [_python(WORKER, str(build), marker="WORKER") for _ in range(args.repeat)]
+    w = {k: float(np.median([p[k] for p, _ in workers])) for k in workers[0][0]}
+    print("\n3. batch worker, fresh process (as bench/bench_batch.py splits it):")
+    print(f"   imports {w['imports']:.3f} s; FMU load (extract + instantiate, once per process) {w['load']:.3f} s; "
+          f"first-run warm-up (first initialization {w['init1'] * 1e3:.0f} ms - a later one "
+          f"{w['init2'] * 1e3:.0f} ms) {max(w['init1'] - w['init2'], 0.0) * 1e3:.0f} ms")
+    print(f"   the process's start-up before its first step, all in: "
+          f"{w['imports'] + w['load'] + w['init1']:.2f} s (+ interpreter start)")
+
+    if not args.skip_compile:
+        cache = tmp / "numba-cache"
+        env["NUMBA_CACHE_DIR"] = str(cache)
+        dk = str(build / "RRRDirectKinematics.fmu")
+        runs = [_python(BARE_HOST, dk, env=env, marker="BARE") for _ in range(3)]
+        print(f"\n4. the DK FMU's bundled kernels, host without `solver` (fmpy.simulate_fmu, 10 steps, fresh "
+              f"processes, NUMBA_CACHE_DIR={cache}):")
+        for (r, wall), what in zip(runs, ("empty cache (compiles)", "second process", "third process")):
+            print(f"   {what:24s}: simulate_fmu {r['seconds']:6.2f} s, process {wall:6.2f} s"
+                  f"{'' if r['bundled'] else '  (the FMU did not use its bundled solver!)'}")
+    shutil.rmtree(tmp, ignore_errors=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
