@@ -133,9 +133,33 @@ def _closed_loop_inputs(paths) -> dict:
     return res.columns
 
 
+def _fmu_cycles(fmu, inputs, u_vr, u_buf, y_vr, y_buf, t):
+    """Step an initialized FMU through ``inputs`` (n, len(u_buf)) at k*H with the raw fmi2 calls; append
+    the doStep and set+doStep+get times (s) to ``t``; returns the first three outputs of every step."""
+    from fmpy.fmi2 import fmi2True
+    pc = time.perf_counter
+    c = fmu.component
+    set_real, do_step, get_real = fmu.fmi2SetReal, fmu.fmi2DoStep, fmu.fmi2GetReal
+    nu, ny = len(u_buf), len(y_buf)
+    first = np.empty((len(inputs), 3))
+    for k, u in enumerate(inputs):
+        t0 = pc()
+        u_buf[:] = u
+        set_real(c, u_vr, nu, u_buf)
+        t1 = pc()
+        do_step(c, k * H, H, fmi2True)
+        t2 = pc()
+        get_real(c, y_vr, ny, y_buf)
+        t3 = pc()
+        t["doStep"].append(t2 - t1)
+        t["cycle"].append(t3 - t0)
+        first[k] = y_buf[0:3]
+    return first
+
+
 def bench_plant(unit: FMUUnit, cols: dict, passes: int) -> dict:
     """The plant FMU replaying the closed loop's torques, against PlantStepper.step on them."""
-    from fmpy.fmi2 import fmi2Real, fmi2True
+    from fmpy.fmi2 import fmi2Real
     from dynamics import DynamicParameters, PlantStepper
 
     tau = np.stack([cols[f"tau{i}"] for i in (1, 2, 3)], axis=1)
@@ -153,21 +177,7 @@ def bench_plant(unit: FMUUnit, cols: dict, passes: int) -> dict:
     for _ in range(passes):
         unit.reset()
         unit.initialize(0.0, start)
-        c = fmu.component
-        set_real, do_step, get_real = fmu.fmi2SetReal, fmu.fmi2DoStep, fmu.fmi2GetReal
-        q_fmu = np.empty((len(taus), 3))
-        for k, u in enumerate(taus):
-            t0 = pc()
-            u_buf[:] = u
-            set_real(c, u_vr, 3, u_buf)
-            t1 = pc()
-            do_step(c, k * H, H, fmi2True)
-            t2 = pc()
-            get_real(c, y_vr, 9, y_buf)
-            t3 = pc()
-            t["doStep"].append(t2 - t1)
-            t["cycle"].append(t3 - t0)
-            q_fmu[k] = y_buf[0:3]
+        q_fmu = _fmu_cycles(fmu, taus, u_vr, u_buf, y_vr, y_buf, t)
         x = np.array([*X0, 0.0, 0.0, 0.0])
         outs = (np.empty(stepper.OUT_SIZE), np.empty(stepper.OUT_SIZE))
         q_in = np.empty((len(taus), 3))
@@ -186,7 +196,7 @@ def bench_plant(unit: FMUUnit, cols: dict, passes: int) -> dict:
 
 def bench_controller(unit: FMUUnit, cols: dict, passes: int, params: dict) -> dict:
     """The controller FMU replaying the closed loop's measurements, against ControllerStepper.step."""
-    from fmpy.fmi2 import fmi2Real, fmi2True
+    from fmpy.fmi2 import fmi2Real
     from dynamics import CircleTrajectory, ComputedTorqueGains, ControllerStepper, DynamicParameters
 
     names = ("q1", "q2", "q3", "dq1", "dq2", "dq3", "x", "y", "phi")
@@ -211,21 +221,7 @@ def bench_controller(unit: FMUUnit, cols: dict, passes: int, params: dict) -> di
     for _ in range(passes):
         unit.reset()
         unit.initialize(0.0, start)
-        c = fmu.component
-        set_real, do_step, get_real = fmu.fmi2SetReal, fmu.fmi2DoStep, fmu.fmi2GetReal
-        tau_fmu = np.empty((len(inputs), 3))
-        for k, u in enumerate(inputs):
-            t0 = pc()
-            u_buf[:] = u
-            set_real(c, u_vr, 9, u_buf)
-            t1 = pc()
-            do_step(c, k * H, H, fmi2True)
-            t2 = pc()
-            get_real(c, y_vr, 9, y_buf)
-            t3 = pc()
-            t["doStep"].append(t2 - t1)
-            t["cycle"].append(t3 - t0)
-            tau_fmu[k] = y_buf[0:3]
+        tau_fmu = _fmu_cycles(fmu, inputs, u_vr, u_buf, y_vr, y_buf, t)
         tau_in = np.empty((len(inputs), 3))
         step = stepper.step
         for k, u in enumerate(inputs):

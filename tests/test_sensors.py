@@ -176,12 +176,18 @@ def test_an_outlier_is_refused_with_the_state_intact_and_the_next_sample_continu
     np.testing.assert_allclose(Xn, Xg, atol=1e-9)            # as if the outlier had never come
 
 
-def test_a_dropout_is_refused_by_name_and_changes_nothing(model, map1):
+def _tracked(model, map1, n):
+    """A tracker with the 14-bit tolerance that has tracked the noisy circle's first ``n`` samples."""
     X, q = _noisy_circle(model)
     tr = Tracker(model, map1, joint_tolerance=TOL)
     tr.reset(X[0], q[0])
-    for k in range(1, 50):
+    for k in range(1, n):
         tr.step(q[k], 1e-3)
+    return tr, q
+
+
+def test_a_dropout_is_refused_by_name_and_changes_nothing(model, map1):
+    tr, q = _tracked(model, map1, 50)
     before = tr.state
     with pytest.raises(SolverInputError, match="q"):
         tr.step([q[50, 0], np.nan, q[50, 2]], 1e-3)
@@ -191,11 +197,7 @@ def test_a_dropout_is_refused_by_name_and_changes_nothing(model, map1):
 
 
 def test_a_level_change_is_taken_after_refusals_and_ends_the_vouching(model, map1):
-    X, q = _noisy_circle(model)
-    tr = Tracker(model, map1, joint_tolerance=TOL)
-    tr.reset(X[0], q[0])
-    for k in range(1, 100):
-        tr.step(q[k], 1e-3)
+    tr, q = _tracked(model, map1, 100)
     shifted = q[100:110].copy()
     shifted[:, 0] += 0.1                              # a joint that jumps and stays (a stuck encoder let go)
     statuses = [tr.step(s, 1e-3)[1] for s in shifted]

@@ -42,6 +42,18 @@ CERT_NONE, CERT_CONTINUATION, CERT_ELIMINATION, CERT_POSTURE, CERT_REACQUIRED = 
 
 
 @njit(cache=True)
+def inflate(rho, w):
+    """Epsilon-inflation: grow the half-widths ``rho`` (3,) to 1.25 times the last Krawczyk image
+    (``w[W_TOT:]``) plus 2 TINY; False when a half-width would reach :data:`RHO_CAP`."""
+    grow = True
+    for i in range(3):
+        r_new = 1.25 * w[W_TOT + i] + 2.0 * TINY
+        grow = grow and r_new < RHO_CAP
+        rho[i] = max(rho[i], r_new)
+    return grow
+
+
+@njit(cache=True)
 def prove_part(qc, e, pq, px, n, guess, M, l1, b, l2sq, w, xc, rho):
     """Krawczyk's proof for the joint box ``qc +- e`` (3,), its pose box about the solution at ``qc``.
 
@@ -69,12 +81,7 @@ def prove_part(qc, e, pq, px, n, guess, M, l1, b, l2sq, w, xc, rho):
     for _ in range(INFLATE + 3):
         if krawczyk(xc, rho, qc, none, none, 0.0, 0.0, e, M, l1, b, l2sq, w):
             return 1
-        grow = True
-        for i in range(3):
-            r_new = 1.25 * w[W_TOT + i] + 2.0 * TINY
-            grow = grow and r_new < RHO_CAP
-            rho[i] = max(rho[i], r_new)
-        if not grow:
+        if not inflate(rho, w):
             return 0
     return 0
 
@@ -182,12 +189,7 @@ def follow_branch(X0, verified, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, out)
                         krawczyk(c, rho, q0, d1, d2, s, sb, tube, M, l1, b, l2sq, w):
                     ok = True
                     break
-                grow = True
-                for i in range(3):
-                    r_new = 1.25 * w[W_TOT + i] + 2.0 * TINY
-                    grow = grow and r_new < RHO_CAP
-                    rho[i] = max(rho[i], r_new)
-                if not grow:
+                if not inflate(rho, w):
                     break
             if ok:
                 tests += 1
