@@ -24,7 +24,12 @@ measures that tree); each figure is the median over ``--repeat`` processes.  Pri
 4. (unless ``--skip-compile``) the DK FMU in a host that has not imported ``solver``, so the FMU
    runs its bundled copy: ``fmpy.simulate_fmu`` of 10 steps in a fresh process with an empty
    kernel cache (``NUMBA_CACHE_DIR`` = a new folder: numba compiles), then in a second and a third
-   fresh process (the kernels of that FMU content load from the cache).
+   fresh process (the kernels of that FMU content load from the cache);
+5. (unless ``--skip-hosts``) each FMU's instantiate + initialize (setup, enter/exit initialization),
+   timed inside fresh host processes that have not imported ``solver``: fmpy (``FMU2Slave``, Python
+   in the process) and the C host of ``tests/test_c_host.py`` (no Python in the process: the FMU's
+   loader starts it, :mod:`fmu_src.native`), first with an empty kernel cache (``NUMBA_CACHE_DIR`` = a
+   new folder: the first process ever), then in a second process.  ``--only-hosts`` runs just this.
 
 Numbers, no assertions.  The machine is shared: the load average is printed.
 """
@@ -134,6 +139,65 @@ os._exit(0)
 """
 
 
+#: an FMU's instantiate + initialize in fmpy, timed inside (argv: the FMU)
+FMPY_START = r"""
+import sys, time, json
+t0 = time.perf_counter()
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+md = read_model_description(sys.argv[1])
+fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(sys.argv[1]), modelIdentifier=md.coSimulation.modelIdentifier,
+                instanceName="bench")
+t1 = time.perf_counter()
+fmu.instantiate()
+t2 = time.perf_counter()
+fmu.setupExperiment(startTime=0.0); fmu.enterInitializationMode(); fmu.exitInitializationMode()
+t3 = time.perf_counter()
+print("START " + json.dumps({"load": t1 - t0, "instantiate": t2 - t1, "initialize": t3 - t2}))
+import os
+os._exit(0)
+"""
+
+
+def _host_starts(build: Path, tmp: Path, env: dict) -> None:
+    """5.: instantiate + initialize of each FMU in fresh fmpy and C host processes, empty cache then warm."""
+    from fmpy import extract, read_model_description
+
+    cc = shutil.which("cc") or shutil.which("gcc")
+    host = tmp / "fmi2_host"
+    if cc:
+        subprocess.run([cc, "-std=c11", "-O1", "-o", str(host), str(ROOT / "tests/c_host/fmi2_host.c"), "-ldl"],
+                       check=True)
+    print("\n5. instantiate + initialize in a fresh host process without `solver` (timed inside the process; "
+          "the C host has no Python until the FMU's loader starts it):")
+    c_env = {k: v for k, v in env.items() if not k.startswith("PYTHON") and k != "VIRTUAL_ENV"}
+    for name in ("RRRDirectKinematics", "RRRPlant", "ComputedTorqueController"):
+        fmu = build / f"{name}.fmu"
+        md = read_model_description(str(fmu))
+        folder = extract(str(fmu), unzipdir=str(tmp / f"{name}-c"))
+        for host_name in ("fmpy", "C host"):
+            if host_name == "C host" and not cc:
+                print(f"   {name:25s} C host: skipped (no C compiler)")
+                continue
+            run_env = {**(env if host_name == "fmpy" else c_env), "NUMBA_CACHE_DIR": str(tmp / f"cache-{name}-{host_name}")}
+            figures = []
+            for _ in range(2):                 # empty kernel cache, then the second process
+                t0 = time.perf_counter()
+                if host_name == "fmpy":
+                    r, wall = _python(FMPY_START, str(fmu), env=run_env, marker="START")
+                else:
+                    proc = subprocess.run([str(host), folder, name, md.guid, "1e-3", "0", "-", "0", "-"],
+                                          capture_output=True, text=True, env=run_env, cwd=_NEUTRAL)
+                    wall = time.perf_counter() - t0
+                    if proc.returncode:
+                        raise RuntimeError(f"C host failed ({proc.returncode}): {proc.stderr[-2000:]}")
+                    r = dict(line.split() for line in proc.stdout.splitlines() if line.startswith("seconds_"))
+                    r = {"instantiate": float(r["seconds_instantiate"]), "initialize": float(r["seconds_initialize"])}
+                figures.append(f"{r['instantiate'] + r['initialize']:6.2f} s (instantiate {r['instantiate']:.2f} + "
+                               f"initialize {r['initialize']:.2f}; process {wall:.2f} s)")
+            print(f"   {name:25s} {host_name:6s}: first ever {figures[0]}; second process {figures[1]}")
+
+
 def _python(code: str, *args, env=None, marker: str) -> tuple[dict, float]:
     """Run ``code`` in a fresh interpreter; its ``marker`` JSON line and the process's wall time."""
     t0 = time.perf_counter()
@@ -163,6 +227,8 @@ def main(argv=None) -> int:
     ap.add_argument("--build-dir", default=str(ROOT / "build"))
     ap.add_argument("--repeat", type=int, default=5, help="fresh processes per measurement")
     ap.add_argument("--skip-compile", action="store_true", help="skip the cold kernel compilation (4.)")
+    ap.add_argument("--skip-hosts", action="store_true", help="skip the fmpy and C host start-up (5.)")
+    ap.add_argument("--only-hosts", action="store_true", help="only the fmpy and C host start-up (5.)")
     args = ap.parse_args(argv)
     build = Path(args.build_dir).resolve()
     proc = subprocess.run([sys.executable, "-c", "import sys; from dynamics.cosim import build_fmus; "
@@ -173,6 +239,10 @@ def main(argv=None) -> int:
     print(f"python {platform.python_version()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}; "
           f"FMUs in {build}; {args.repeat} fresh processes per figure (medians)")
     tmp = Path(tempfile.mkdtemp(prefix="bench_startup_"))
+    if args.only_hosts:
+        _host_starts(build, tmp, dict(os.environ))
+        shutil.rmtree(tmp, ignore_errors=True)
+        return 0
     # the command, process start to exit (alternating with and without plots)
     walls = {"with plots": [], "--no-plots": []}
     for _ in range(args.repeat):
@@ -225,6 +295,8 @@ def main(argv=None) -> int:
         for (r, wall), what in zip(runs, ("empty cache (compiles)", "second process", "third process")):
             print(f"   {what:24s}: simulate_fmu {r['seconds']:6.2f} s, process {wall:6.2f} s"
                   f"{'' if r['bundled'] else '  (the FMU did not use its bundled solver!)'}")
+    if not args.skip_hosts:
+        _host_starts(build, tmp, dict(os.environ))
     shutil.rmtree(tmp, ignore_errors=True)
     return 0
 

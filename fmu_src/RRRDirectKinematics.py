@@ -208,6 +208,11 @@ class RRRDirectKinematics(TableSlave):
             self.status = 3                       # every doStep will be refused with the reason
             raise
 
+    def _init_failed(self, reason):
+        # a refused initialization (state error): the outputs say so too
+        self.status = 3
+        super()._init_failed(reason)
+
     def _initialize_tracker(self):
         self._tracker = self._make_tracker(self.posture, self.mode)
         X0 = np.array([self.x0, self.y0, self.phi0], dtype=float)

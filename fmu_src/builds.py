@@ -37,6 +37,7 @@ import numpy as np
 from solver import DEFAULT_RULE, DEFAULT_STEP, ORDERING_RULES, Manipulator, MapTensor, cached_map, map_path
 
 from .checks import validate
+from .native import LOADER_SOURCE
 from .packaging import bundled_files, build_fmu
 
 __all__ = ["FMU_NAMES", "DK_NAME", "MODES", "DEFAULT_RESOLUTION", "BuildResult", "parse_resolution",
@@ -211,12 +212,14 @@ def build_slave(name: str, out_dir="build", check: bool = True) -> Path:
 
 # ---------------------------------------------------------------------- all three, as needed
 def is_stale(name: str, fmu: Path) -> bool:
-    """Whether ``fmu`` is missing or older than its slave script or the ``fmu_src`` runtime it bundles."""
+    """Whether ``fmu`` is missing or older than its slave script, the ``fmu_src`` runtime it bundles or
+    the sources of its native binary (:mod:`fmu_src.native`, the loader's C source, the packaging)."""
     if not fmu.exists():
         return True
     script = slave_script(name)
     runtime = bundled_files(script, {HERE.name: HERE}).values()
-    return fmu.stat().st_mtime < max(p.stat().st_mtime for p in (script, *runtime))
+    native_sources = (LOADER_SOURCE, HERE / "native.py", HERE / "packaging.py")
+    return fmu.stat().st_mtime < max(p.stat().st_mtime for p in (script, *runtime, *native_sources))
 
 
 def build_fmus(out_dir="build", resolution=None, force: bool = False, log=print) -> dict:

@@ -18,7 +18,8 @@
 3. runs ``pythonfmu.FmuBuilder.build_FMU``;
 4. post-processes the archive: cross-checks pythonfmu's ModelVariables against the table, then
    replaces ``modelDescription.xml`` by one generated from the table
-   (:mod:`fmu_src.model_description`; a GUID derived from the content) and rewrites the zip
+   (:mod:`fmu_src.model_description`; a GUID derived from the content), makes the Linux binary the
+   loader that starts Python in hosts without it (:mod:`fmu_src.native`) and rewrites the zip
    deterministically (sorted entries, fixed timestamps and permissions);
 5. validates the result (:func:`fmu_src.checks.validate`) and raises :class:`BuildError` on any
    problem.
@@ -44,6 +45,7 @@ from typing import Mapping, Sequence
 
 from . import requirements
 from .checks import validate
+from .native import loader_entries
 from .model_description import UNIT_DEFINITIONS, ModelDescriptionError, cross_check, model_description_xml
 from .table_slave import TableSlave
 
@@ -341,6 +343,7 @@ def _postprocess(raw: Path, final: Path, cls: type[TableSlave], can_serialize_st
     if entries.get("resources/slavemodule.txt", b"").decode().strip() != cls.__name__:
         raise BuildError("resources/slavemodule.txt does not name the slave module")
     del entries["modelDescription.xml"]
+    entries = loader_entries(entries, cls.__name__)         # hosts without Python (fmu_src.native)
     digest = hashlib.sha256()
     digest.update(model_description_xml(cls, guid="", can_serialize_state=can_serialize_state))
     for name in sorted(entries):

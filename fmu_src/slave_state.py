@@ -44,7 +44,8 @@ __all__ = ["StateHandling", "Capture", "is_immutable", "values_getter", "BOOKKEE
 #: types are added when first met
 IMMUTABLE = {float, int, bool, str, bytes, type(None), complex}
 #: the base class's own attributes that an FMU state and a rollback carry with the slave's state
-BOOKKEEPING = ("_time", "_dirty", "_initialized", "_init_error", "_broken")
+#: (``_fmi_state``: the FMI state machine's state, :mod:`fmu_src.fmi_states`; a set FMU state restores it)
+BOOKKEEPING = ("_time", "_dirty", "_fmi_state", "_init_error", "_broken")
 _book_values = operator.attrgetter(*BOOKKEEPING)
 
 
@@ -161,6 +162,7 @@ class StateHandling:
     def _set_fmu_state(self, state: bytes) -> None:
         try:
             self._restore(state)
+            self._enter_state(self._fmi_state)      # the flags of the restored FMI state
         except Exception as exc:
             self._broken = f"fmi2SetFMUstate failed: {type(exc).__name__}: {exc}"
             self._report(self._broken, Fmi2Status.error)

@@ -90,6 +90,7 @@ from pythonfmu import Boolean, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variab
 from pythonfmu.enums import Fmi2Status
 
 from . import kernel_cache
+from .fmi_states import ERROR, INITIALIZATION_MODE, INSTANTIATED, STEP_COMPLETE, STEP_FAILED, TERMINATED, FmiStates
 from .slave_state import StateHandling, values_getter
 from .value_access import ValueAccess
 from .variables import CAUSALITIES, INITIALS, VARIABILITIES, TableError, Var, check_table
@@ -111,7 +112,7 @@ class StepRefused(Exception):
     """Raised by ``step``/``evaluate`` to refuse a step; the message reaches the master's log."""
 
 
-class TableSlave(StateHandling, ValueAccess, Fmi2Slave):
+class TableSlave(FmiStates, StateHandling, ValueAccess, Fmi2Slave):
     """pythonfmu slave whose interface is the class attribute ``VARIABLES`` (see the module doc)."""
 
     VARIABLES: ClassVar[tuple[Var, ...]] = ()
@@ -156,7 +157,7 @@ class TableSlave(StateHandling, ValueAccess, Fmi2Slave):
         reserved = {n for n in dir(TableSlave) if not n.startswith("_")} | {
             "vars", "instance_name", "resources", "visible", "log_queue", "guid", "author", "license",
             "version", "copyright", "modelName", "description", "default_experiment", "refused_steps",
-            "last_refusal"}
+            "last_refusal", "refused_calls", "last_call_refusal"}
         table = check_table(cls.VARIABLES, reserved)
         for group in ("STATE", "CONSTANT"):
             names = getattr(cls, group)
@@ -174,6 +175,7 @@ class TableSlave(StateHandling, ValueAccess, Fmi2Slave):
                              "but the class defines no evaluate()")
         cls._table = table
         cls.VR = {v.name: i for i, v in enumerate(table)}
+        cls._build_settable(table)
         cls._feedthrough = has_evaluate
         cls._evaluate_after_step = has_evaluate and bool(cls.EVALUATE_AFTER_STEP)
         cls._attrs = {kind: {i: v.attr for i, v in enumerate(table) if v.type == kind} for kind in _PY_TYPE}
@@ -198,6 +200,8 @@ class TableSlave(StateHandling, ValueAccess, Fmi2Slave):
 
     # ------------------------------------------------------------------ construction
     def __init__(self, **kwargs):
+        # strict FMI state table only for an instance made by an FMI host (fmu_src.fmi_states)
+        self._fmi_strict = bool(kwargs.pop("fmi_strict", "logger" in kwargs))
         super().__init__(**kwargs)
         cls = type(self)
         if not cls._table:
@@ -205,11 +209,12 @@ class TableSlave(StateHandling, ValueAccess, Fmi2Slave):
         self.modelName = cls.__name__
         self._time = 0.0
         self._dirty = False
-        self._initialized = False
-        self._init_mode = False         # between enter- and exitInitializationMode
         self._init_error: str | None = None
         self._broken: str | None = None
+        self._enter_state(INSTANTIATED)  # the FMI state machine (fmu_src.fmi_states): _fmi_state and flags
         self.refused_steps = 0          # diagnostics only, not part of the FMU state
+        self.refused_calls = 0          # calls the FMI state table forbids (diagnostics)
+        self.last_call_refusal: str | None = None
         self.last_refusal: str | None = None
         self._pylog = logging.getLogger(f"fmu_src.{cls.__name__}")
         self._base_attrs = set(self.__dict__) | {"_base_attrs"}
@@ -258,26 +263,68 @@ class TableSlave(StateHandling, ValueAccess, Fmi2Slave):
         """The outputs of the parameters and start values, in Initialization Mode (optional)."""
 
     # ------------------------------------------------------------------ pythonfmu interface
+    def to_xml(self, *args, **kwargs):
+        """pythonfmu's model description (in process, not an FMI call: it reads the start values with
+        fmi2Get* methods in state instantiated, which the state table would refuse)."""
+        saved = self._can_get
+        self._can_get = True
+        try:
+            return super().to_xml(*args, **kwargs)
+        finally:
+            self._can_get = saved
+
+    # Every method below first checks the FMI state table (fmu_src.fmi_states): a forbidden call is
+    # logged and changes nothing.  None of them lets an exception out (it would be fmi2Fatal).
     def setup_experiment(self, start_time: float, stop_time=None, tolerance=None):
+        if not self._allowed("fmi2SetupExperiment"):
+            return
+        if not math.isfinite(start_time):
+            self._refuse_call("fmi2SetupExperiment", f", startTime {start_time!r} is not finite")
+            return
         self._time = float(start_time)
 
     def enter_initialization_mode(self):
-        self._init_mode = True
+        if not self._allowed("fmi2EnterInitializationMode"):
+            return
+        self._enter_state(INITIALIZATION_MODE)
         self._dirty = True                     # the first fmi2Get* computes the initial outputs
 
     def exit_initialization_mode(self):
-        self._init_mode = False
-        self._initialized = True
+        """Check the parameters and start values and initialize; on a refusal the state is ``error``
+        (the reason is logged; pythonfmu 0.7 returns fmi2OK, the standard fmi2Error)."""
+        if not self._allowed("fmi2ExitInitializationMode"):
+            return
+        self._init_error = None
+        bad = self._non_finite(_IN_PAR)
+        if bad:
+            self._init_failed("invalid " + "; ".join(bad))
+            return
+        self._enter_state(STEP_COMPLETE)
         try:
             self.on_initialized()
-            if self._feedthrough and not self._non_finite(_IN_PAR):
+            if self._feedthrough:
                 self.evaluate()
             self._dirty = False
         except Exception as exc:  # never let an exception reach the C wrapper (it would be fmi2Fatal)
-            self._init_error = f"{type(exc).__name__}: {exc}"
-            self._report(f"initialization failed: {self._init_error}", Fmi2Status.error)
+            self._init_failed(f"{type(exc).__name__}: {exc}")
+
+    def _init_failed(self, reason: str) -> None:
+        """fmi2ExitInitializationMode refused: state ``error``, the reason logged (a slave may extend it)."""
+        self._init_error = reason
+        self._enter_state(ERROR)
+        self._dirty = False
+        self._report(f"{type(self).__name__} instance {self.instance_name!r}: fmi2ExitInitializationMode: "
+                     f"initialization failed: {reason}; the instance is in state error (fmi2Error by the "
+                     "standard; pythonfmu 0.7 returns fmi2OK): fmi2Reset it, or free it and instantiate again, "
+                     "and initialize with valid values", Fmi2Status.error)
+
+    def terminate(self):
+        if self._allowed("fmi2Terminate"):
+            self._enter_state(TERMINATED)
 
     def do_step(self, current_time: float, step_size: float) -> bool:
+        if not self._can_step and not self._allowed("fmi2DoStep"):
+            return False
         if (self._broken or self._init_error or not self._all_finite(self._in_check)
                 or not (math.isfinite(current_time) and math.isfinite(step_size) and step_size >= 0.0)):
             reason = self._step_refusal(current_time, step_size)
@@ -395,7 +442,9 @@ class TableSlave(StateHandling, ValueAccess, Fmi2Slave):
         """Refuse a doStep (after its rollback, if any): count, log, return False (fmi2Discard).
         Every refusal ends here; a slave may extend it (the DK FMU sets its status output)."""
         full = (f"{type(self).__name__} instance {self.instance_name!r}: step [{t!r}, {t + dt!r}] refused "
-                f"(fmi2Discard, state kept at t={self._time!r}): {msg}")
+                f"(fmi2Discard, state kept at t={self._time!r}; now in state stepFailed: fmi2SetFMUstate, "
+                f"fmi2Reset or fmi2Terminate): {msg}")
+        self._enter_state(STEP_FAILED)
         self.refused_steps += 1
         self.last_refusal = full
         self._report(full, Fmi2Status.error)

@@ -1,6 +1,6 @@
 """fmi2Set* / fmi2Get* of a table slave by value reference: the mixin :class:`ValueAccess`.
 
-Part of the FMU runtime (bundled into every FMU): it imports nothing.  pythonfmu's C wrapper calls
+Part of the FMU runtime (bundled into every FMU): it imports pythonfmu's status enum only.  pythonfmu's C wrapper calls
 ``set_real(vrs, values)``, ``get_real(vrs)``... with lists of value references; pythonfmu answers
 them through one ``ScalarVariable`` object and one getter or setter closure per value, with a type
 check each.  Here one dictionary lookup per value reference gives the attribute (the tables are
@@ -8,15 +8,26 @@ built per class by :class:`fmu_src.table_slave.TableSlave`): the same values set
 the same conversions (``float``, ``int``, ``bool``), the same staleness of direct-feedthrough
 outputs (an input set marks them; a get of one refreshes them first, :meth:`TableSlave._refresh`)
 and, in Initialization Mode, of every output (any set marks them; :meth:`TableSlave.initial_outputs`).
-What the fast path does not take (an unknown reference, one of another type, a value that does
-not convert) goes to pythonfmu's own methods, which raise as they always did.
+
+Every call keeps the FMI 2.0 state table (:mod:`fmu_src.fmi_states`): a set is refused as a whole
+(nothing set, one message) when the state forbids it or when a value reference is not settable now
+(unknown, another type, or a variable the state does not let change); a get is refused when the
+state forbids it (NaN for each Real, the current value of each Integer/Boolean), and an unknown
+reference reads NaN / 0 / False with a message.  Nothing here raises: an exception would be
+fmi2Fatal and pythonfmu would release the instance.
 
 Relies on the class attributes ``_attrs`` ({FMI type: {value reference: attribute}}),
-``_real_attrs``, ``_marks_dirty``, ``_refreshing``, ``_feedthrough`` and on ``_dirty``/``_refresh``.
+``_real_attrs``, ``_marks_dirty``, ``_refreshing``, ``_feedthrough``, on the flags of
+:class:`fmu_src.fmi_states.FmiStates` and on ``_dirty``/``_refresh``.
 """
 from __future__ import annotations
 
+from pythonfmu.enums import Fmi2Status
+
 __all__ = ["ValueAccess"]
+
+_NAN = float("nan")
+_MISSING = {"Real": _NAN, "Integer": 0, "Boolean": False, "String": ""}
 
 
 class ValueAccess:
@@ -24,54 +35,83 @@ class ValueAccess:
 
     # the Real ones are written out: they are the calls of every step
     def set_real(self, vrs, values):
+        if not self._settable_real.issuperset(vrs):
+            self._set_refused("Real", vrs)
+            return
         attrs = self._real_attrs
         try:
             for vr, value in zip(vrs, values):
                 setattr(self, attrs[vr], float(value))
-        except (KeyError, TypeError, ValueError, OverflowError):
-            return super().set_real(vrs, values)
+        except (TypeError, ValueError) as exc:     # in process only: the C wrapper passes doubles
+            self._refuse_call("fmi2SetReal", f", a value does not convert ({type(exc).__name__}: {exc}; "
+                                             "the values before it were set)")
+            return
         if self._init_mode or (self._feedthrough and not self._marks_dirty.isdisjoint(vrs)):
             self._dirty = True
 
     def get_real(self, vrs):
+        if not self._can_get and not self._allowed("fmi2GetReal"):
+            return [_NAN] * len(vrs)
         if self._dirty and (self._init_mode or not self._refreshing.isdisjoint(vrs)):
             self._refresh()
         attrs = self._real_attrs
         try:
             return [float(getattr(self, attrs[vr])) for vr in vrs]
-        except (KeyError, TypeError, ValueError, OverflowError):
-            return super().get_real(vrs)
+        except KeyError:
+            return self._get_unknown("Real", vrs, attrs, float)
 
     def set_integer(self, vrs, values):
-        self._set(vrs, values, self._attrs["Integer"], int) or super().set_integer(vrs, values)
+        self._set("Integer", vrs, values, int)
 
     def set_boolean(self, vrs, values):
-        self._set(vrs, values, self._attrs["Boolean"], bool) or super().set_boolean(vrs, values)
+        self._set("Boolean", vrs, values, bool)
+
+    def set_string(self, vrs, values):
+        self._set("String", vrs, values, str)
 
     def get_integer(self, vrs):
-        out = self._get(vrs, self._attrs["Integer"], int)
-        return super().get_integer(vrs) if out is None else out
+        return self._get("Integer", vrs, int)
 
     def get_boolean(self, vrs):
-        out = self._get(vrs, self._attrs["Boolean"], bool)
-        return super().get_boolean(vrs) if out is None else out
+        return self._get("Boolean", vrs, bool)
 
-    def _set(self, vrs, values, attrs: dict, conv) -> bool:
-        """Set ``values`` by reference (what each variable's setter does); False: not taken."""
+    def get_string(self, vrs):
+        return self._get("String", vrs, str)
+
+    def _set(self, kind: str, vrs, values, conv) -> None:
+        """Set ``values`` by reference (what each variable's setter does), or refuse the call."""
+        if self._set_refused(kind, vrs):
+            return
+        attrs = self._attrs[kind]
         try:
-            for vr, value in zip(vrs, values):
-                setattr(self, attrs[vr], conv(value))
-        except (KeyError, TypeError, ValueError, OverflowError):
-            return False
+            converted = [conv(value) for value in values]
+        except (TypeError, ValueError, OverflowError) as exc:
+            self._refuse_call("fmi2Set" + kind, f", a value does not convert ({type(exc).__name__}: {exc})")
+            return
+        for vr, value in zip(vrs, converted):
+            setattr(self, attrs[vr], value)
         if self._init_mode or (self._feedthrough and not self._marks_dirty.isdisjoint(vrs)):
             self._dirty = True
-        return True
 
-    def _get(self, vrs, attrs: dict, conv) -> list | None:
-        """The values of ``vrs`` (what each variable's getter returns); None: not taken."""
+    def _get(self, kind: str, vrs, conv) -> list:
+        """The values of ``vrs`` (what each variable's getter returns), or the refusal's values."""
+        attrs = self._attrs.get(kind, {})
+        if not self._can_get and not self._allowed("fmi2Get" + kind):
+            return [conv(getattr(self, attrs[vr])) if vr in attrs else _MISSING[kind] for vr in vrs]
         if self._dirty and (self._init_mode or not self._refreshing.isdisjoint(vrs)):
             self._refresh()
         try:
             return [conv(getattr(self, attrs[vr])) for vr in vrs]
-        except (KeyError, TypeError, ValueError, OverflowError):
-            return None
+        except KeyError:
+            return self._get_unknown(kind, vrs, attrs, conv)
+
+    def _get_unknown(self, kind: str, vrs, attrs: dict, conv) -> list:
+        """A get with a reference that is not a variable of ``kind``: log, answer the missing value."""
+        bad = [vr for vr in vrs if vr not in attrs]
+        msg = (f"{type(self).__name__} instance {self.instance_name!r}: fmi2Get{kind}: no {kind} variable with "
+               f"value reference(s) {bad} (valid: {sorted(attrs)}); answered {_MISSING[kind]!r} "
+               "(fmi2Error by the standard; pythonfmu 0.7 returns fmi2OK)")
+        self.refused_calls += 1
+        self.last_call_refusal = msg
+        self._report(msg, Fmi2Status.error)
+        return [conv(getattr(self, attrs[vr])) if vr in attrs else _MISSING[kind] for vr in vrs]

@@ -199,14 +199,16 @@ def test_several_postures_and_the_mode_build_option(built_multi, tmp, make):
     assert [m.step(q) for q in q2[:150]] == tracker_rows(map2, q2[:150], mode="paper")
     m1 = make("p1", fmu_=built_multi.fmu, dir_=dir2, **circle_start(), posture=1, mode=0)
     assert [m1.step(q) for q in Q[:150]] == tracker_rows(MapTensor.load(built_multi.maps[1]), Q[:150])
-    # a posture without an embedded map: initialization fails, every step is refused with the reason
+    # a posture without an embedded map: exitInitializationMode refuses it (state error), and every
+    # step is refused with the state and the reason
     m3 = make("p3", fmu_=built_multi.fmu, dir_=dir2, posture=3)
-    assert any("embeds maps of posture(s) [1, 2] only" in msg for msg in m3.errors())
+    assert any("fmi2ExitInitializationMode: initialization failed" in msg
+               and "embeds maps of posture(s) [1, 2] only" in msg for msg in m3.errors())
     assert m3.outputs()[OUTPUTS.index("status")] == 3
     with pytest.raises(FMICallException) as info:
         m3.step(Q[0])
     assert info.value.status == fmi2Discard
-    assert any("initialization failed" in msg and "refused" in msg for msg in m3.errors())
+    assert any("fmi2DoStep refused in state error" in msg and "embeds maps" in msg for msg in m3.errors())
 
 
 # ---------------------------------------------------------------------- damaged map resources

@@ -1,0 +1,110 @@
+"""The FMU's native binary: a loader that lets hosts without Python run the FMU (host side; never
+bundled into an FMU).
+
+pythonfmu's wrapper library calls the Python C API but is not linked against libpython, so only a
+process that already has Python can load it; a C host fails with ``undefined symbol:
+_Py_NoneStruct``.  :func:`loader_entries` turns pythonfmu's binary entries of an FMU archive into
+
+- ``binaries/linux64/<modelIdentifier>.so``: the loader, ``fmu_src/loader/fmi2_loader.c`` compiled
+  with the system C compiler (``$CC``, else ``cc``, else ``gcc``).  In the first ``fmi2Instantiate``
+  it uses the process's Python if it has one (fmpy: no second interpreter), else it opens libpython
+  globally and starts the interpreter recorded below, then forwards every fmi2* function to
+- ``binaries/linux64/libpythonfmu-export.so``: pythonfmu's wrapper, unchanged;
+- ``resources/python_runtime.txt``: ``python=`` the interpreter that built the FMU (its venv and
+  site-packages are what the FMU imports) and ``libpython=`` its shared library.  ``$RRR_DK_PYTHON``
+  (a path to another python) overrides it when the FMU runs.
+
+Without a C compiler, or on a platform other than Linux, the entries stay pythonfmu's (the FMU runs
+in Python hosts only) and :func:`loader_entries` says so with a warning.  The compile is
+deterministic (fixed flags, no debug info, stripped, run in a folder of fixed name), so builds stay
+byte-identical.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+import tempfile
+import warnings
+from pathlib import Path
+from typing import Mapping
+
+__all__ = ["LOADER_SOURCE", "WRAPPER_NAME", "RUNTIME_FILE", "PYTHON_ENV", "NativeBuildWarning",
+           "compiler", "compile_loader", "runtime_record", "loader_entries"]
+
+LOADER_SOURCE = Path(__file__).resolve().parent / "loader" / "fmi2_loader.c"
+#: pythonfmu's wrapper inside the FMU, beside the loader (the loader's ``WRAPPER_NAME``)
+WRAPPER_NAME = "libpythonfmu-export.so"
+#: the build-time record of the Python runtime, under resources/ (the loader's ``RUNTIME_FILE``)
+RUNTIME_FILE = "python_runtime.txt"
+#: the environment variable that names another python at run time (the loader's ``PYTHON_ENV``)
+PYTHON_ENV = "RRR_DK_PYTHON"
+_FLAGS = ["-std=c11", "-O2", "-fPIC", "-shared", "-fvisibility=hidden", "-Wall", "-Wno-format-truncation", "-s",
+          "-Wl,-Bsymbolic", "-Wl,--build-id=none"]
+_LIBS = ["-ldl", "-lpthread"]
+
+
+class NativeBuildWarning(UserWarning):
+    """The FMU keeps pythonfmu's binary (runs in Python hosts only); the message says why."""
+
+
+def compiler() -> str | None:
+    """The C compiler to use: ``$CC``, else ``cc``, else ``gcc`` (None if there is none)."""
+    for name in (os.environ.get("CC"), "cc", "gcc"):
+        if name and shutil.which(name):
+            return shutil.which(name)
+    return None
+
+
+def compile_loader(cc: str | None = None) -> bytes:
+    """The loader library, compiled from :data:`LOADER_SOURCE`; raises RuntimeError with the compiler's
+    message on failure."""
+    cc = cc or compiler()
+    if cc is None:
+        raise RuntimeError("no C compiler found (set $CC or install gcc)")
+    with tempfile.TemporaryDirectory(prefix="fmu_src_native_") as tmp:
+        work = Path(tmp) / "loader"                   # fixed relative names: the same bytes every build
+        work.mkdir()
+        shutil.copyfile(LOADER_SOURCE, work / LOADER_SOURCE.name)
+        proc = subprocess.run([cc, *_FLAGS, "-o", "loader.so", LOADER_SOURCE.name, *_LIBS], cwd=work,
+                              capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"{cc} failed on {LOADER_SOURCE.name}:\n{proc.stderr.strip()}")
+        return (work / "loader.so").read_bytes()
+
+
+def runtime_record() -> bytes:
+    """``resources/python_runtime.txt`` for the running interpreter (the one that builds the FMU)."""
+    libpython = ""
+    if sysconfig.get_config_var("Py_ENABLE_SHARED"):
+        candidate = Path(sysconfig.get_config_var("LIBDIR") or "") / (sysconfig.get_config_var("INSTSONAME") or "")
+        libpython = str(candidate) if candidate.is_file() else ""
+    return (f"# The Python runtime this FMU's binary starts in a host process without Python "
+            f"(${PYTHON_ENV}=/path/to/python overrides it)\n"
+            f"python={sys.executable}\nlibpython={libpython}\n").encode()
+
+
+def loader_entries(entries: Mapping[str, bytes], model: str) -> dict[str, bytes]:
+    """``entries`` (an FMU archive: {name: bytes}) with the Linux binary replaced by the loader,
+    pythonfmu's wrapper beside it and the runtime record; unchanged (with a
+    :class:`NativeBuildWarning`) where the loader cannot be built."""
+    binary = f"binaries/linux64/{model}.so"
+    out = dict(entries)
+    if binary not in entries:
+        return out
+    if not sys.platform.startswith("linux"):
+        warnings.warn(f"{model}: the loader for hosts without Python is built on Linux only; the FMU keeps "
+                      "pythonfmu's binary", NativeBuildWarning, stacklevel=2)
+        return out
+    try:
+        loader = compile_loader()
+    except (RuntimeError, OSError) as exc:
+        warnings.warn(f"{model}: {exc}; the FMU keeps pythonfmu's binary and runs in Python hosts only "
+                      "(fmpy, libcosimpy, ecospy)", NativeBuildWarning, stacklevel=2)
+        return out
+    out[f"binaries/linux64/{WRAPPER_NAME}"] = entries[binary]
+    out[binary] = loader
+    out[f"resources/{RUNTIME_FILE}"] = runtime_record()
+    return out
