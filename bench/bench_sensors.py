@@ -34,13 +34,13 @@ from pathlib import Path
 
 import numpy as np
 
+from bench_tracker import VOUCHING, pose_errors
 from solver import DEFAULT_RULE, DEFAULT_STEP, Manipulator, SolverInputError, Tracker, cached_map, wrap_angle
 from solver.baselines import BASELINES
 from solver.sensors import SENSOR_GRADES, sensor_truth
 from solver.suite import default_suite, hard_suite
 from solver.tracker_state import STATUS
 
-VOUCHING = ("default", "paper", "newton-separation")
 REJECTED = [k for k, v in STATUS.items() if v == "rejected"][0]
 
 
@@ -75,12 +75,6 @@ def run_stream(tracker, q, X0, dt):
         certain[k] = info.certain
         refused[k] = info.status == REJECTED
     return X, certain, refused, secs
-
-
-def pose_errors(X, truth):
-    d = np.abs(X - truth)
-    d[:, 2] = np.abs(wrap_angle(X[:, 2] - truth[:, 2]))
-    return d.max(axis=1)
 
 
 def score(X, certain, refused, truth, counted, glitch, vouching):

@@ -2,15 +2,15 @@
 import numpy as np
 import pytest
 
-from solver import CERTIFICATES, Manipulator, MapTensor, SolverInputError, Tracker, TrackerState, default_bounds, ik, \
-    wrap_angle
+from conftest import pose_distance
+from solver import CERTIFICATES, MapTensor, SolverInputError, Tracker, TrackerState, default_bounds, ik
 from solver._kernels.certify import TINY, follow_branch
-from solver.tracker_state import STATE_FLOATS
-from solver._kernels.krawczyk import W_SIZE, krawczyk, newton_on_path
 from solver._kernels.kinematics import geometry
+from solver._kernels.krawczyk import W_SIZE, krawczyk, newton_on_path
 from solver.baselines import NewtonSeparationTracker
 from solver.direct_kinematics import kernel_constants
-from solver.suite import hard_suite, shape_path, make_path
+from solver.suite import hard_suite
+from solver.tracker_state import STATE_FLOATS
 from solver.trajectories import circle_path
 
 STEP = (0.02, 0.02, np.deg2rad(4.0))
@@ -40,9 +40,7 @@ def maps(model, hard):
 
 
 def wrong(X, truth):
-    d = np.abs(X - truth)
-    d[:, 2] = np.abs(wrap_angle(X[:, 2] - truth[:, 2]))
-    return d.max(axis=1) > 1e-6
+    return pose_distance(X, truth) > 1e-6
 
 
 # ------------------------------------------------------------------ the Krawczyk test itself

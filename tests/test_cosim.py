@@ -2,22 +2,14 @@
 import numpy as np
 import pytest
 
-from dynamics.cosim import ClosedLoop, Scenario, build_fmus, simulate_fig3, write_osp_system
+from dynamics.cosim import Scenario, simulate_fig3, write_osp_system
 from dynamics import (DynamicParameters, joint_velocity_jacobian, pose_velocity_jacobian, rk4, task_space_rhs,
                       total_energy)
 from solver import Manipulator, ik, wrap_angle
 
-
-@pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    out = tmp_path_factory.mktemp("fmus")
-    return build_fmus(out, resolution=(0.04, float(np.deg2rad(6.0))), log=lambda *a: None)
+from cosim_support import fmus, loop  # noqa: F401 (fixtures)
 
 
-@pytest.fixture(scope="module")
-def loop(fmus):
-    with ClosedLoop(fmus) as cl:
-        yield cl
 
 
 def pose_diff(a, b):

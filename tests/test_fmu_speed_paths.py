@@ -15,12 +15,13 @@ import numpy as np
 import pytest
 
 import dynamics  # noqa: F401  (before any FMU: the FMUs then use the host's packages)
-from dynamics.cosim import ClosedLoop, Scenario, build_fmus
+from dynamics.cosim import Scenario
 from dynamics.cosim.results import COLUMNS, FLAG_COLUMNS
 from fmu_src import kernel_cache, slave_state
 from fmu_src.fmi_states import STEP_COMPLETE, STEP_FAILED
 from fmu_src.table_slave import StepRefused, TableSlave, Var
-from fmu_src.unit import import_hygiene
+
+from cosim_support import fmus, loop  # noqa: F401 (fixtures)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -175,16 +176,6 @@ def test_plant_refusal_keeps_its_state_and_the_next_step_is_exact():
 
 
 # ---------------------------------------------------------------------- master
-@pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    out = tmp_path_factory.mktemp("fmus")
-    return build_fmus(out, resolution=(0.04, float(np.deg2rad(6.0))), log=lambda *a: None)
-
-
-@pytest.fixture(scope="module")
-def loop(fmus):
-    with import_hygiene(), ClosedLoop(fmus) as cl:
-        yield cl
 
 
 def test_one_set_step_get_per_fmu_and_step(loop, monkeypatch):

@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 
+from conftest import pose_distance
 from solver import STATUS, MapTensor, SolverInputError, Tracker, default_bounds
 from solver._kernels.certify import TINY
 from solver._kernels.krawczyk import W_SIZE, krawczyk, newton_on_path
@@ -42,9 +43,7 @@ def run(tracker, q, X0):
 
 
 def wrong(X, truth):
-    d = np.abs(X - truth)
-    d[:, 2] = np.abs(np.angle(np.exp(1j * (X[:, 2] - truth[:, 2]))))
-    return d.max(axis=1) > 1e-6
+    return pose_distance(X, truth) > 1e-6
 
 
 # ----------------------------------------------------------------------------- the sensor model

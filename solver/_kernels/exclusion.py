@@ -24,10 +24,8 @@ import numpy as np
 from numba import njit
 
 from .certify import TINY, elbow_bits, prove_part, same_pose
-from .krawczyk import PAD, W_SIZE, _smul, icos, isin, krawczyk
 from .kinematics import geometry
-
-TWO_PI = 2.0 * math.pi
+from .krawczyk import PAD, TWO_PI, W_SIZE, _smul, icos, isin, krawczyk
 
 
 @njit(cache=True)

@@ -108,6 +108,29 @@ def nearest(poses, real, Xref, w, m1, m2, m3, use_map):
 
 
 @njit(cache=True)
+def reach(params, seconds):
+    """How far the platform can have moved in ``seconds`` under the speed bound, plus the pose
+    boxes' reach (2 RHO_CAP): (m, rad)."""
+    return 2.0 * RHO_CAP + params[PARAM_SPEED] * seconds, 2.0 * RHO_CAP + params[PARAM_SPEED + 1] * seconds
+
+
+@njit(cache=True)
+def reacquire_region(params, state, region):
+    """The pose box (6,) the robot is in: the tool space, cut to what the platform can have reached
+    since its last certain pose when a speed bound is given."""
+    region[0:4] = params[PARAM_ROOT:PARAM_ROOT + 4]
+    region[4], region[5] = -math.pi, math.pi
+    age = state[STATE_ANCHOR_AGE]
+    if params[PARAM_SPEED] > 0.0 and math.isfinite(age):
+        a = state[STATE_ANCHOR:STATE_ANCHOR + 3]
+        r, rp = reach(params, age)
+        region[0], region[1] = max(region[0], a[0] - r), min(region[1], a[0] + r)
+        region[2], region[3] = max(region[2], a[1] - r), min(region[3], a[1] + r)
+        if rp < math.pi:
+            region[4], region[5] = a[2] - rp, a[2] + rp
+
+
+@njit(cache=True)
 def certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred, w, params, model_pack,
                      new_cands, info_i):
     """The certificates of a step (:mod:`.certify`) and what they change in the choice.
@@ -129,25 +152,16 @@ def certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred
             d2[i] = (wrap(state[STATE_Q2 + i] - qp[i]) + r * dq[i]) / (r * (1.0 + r))
     keep = np.empty(6, dtype=np.bool_)
     intact_before = state[STATE_INTACT] > 0.0
-    n_new, cert, intact = certify(cands, n_cand, state[STATE_VERIFIED] > 0.0, intact_before, qp, dq, d2, have_par,
-                                  params[PARAM_JOINT_TOL], poses, real, int(params[PARAM_POSTURE_BITS]),
-                                  int(params[PARAM_MAX_TESTS]), model_pack, new_cands, keep)
-    intact = intact and intact_before
     eps = params[PARAM_JOINT_TOL]
     posture_bits = int(params[PARAM_POSTURE_BITS])
+    n_new, cert, intact = certify(cands, n_cand, state[STATE_VERIFIED] > 0.0, intact_before, qp, dq, d2, have_par,
+                                  eps, poses, real, posture_bits, int(params[PARAM_MAX_TESTS]), model_pack,
+                                  new_cands, keep)
+    intact = intact and intact_before
     if not (cert != CERT_NONE and intact) and eps > 0.0 and params[PARAM_REACQUIRE] > 0.0 and posture_bits >= 0:
         # measured joints: re-acquire the branch from this sample alone (see .exclusion)
         region = np.empty(6)
-        region[0:4] = params[PARAM_ROOT:PARAM_ROOT + 4]
-        region[4], region[5] = -math.pi, math.pi
-        age = state[STATE_ANCHOR_AGE]
-        if params[PARAM_SPEED] > 0.0 and math.isfinite(age):
-            a = state[STATE_ANCHOR:STATE_ANCHOR + 3]
-            r, rp = 2.0 * RHO_CAP + params[PARAM_SPEED] * age, 2.0 * RHO_CAP + params[PARAM_SPEED + 1] * age
-            region[0], region[1] = max(region[0], a[0] - r), min(region[1], a[0] + r)
-            region[2], region[3] = max(region[2], a[1] - r), min(region[3], a[1] + r)
-            if rp < math.pi:
-                region[4], region[5] = a[2] - rp, a[2] + rp
+        reacquire_region(params, state, region)
         target = chosen
         if cert != CERT_NONE:                      # the branch along the measured joints
             for k in range(6):
@@ -355,8 +369,7 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
     if params[PARAM_JOINT_TOL] > 0.0 and params[PARAM_SPEED] > 0.0 and math.isfinite(step_dt):
         # measured joints: a pose the platform cannot have reached since the last sample (the
         # measured joints crossed a fold the robot did not) is not taken; the previous pose is held
-        r = params[PARAM_SPEED] * step_dt + 2.0 * RHO_CAP
-        rp = params[PARAM_SPEED + 1] * step_dt + 2.0 * RHO_CAP
+        r, rp = reach(params, step_dt)
         if abs(X_out[0] - Xp[0]) > r or abs(X_out[1] - Xp[1]) > r or abs(wrap(X_out[2] - Xp[2])) > rp:
             X_out[:] = Xp
             info_i[I_STATUS] = STATUS_UNREACHABLE
