@@ -44,9 +44,11 @@ from solver.tracker_state import STATUS
 REJECTED = [k for k, v in STATUS.items() if v == "rejected"][0]
 
 
-def make_methods(model, maps, names, tol, speed):
-    makers = {"default": lambda p: Tracker(model, maps[p], joint_tolerance=tol, speed_bound=speed),
-              "paper": lambda p: Tracker(model, maps[p], mode="paper", joint_tolerance=tol, speed_bound=speed)}
+def make_methods(model, maps, names, tol, speed, stuck_after=0):
+    makers = {"default": lambda p: Tracker(model, maps[p], joint_tolerance=tol, speed_bound=speed,
+                                           stuck_after=stuck_after),
+              "paper": lambda p: Tracker(model, maps[p], mode="paper", joint_tolerance=tol, speed_bound=speed,
+                                         stuck_after=stuck_after)}
     for name, cls in BASELINES.items():
         makers[name] = (lambda c: (lambda p: c(model)))(cls)
     return {n: makers[n] for n in names}
@@ -114,6 +116,8 @@ def main(argv=None):
     ap.add_argument("--speed", type=float, nargs=2, default=None, metavar=("M_PER_S", "RAD_PER_S"),
                     help="the trackers' speed_bound (default: 1.25 times the fastest path's speeds)")
     ap.add_argument("--no-speed", action="store_true", help="no speed bound (re-acquisition over the tool space)")
+    ap.add_argument("--no-stuck", dest="stuck", action="store_false",
+                    help="run the trackers without the stuck-joint detector (solver.stuck)")
     ap.add_argument("--sigmas", type=float, default=3.0, help="joint_tolerance = this many noise sigmas + half a step")
     ap.add_argument("--out", default="results")
     args = ap.parse_args(argv)
@@ -141,7 +145,7 @@ def main(argv=None):
     for gname in args.grades:
         sensor = grades[gname]
         makers = make_methods(model, maps, args.methods, sensor.tolerance(args.sigmas) if args.tolerance else 0.0,
-                              speed)
+                              speed, sensor.stuck_after() if args.stuck else 0)
         tot = {m: dict(counted=0, errors=0, silent=0, alarms=0, refused=0, recovery=0) for m in makers}
         for i, path in enumerate(suite):
             stream = sensor.measure(path.q, seed=1000 + i)

@@ -103,6 +103,9 @@ class RRRDirectKinematics(TableSlave):
         Var("uncertain_since", "Real", "output", "discrete", initial="exact", start=-1.0, unit="s",
             depends_on=("q1", "q2", "q3"),
             description="time of the step since which the tracker cannot vouch for the pose; -1 while certain"),
+        Var("stuck_after", "Integer", "parameter", "fixed", start=0, min=0,
+            description="with joint_tolerance: identical readings in a row that mark a joint stuck (refused, "
+                        "state rolled back to before them); 0: off, for noisy encoders see the readme"),
     )
     # _track: the TrackerState (the tracker's whole mutable data: previous pose and joints, the pose
     # before, the joint-step scale, the step count); _committed: (q, outputs) of the last doStep (or of
@@ -179,7 +182,7 @@ class RRRDirectKinematics(TableSlave):
         return maps, model
 
     def _sensor_options(self):
-        """(joint_tolerance, speed_bound) of the parameters, checked."""
+        """(joint_tolerance, speed_bound, stuck_after) of the parameters, checked."""
         tol, v, w = self.joint_tolerance, self.speed_bound_linear, self.speed_bound_angular
         for name, value in (("joint_tolerance", tol), ("speed_bound_linear", v), ("speed_bound_angular", w)):
             if not (math.isfinite(value) and value >= 0.0):
@@ -187,7 +190,10 @@ class RRRDirectKinematics(TableSlave):
         if (v > 0.0) != (w > 0.0):
             raise ValueError(f"parameters 'speed_bound_linear' = {v!r} and 'speed_bound_angular' = {w!r}: "
                              "expected both > 0 (a speed bound) or both 0 (none)")
-        return float(tol), ((float(v), float(w)) if v > 0.0 else None)
+        stuck = self.stuck_after
+        if not (isinstance(stuck, int) and (stuck == 0 or stuck >= 2)):
+            raise ValueError(f"parameter 'stuck_after' = {stuck!r}: expected 0 (off) or an integer >= 2")
+        return float(tol), ((float(v), float(w)) if v > 0.0 else None), int(stuck)
 
     def _make_tracker(self, posture, mode):
         if posture not in self._maps:
@@ -195,9 +201,9 @@ class RRRDirectKinematics(TableSlave):
                              f"{sorted(self._maps)} only (build_fmu.py --posture)")
         if not 0 <= mode < len(self.MODES):
             raise ValueError(f"parameter 'mode' = {mode!r}: expected 0 (default) or 1 (paper)")
-        tol, speed = self._sensor_options()
+        tol, speed, stuck = self._sensor_options()
         return Tracker(self._model, self._maps[posture], mode=self.MODES[mode], singular_tol=self.SINGULAR_TOL,
-                       joint_tolerance=tol, speed_bound=speed)
+                       joint_tolerance=tol, speed_bound=speed, stuck_after=stuck)
 
     # ------------------------------------------------------------------ initialization
     def on_initialized(self):
@@ -383,6 +389,6 @@ class RRRDirectKinematics(TableSlave):
         self._cache = None
         if track is not None and (self._tracker is None or self._tracker.posture != self.posture
                                   or self._tracker.mode != self.MODES[self.mode]
-                                  or (self._tracker.joint_tolerance, self._tracker.speed_bound)
-                                  != self._sensor_options()):
+                                  or (self._tracker.joint_tolerance, self._tracker.speed_bound,
+                                      self._tracker.stuck_after) != self._sensor_options()):
             self._tracker = self._make_tracker(self.posture, self.mode)

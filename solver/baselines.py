@@ -26,7 +26,7 @@ from ._kernels import layout as _lay
 from ._kernels.baselines import baseline_step
 from .manipulator import Manipulator
 from .ordering import DEFAULT_RULE, rule_code
-from .tracker import _TrackerBase
+from .tracking import _TrackerBase
 
 __all__ = ["NewtonTracker", "PredictorNewtonTracker", "CLDKTracker", "NearestTracker", "NewtonSeparationTracker",
            "BASELINES", "SEPARATION"]

@@ -29,6 +29,7 @@ from .checks import SolverInputError, as_array
 from .direct_kinematics import dk_all
 from .kinematics import wrap_angle
 from .manipulator import Manipulator
+from .stuck import stuck_samples
 
 __all__ = ["Sensor", "SensorStream", "SENSOR_GRADES", "GLITCHES", "quantize", "sensor_truth", "TRUTH_FACTOR"]
 
@@ -103,6 +104,12 @@ class Sensor:
         an encoder step; what to pass as the tracker's ``joint_tolerance`` (0 for exact joints)."""
         half = 0.0 if self.bits is None else np.pi / 2.0 ** self.bits
         return sigmas * self.noise + half
+
+    def stuck_after(self, p_false: float = 1e-6) -> int:
+        """Identical readings in a row after which a joint of this sensor is stuck: a joint at rest
+        gives as many with a probability at most ``p_false`` per sample; 0 (off) for exact joints.
+        What to pass as the tracker's ``stuck_after`` (:mod:`solver.stuck`)."""
+        return stuck_samples(self.noise, 0.0 if self.bits is None else 2.0 * np.pi / 2.0 ** self.bits, p_false)
 
     def measure(self, q, seed: int) -> SensorStream:
         """The stream this sensor reads from the exact joints ``q`` (n, 3), rad; deterministic in ``seed``."""

@@ -88,44 +88,37 @@ and ``certain`` means a proof for every joint path within that tolerance:
   (only the count of refusals moves).  After ``MAX_REFUSED`` refusals in a row
   the next sample is taken (the joints really moved) and vouching ends until a
   re-acquisition, which then searches the whole tool space;
-* with ``speed_bound``, a *speed gate* holds the previous pose (status
-  ``unreachable``) when the chosen solution is farther than the platform can
-  have moved since the last sample (plus 0.1 m / 0.1 rad): the measured joints
-  crossed a fold that the robot did not, and the branch it is on has no real
-  solution at them.  At most ``MAX_HELD`` samples in a row.
+* with ``speed_bound``, a *speed gate*: when the chosen solution is farther
+  than the platform can have moved since the last sample (plus 0.1 m / 0.1 rad),
+  the measured joints crossed a fold that the robot did not.  If exactly one
+  real solution is within that reach it is taken (not vouched for, the chain
+  ends); otherwise the previous pose is held (status ``unreachable``), at most
+  ``MAX_HELD`` samples in a row (:mod:`solver.tracking`);
+* with ``stuck_after``, a *stuck-joint detector* (:mod:`solver.stuck`): a
+  noisy encoder rarely repeats a reading, so a joint read ``stuck_after`` times
+  in a row with the same value is stuck; the state rolls back to before the
+  repeats, the samples are refused while it stays stuck, and the first reading
+  that moves again is one step over the whole time since.
 
-The proofs hold while the sensor keeps its tolerance; a joint that sticks for
-many samples breaks that silently (no method can tell it from a joint at rest).
-Measured on noisy streams: ``bench/bench_sensors.py``.
+The proofs hold while the sensor keeps its tolerance: the ``stuck_after - 1``
+repeated readings before a detection, and a joint stuck on an exact (noise-free)
+encoder, break it unnoticed.  Measured on noisy streams: ``bench/bench_sensors.py``.
 
 Every step reports a :class:`StepInfo`.
 """
 from __future__ import annotations
 
-import time
-from dataclasses import replace
-
 import numpy as np
 
 from ._kernels import layout as _lay
-from ._kernels.certify import CERT_CONTINUATION, CERT_REACQUIRED
-from ._kernels.layout import MAX_REFUSED
-from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, F_DQ, I_AMBIGUOUS, I_CERTAIN, I_CERTIFICATE, I_JUMP,
-                              I_LABEL, I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, INFO_I_SIZE, OUT_CANDS, OUT_INFO,
-                              OUT_SIZE, OUT_X, OUT_X_PRED, STATE_CANDS, STATE_DQ_SCALE, STATE_EXT_SCALE,
-                              STATE_HAVE_Q2, STATE_HISTORY, STATE_N_CAND, STATE_Q, STATE_Q2, STATE_SIZE,
-                              STATE_VERIFIED, STATE_X, STATE_X2, STATUS_UNREACHABLE, STATE_INTACT,
-                              I_INTACT, STATE_A_SCALE, STATE_REFUSED, STATUS_REJECTED, F_INNOV, STATE_ANCHOR,
-                              STATE_ANCHOR_AGE, STATE_STEP_DT)
 from ._kernels.tracker import tracker_step
-from .checks import SolverInputError, as_array
+from .checks import as_array
 from .grid import default_bounds
-from .direct_kinematics import kernel_constants
-from .kinematics import wrap_angle
 from .manipulator import Manipulator
 from .maptensor import MapTensor
 from .ordering import rule_code
-from .tracker_state import STEP_FIELDS, STATUS, StepInfo, TrackerError, TrackerState, TrackResult
+from .tracker_state import TrackerError
+from .tracking import _TrackerBase
 
 __all__ = ["Tracker", "MAX_TESTS"]
 
@@ -141,10 +134,6 @@ MAX_TESTS = 2000
 #: ``2 tol (1 + r)``, plus ``GATE`` times the running mean of recent differences (see "Sensors").
 GATE = 4.0
 
-#: With measured joints and a speed bound: samples held in a row (a pose the platform cannot have
-#: reached) after which the next pose is taken whatever its distance (see "Sensors").
-MAX_HELD = 10
-
 #: With measured joints: pose boxes one re-acquisition may examine (see "Sensors").
 REACQUIRE_BOXES = 2000
 
@@ -158,176 +147,6 @@ def _tool_space(model: Manipulator) -> np.ndarray:
     if key not in _TOOL_SPACE:
         _TOOL_SPACE[key] = default_bounds(model)
     return _TOOL_SPACE[key]
-
-
-def _check_q(q) -> np.ndarray:
-    """q as a float array (3,), or SolverInputError naming ``q`` (fast path for the common case)."""
-    if isinstance(q, np.ndarray) and q.shape == (3,) and q.dtype == np.float64 and np.isfinite(q).all():
-        return q
-    arr = as_array("q", q, (3,))
-    if arr.shape != (3,):
-        raise SolverInputError(f"q: expected shape (3,), got {arr.shape}")
-    return arr
-
-
-class _TrackerBase:
-    """reset / step / track shared by the tracker and the baselines."""
-
-    name = "base"
-
-    def __init__(self, model: Manipulator):
-        if not isinstance(model, Manipulator):
-            raise TrackerError(f"model: expected a Manipulator, got {type(model).__name__}")
-        self.model = model
-        k = kernel_constants(model)
-        self._model_pack, self._sample_to_sextic = k["pack"], k["sample_to_sextic"]
-        self._w = np.array([1.0, 1.0, float(np.mean(model.platform_radius)) ** 2])
-        self.state: TrackerState | None = None
-        self._state_pack = np.empty(STATE_SIZE)
-        self._out_real = np.empty(OUT_SIZE)
-        self._out_int = np.empty(INFO_I_SIZE, dtype=np.int64)
-
-    def reset(self, X0, q0) -> None:
-        """Start tracking from a known configuration.
-
-        Parameters
-        ----------
-        X0 : array_like, shape (3,)
-            Pose at ``q0`` (m, m, rad).
-        q0 : array_like, shape (3,)
-            Joints (rad).
-        """
-        X0 = as_array("X0", X0, (3,))
-        q0 = as_array("q0", q0, (3,))
-        if X0.shape != (3,) or q0.shape != (3,):
-            raise SolverInputError(f"X0, q0: expected shapes (3,) and (3,), got {X0.shape} and {q0.shape}")
-        X0 = X0.copy()
-        X0[2] = wrap_angle(X0[2])
-        self.state = TrackerState(X0, q0.copy(), None, 0.0, 0, float("nan"), anchor=X0, anchor_age=0.0)
-
-    def _kernel(self, q, state_pack):                              # pragma: no cover - abstract
-        """Run the compiled step on joints ``q`` and the state pack into the output packs."""
-        raise NotImplementedError
-
-    def step(self, q, dt: float | None = None):
-        """Track one step: the pose of the manipulator at joints ``q``.
-
-        Parameters
-        ----------
-        q : array_like, shape (3,)
-            Current joints (rad).
-        dt : float, optional
-            Time since the previous sample (s).  Only the ratio of successive
-            ``dt`` matters (it scales the tool-space extrapolation); without it
-            the samples are taken as uniformly spaced.
-
-        Returns
-        -------
-        X : ndarray, shape (3,)
-            Pose (m, m, rad); the previous pose when ``q`` is unreachable.
-        info : StepInfo
-
-        Raises
-        ------
-        SolverInputError
-            ``q`` of the wrong shape or not finite; the state is unchanged.
-        TrackerError
-            No state yet (call :meth:`reset`).
-        """
-        q = _check_q(q)
-        st = self.state
-        if st is None:
-            raise TrackerError(f"{self.name}: no state; call reset(X0, q0) first")
-        if dt is not None and not (np.isfinite(dt) and dt > 0):
-            raise SolverInputError(f"dt: expected a positive time step in s, got {dt!r}")
-        pk = self._state_pack
-        pk[STATE_X:STATE_X + 3], pk[STATE_Q:STATE_Q + 3] = st.X, st.q
-        pk[STATE_X2:STATE_X2 + 3] = st.X if st.X2 is None else st.X2
-        pk[STATE_HISTORY], pk[STATE_DQ_SCALE] = st.history, st.dq_scale
-        pk[STATE_EXT_SCALE] = (dt / st.dt if dt is not None and np.isfinite(st.dt) else 1.0) * (st.skipped + 1)
-        # the speed gate (measured joints): not after the sensor broke its tolerance (a forced sample)
-        # nor after MAX_HELD samples held in a row (the robot moved on: follow the joints again)
-        gate_on = dt is not None and st.refused < MAX_REFUSED and st.skipped < MAX_HELD
-        pk[STATE_STEP_DT] = dt * (st.skipped + 1) if gate_on else float("nan")
-        if st.q2 is None:
-            pk[STATE_HAVE_Q2] = 0.0
-        else:
-            pk[STATE_Q2:STATE_Q2 + 3], pk[STATE_HAVE_Q2] = st.q2, 1.0
-        n = len(st.candidates)
-        if n == 0:                                           # right after a reset: the initial pose
-            pk[STATE_CANDS:STATE_CANDS + 3], pk[STATE_N_CAND] = st.X, 1.0
-        else:
-            pk[STATE_CANDS:STATE_CANDS + 3 * n], pk[STATE_N_CAND] = st.candidates.ravel(), n
-        pk[STATE_VERIFIED] = 1.0 if st.verified else 0.0
-        pk[STATE_INTACT] = 1.0 if st.intact else 0.0
-        pk[STATE_A_SCALE], pk[STATE_REFUSED] = st.a_scale, st.refused
-        age = st.anchor_age + dt * (st.skipped + 1) if dt is not None else float("nan")
-        if st.anchor is None:
-            pk[STATE_ANCHOR:STATE_ANCHOR + 3], pk[STATE_ANCHOR_AGE] = st.X, float("nan")
-        else:
-            pk[STATE_ANCHOR:STATE_ANCHOR + 3], pk[STATE_ANCHOR_AGE] = st.anchor, age
-        self._kernel(q, pk)
-        ii, of = self._out_int, self._out_real
-        status = int(ii[I_STATUS])
-        X = of[OUT_X:OUT_X + 3].copy()
-        fi = of[OUT_INFO:]
-        certain, n_cand = bool(ii[I_CERTAIN]), int(ii[I_N_CAND])
-        since = -1 if certain else (st.uncertain_since if st.uncertain_since >= 0 else st.steps + 1)
-        info = StepInfo(int(ii[I_LABEL]), bool(ii[I_NEAR_BORDER]), of[OUT_X_PRED:OUT_X_PRED + 3].copy(),
-                        int(ii[I_N_REAL]), float(fi[F_COND]), bool(ii[I_AMBIGUOUS]), status,
-                        bool(ii[I_JUMP]), float(fi[F_D_BEST]), float(fi[F_D_SECOND]), certain,
-                        int(ii[I_CERTIFICATE]), n_cand, since)
-        if status == STATUS_REJECTED:                       # an outlier: only the counts of refusals move
-            self.state = replace(st, refused=st.refused + 1, skipped=st.skipped + 1)
-        elif status == STATUS_UNREACHABLE:                  # pose held: only the count of skipped samples
-            self.state = replace(st, skipped=st.skipped + 1)
-        else:
-            dqn, innov = float(fi[F_DQ]), float(fi[F_INNOV])
-            scale = dqn if st.steps == 0 else 0.8 * st.dq_scale + 0.2 * dqn
-            cands = of[OUT_CANDS:OUT_CANDS + 3 * n_cand].reshape(n_cand, 3).copy()
-            cert = int(ii[I_CERTIFICATE])
-            # a sample taken after refusals (the joints jumped and stayed): the sensor broke its
-            # tolerance, so the last certain pose no longer bounds where the robot is
-            anchor = None if st.refused >= MAX_REFUSED else st.anchor
-            self.state = TrackerState(X, q.copy(), st.X, scale, st.steps + 1,
-                                      float("nan") if dt is None else float(dt) * (st.skipped + 1), st.q, cands,
-                                      cert in (CERT_CONTINUATION, CERT_REACQUIRED), since, bool(ii[I_INTACT]),
-                                      innov if st.steps < 2 else 0.8 * st.a_scale + 0.2 * innov, 0,
-                                      X if certain else anchor, 0.0 if certain else age)
-        return X, info
-
-    def track(self, q_stream, X0) -> TrackResult:
-        """Track a whole joint stream.
-
-        Parameters
-        ----------
-        q_stream : array_like, shape (n, 3)
-            Joints (rad); ``q_stream[0]`` is the configuration of ``X0``.
-        X0 : array_like, shape (3,)
-            Pose at ``q_stream[0]`` (m, m, rad).
-
-        Returns
-        -------
-        TrackResult
-        """
-        q_stream = as_array("q_stream", q_stream, (3,))
-        if q_stream.ndim != 2 or len(q_stream) < 1:
-            raise SolverInputError(f"q_stream: expected shape (n, 3) with n >= 1, got {q_stream.shape}")
-        n = len(q_stream)
-        self.reset(X0, q_stream[0])
-        out = {k: np.zeros(n, dtype=t) for k, t in STEP_FIELDS + (("seconds", float),)}
-        out["certain"][0], out["uncertain_since"][0] = True, -1
-        X = np.zeros((n, 3))
-        Xp = np.zeros((n, 3))
-        X[0] = Xp[0] = self.state.X
-        for k in range(1, n):
-            t0 = time.perf_counter()
-            X[k], info = self.step(q_stream[k])
-            out["seconds"][k] = time.perf_counter() - t0
-            Xp[k] = info.X_pred
-            for key, _ in STEP_FIELDS:
-                out[key][k] = getattr(info, key)
-        return TrackResult(X=X, X_pred=Xp, **out)
 
 
 class Tracker(_TrackerBase):
@@ -366,6 +185,9 @@ class Tracker(_TrackerBase):
         Bound on the platform's speed (m/s, rad/s) that narrows re-acquisition (needs ``dt``).
     reacquire_boxes : int
         Pose boxes one re-acquisition may examine (0: none).
+    stuck_after : int
+        Identical readings in a row after which a joint is taken as stuck (0: never; for noisy
+        encoders, :meth:`solver.sensors.Sensor.stuck_after`).  See :mod:`solver.stuck`.
     """
 
     def __init__(self, model: Manipulator, map_tensor: MapTensor, mode: str = "default", r=None,
@@ -373,7 +195,7 @@ class Tracker(_TrackerBase):
                  singular_tol: float = 1e-4, use_map: bool = True, strategy: int = _lay.STRATEGY_SEGMENT,
                  segment_singular: float = 0.05, posture_certificate: bool = True, max_tests: int = MAX_TESTS,
                  joint_tolerance: float = 0.0, gate: float = GATE, speed_bound=None,
-                 reacquire_boxes: int = REACQUIRE_BOXES):
+                 reacquire_boxes: int = REACQUIRE_BOXES, stuck_after: int = 0):
         super().__init__(model)
         if not isinstance(map_tensor, MapTensor):
             raise TrackerError(f"map_tensor: expected a MapTensor, got {type(map_tensor).__name__}")
@@ -395,8 +217,12 @@ class Tracker(_TrackerBase):
         if min(speed) < 0 or (speed_bound is not None and min(speed) <= 0):
             raise TrackerError(f"speed_bound: expected (m/s, rad/s), both > 0, or None, got {speed_bound!r}")
         self.speed_bound = None if speed_bound is None else speed
-        if not (isinstance(reacquire_boxes, (int, np.integer)) and reacquire_boxes >= 0):
-            raise TrackerError(f"reacquire_boxes: expected an integer >= 0, got {reacquire_boxes!r}")
+        for key, val in (("reacquire_boxes", reacquire_boxes), ("stuck_after", stuck_after)):
+            if not (isinstance(val, (int, np.integer)) and not isinstance(val, bool) and val >= 0):
+                raise TrackerError(f"{key}: expected an integer >= 0, got {val!r}")
+        if stuck_after == 1:
+            raise TrackerError("stuck_after: expected 0 (off) or at least 2 identical readings, got 1")
+        self.stuck_after = int(stuck_after)
         bounds = _tool_space(model)
         self.map = map_tensor
         self.mode = mode

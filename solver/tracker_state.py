@@ -8,7 +8,7 @@ its serialised form (a fixed number of floats, :data:`STATE_FLOATS`).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -74,6 +74,15 @@ class TrackerState:
         Seconds since that step (NaN when the caller gives no time steps).
     skipped : int
         Samples since the last accepted one (refused or held), for the time between samples.
+    reading : ndarray, shape (3,) or None
+        The last joints read (accepted or not), rad; for the stuck-joint detector.
+    repeats : ndarray of int, shape (3,)
+        Readings in a row each joint repeated its previous reading exactly.
+    clean : TrackerState or None
+        While a joint repeats: the state before its first repeated reading (the stuck-joint
+        detector rolls back to it; :mod:`solver.stuck`).
+    clean_lag : int
+        Samples read since ``clean`` was taken.
     """
 
     X: np.ndarray
@@ -92,6 +101,10 @@ class TrackerState:
     anchor: np.ndarray | None = None
     anchor_age: float = float("nan")
     skipped: int = 0
+    reading: np.ndarray | None = None
+    repeats: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=np.int64))
+    clean: "TrackerState | None" = None
+    clean_lag: int = 0
 
     @property
     def history(self) -> int:
@@ -119,15 +132,29 @@ class TrackerState:
         if self.anchor is not None:
             a[_ANCHOR:_ANCHOR + 3] = self.anchor
         a[_AGE], a[_SKIPPED] = self.anchor_age, float(self.skipped)
+        if self.reading is not None:
+            a[_READING:_READING + 3] = self.reading
+        a[_REPEATS:_REPEATS + 3], a[_CLEAN_LAG] = self.repeats, float(self.clean_lag)
+        if self.clean is not None:
+            a[_BASE:] = self.clean.as_array()[:_BASE]
         return a
 
     @classmethod
     def from_array(cls, a) -> "TrackerState":
         """Inverse of :meth:`as_array`; :class:`TrackerError` if ``a`` is not such an array."""
         a = np.asarray(a, dtype=float)
-        if a.shape != (STATE_FLOATS,) or not np.all(np.isfinite(a[_FINITE])) or not 0 <= a[_N_CAND] <= 6:
+        if a.shape != (STATE_FLOATS,):
             raise TrackerError(f"state: expected {STATE_FLOATS} floats (X, q, X2, dq_scale, steps, dt, q2, "
-                               f"candidates), got {np.array2string(np.asarray(a), threshold=40)}")
+                               f"candidates, ..., the clean state), got {np.array2string(a, threshold=40)}")
+        clean = None if np.all(np.isnan(a[_BASE:])) else cls._from_base(a[_BASE:])
+        return replace(cls._from_base(a[:_BASE]), clean=clean)
+
+    @classmethod
+    def _from_base(cls, a) -> "TrackerState":
+        """A state without ``clean`` from the first ``_BASE`` floats of :meth:`as_array`."""
+        if a.shape != (_BASE,) or not np.all(np.isfinite(a[_FINITE])) or not 0 <= a[_N_CAND] <= 6:
+            raise TrackerError(f"state: expected {STATE_FLOATS} floats (X, q, X2, dq_scale, steps, dt, q2, "
+                               f"candidates, ...), got {np.array2string(np.asarray(a), threshold=40)}")
         n = int(a[_N_CAND])
         cands = a[_CANDS:_CANDS + 3 * n].reshape(n, 3).copy()
         if not np.all(np.isfinite(cands)):
@@ -138,18 +165,22 @@ class TrackerState:
                    None if np.any(np.isnan(q2)) else q2.copy(), cands, bool(a[_VERIFIED]), int(a[_SINCE]),
                    bool(a[_INTACT]), float(a[_A_SCALE]), int(a[_REFUSED]),
                    None if np.any(np.isnan(a[_ANCHOR:_ANCHOR + 3])) else a[_ANCHOR:_ANCHOR + 3].copy(), float(a[_AGE]),
-                   int(a[_SKIPPED]))
+                   int(a[_SKIPPED]), None if np.any(np.isnan(a[_READING:_READING + 3])) else a[_READING:_READING + 3].copy(),
+                   a[_REPEATS:_REPEATS + 3].astype(np.int64), None, int(a[_CLEAN_LAG]))
 
 
 #: Fields of TrackerState.as_array: X, q, X2 (NaN after a reset), dq_scale, steps, dt, q2 (NaN after a
 #: reset), number of candidates, verified, uncertain_since, candidates (6 x 3, NaN past the number), intact,
-#: a_scale, refused, anchor (NaN before the first certain step), anchor_age, skipped.
+#: a_scale, refused, anchor (NaN before the first certain step), anchor_age, skipped, reading (NaN before the
+#: first), repeats, clean_lag; then the clean state's first _BASE floats (NaN when there is none).
 _X, _Q, _X2, _DQ_SCALE, _STEPS, _DT, _Q2, _N_CAND, _VERIFIED, _SINCE, _CANDS = 0, 3, 6, 9, 10, 11, 12, 15, 16, 17, 18
 _INTACT, _A_SCALE, _REFUSED, _ANCHOR, _AGE = _CANDS + 18, _CANDS + 19, _CANDS + 20, _CANDS + 21, _CANDS + 24
 _SKIPPED = _AGE + 1
-STATE_FLOATS = _SKIPPED + 1
+_READING, _REPEATS, _CLEAN_LAG = _SKIPPED + 1, _SKIPPED + 4, _SKIPPED + 7
+_BASE = _CLEAN_LAG + 1
+STATE_FLOATS = 2 * _BASE
 _FINITE = [*range(_X, _X + 3), *range(_Q, _Q + 3), _DQ_SCALE, _STEPS, _N_CAND, _VERIFIED, _SINCE, _INTACT, _A_SCALE,
-           _REFUSED, _SKIPPED]
+           _REFUSED, _SKIPPED, *range(_REPEATS, _REPEATS + 3), _CLEAN_LAG]
 
 
 class StepInfo(NamedTuple):

@@ -54,6 +54,7 @@ def test_model_description(md, map1):
                 "mode": ("parameter", "fixed", None), "joint_tolerance": ("parameter", "fixed", "rad"),
                 "speed_bound_linear": ("parameter", "fixed", "m/s"),
                 "speed_bound_angular": ("parameter", "fixed", "rad/s"),
+                "stuck_after": ("parameter", "fixed", None),
                 "x": ("output", "continuous", "m"), "y": ("output", "continuous", "m"),
                 "phi": ("output", "continuous", "rad"), "cond": ("output", "continuous", "1"),
                 "region": ("output", "discrete", None), "near_border": ("output", "discrete", None),
@@ -61,8 +62,8 @@ def test_model_description(md, map1):
                 "status": ("output", "discrete", None),
                 "certain": ("output", "discrete", None), "uncertain_since": ("output", "discrete", "s")}
     assert {n: (x.causality, x.variability, x.unit) for n, x in v.items()} == expected
-    assert {n: v[n].type for n in ("posture", "mode", "region", "n_real", "status")} == dict.fromkeys(
-        ("posture", "mode", "region", "n_real", "status"), "Integer")
+    ints = ("posture", "mode", "region", "n_real", "status", "stuck_after")
+    assert {n: v[n].type for n in ints} == dict.fromkeys(ints, "Integer")
     assert v["near_border"].type == v["ambiguous"].type == "Boolean"
     # every output depends on exactly q1..q3; InitialUnknowns list every output
     assert {u.variable.name: sorted(d.name for d in u.dependencies) for u in md.outputs} == \

@@ -231,26 +231,30 @@ def _certainty(m, stream):
     return out
 
 
-def test_a_noisy_stream_with_an_outlier_matches_the_tracker(make, map1):
-    """Joints as a 12-bit encoder with 1e-3 rad of noise gives them, one outlier: with the sensor
-    parameters the FMU outputs what the in-process tracker with the same options returns, step by step."""
+def test_a_noisy_stream_with_an_outlier_and_a_stuck_joint_matches_the_tracker(make, map1):
+    """Joints as a 12-bit encoder with 1e-3 rad of noise gives them, one outlier, one joint stuck for
+    20 samples: with the sensor parameters the FMU outputs what the in-process tracker with the same
+    options returns, step by step."""
     from solver.sensors import Sensor
     sensor = Sensor("12-bit", bits=12, noise=1e-3)
     stream = sensor.measure(Q, seed=11).q
     stream[0] = Q[0]
     stream[150, 2] += 0.1                                     # an outlier the gate refuses
-    tol, speed = sensor.tolerance(3.0), (2.0, 1.0)
-    tr = Tracker(MODEL, map1, joint_tolerance=tol, speed_bound=speed)
+    stream[301:321, 0] = stream[300, 0]                       # a stuck joint
+    tol, speed, stuck = sensor.tolerance(3.0), (2.0, 1.0), sensor.stuck_after()
+    tr = Tracker(MODEL, map1, joint_tolerance=tol, speed_bound=speed, stuck_after=stuck)
     tr.reset(X0, stream[0])
-    m = make(**circle_start(), joint_tolerance=tol, speed_bound_linear=speed[0], speed_bound_angular=speed[1])
+    m = make(**circle_start(), joint_tolerance=tol, speed_bound_linear=speed[0], speed_bound_angular=speed[1],
+             stuck_after=stuck)
     statuses = []
     for k in range(1, len(stream)):
         X, info = tr.step(stream[k], H)
         x, y, phi, status, certain = m.step(stream[k])[0:3] + tuple(m.get_values(("status", "certain")))
         assert (x, y, phi) == tuple(X.tolist()) and status == info.status and certain == info.certain, k
         statuses.append(status)
-    assert statuses[149] == [k for k, v in STATUS.items() if v == "rejected"][0]
-    assert statuses.count(statuses[149]) == 1
+    rejected = [k for k, v in STATUS.items() if v == "rejected"][0]
+    assert statuses[149] == rejected
+    assert [k + 1 for k, s in enumerate(statuses) if s == rejected] == [150] + list(range(300 + stuck - 1, 321))
 
 
 def test_sensor_parameters_are_checked_at_initialization(make):

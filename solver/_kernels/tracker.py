@@ -371,6 +371,25 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
         # measured joints crossed a fold the robot did not) is not taken; the previous pose is held
         r, rp = reach(params, step_dt)
         if abs(X_out[0] - Xp[0]) > r or abs(X_out[1] - Xp[1]) > r or abs(wrap(X_out[2] - Xp[2])) > rp:
+            # the solution the platform can have reached, if one alone can: taken, not vouched for
+            other, n_in = -1, 0
+            for k in range(6):
+                if real[k] and abs(poses[k, 0].real - Xp[0]) <= r and abs(poses[k, 1].real - Xp[1]) <= r \
+                        and abs(wrap(poses[k, 2].real - Xp[2])) <= rp:
+                    other, n_in = k, n_in + 1
+            if n_in == 1:
+                chosen = other
+                for i in range(3):
+                    Xr[i] = poses[chosen, i].real
+                    X_out[i] = Xr[i]
+                cands_out = out_real[OUT_CANDS:OUT_CANDS + 18].reshape((6, 3))
+                cands_out[0, :] = Xr
+                info_i[I_N_CAND] = 1
+                info_i[I_CERTIFICATE] = CERT_NONE
+                info_i[I_CERTAIN] = 0
+                info_i[I_INTACT] = 0
+                ambiguous = True
+        if abs(X_out[0] - Xp[0]) > r or abs(X_out[1] - Xp[1]) > r or abs(wrap(X_out[2] - Xp[2])) > rp:
             X_out[:] = Xp
             info_i[I_STATUS] = STATUS_UNREACHABLE
             info_i[I_CERTAIN] = 0

@@ -1,0 +1,121 @@
+"""The stuck-joint detector (solver.stuck): how often a joint at rest repeats, the refusal, the roll-back."""
+import numpy as np
+import pytest
+
+from solver import STATUS, MapTensor, Tracker, default_bounds, ik
+from solver.sensors import SENSOR_GRADES, Sensor
+from solver.stuck import repeat_probability, stuck_samples
+from solver.tracker_state import TrackerError, TrackerState
+from solver.trajectories import circle_path
+
+STEP = (0.02, 0.02, np.deg2rad(4.0))
+REJECTED = [k for k, v in STATUS.items() if v == "rejected"][0]
+SENSOR = Sensor("14-bit", bits=14, noise=1e-3)
+
+
+@pytest.fixture(scope="module")
+def map1(model):
+    b = default_bounds(model, STEP)
+    span = b[:, 1] - b[:, 0]
+    shape = (int(round(span[0] / STEP[0])) + 1, int(round(span[1] / STEP[1])) + 1, 90)
+    return MapTensor.build(model, 1, bounds=b, shape=shape, rule="aspect")
+
+
+@pytest.fixture(scope="module")
+def noisy(model):
+    X = circle_path(400)
+    exact = ik(model, X, 1)
+    q = SENSOR.measure(exact, seed=5).q
+    q[0] = exact[0]
+    return X, q
+
+
+@pytest.mark.parametrize("bits", [12, 14, 16])
+def test_repeat_probability_is_that_of_a_simulated_encoder_at_rest(rng, bits):
+    step = 2 * np.pi / 2 ** bits
+    n = 200_000
+    at = rng.uniform(0, step, n)                                 # where the joint sits within its bin
+    a = np.round((at + 1e-3 * rng.standard_normal(n)) / step)
+    b = np.round((at + 1e-3 * rng.standard_normal(n)) / step)
+    p = repeat_probability(1e-3, step)
+    assert abs(np.mean(a == b) - p) < 4 * np.sqrt(p * (1 - p) / n)
+
+
+def test_stuck_after_is_the_shortest_run_a_joint_at_rest_makes_rarely():
+    assert Sensor("exact").stuck_after() == 0                    # an exact joint at rest repeats: off
+    ks = []
+    for s in SENSOR_GRADES[1:4]:
+        p = repeat_probability(s.noise, 2 * np.pi / 2 ** s.bits)
+        k = s.stuck_after()
+        assert p ** (k - 1) <= 1e-6 < p ** (k - 2)              # k readings: k - 1 repeats
+        ks.append(k)
+    assert ks == sorted(ks)                                      # coarser encoders repeat more often
+    assert stuck_samples(1e-3, 0.0) == 2                         # real-valued readings never repeat
+
+
+def test_a_stuck_joint_is_refused_rolled_back_and_its_release_is_one_step(model, map1, noisy):
+    X, q = noisy
+    k_stuck = SENSOR.stuck_after()
+    q = q.copy()
+    q[201:221, 1] = q[200, 1]                                   # joint 2 reads q[200] for 20 more samples
+    tr = Tracker(model, map1, joint_tolerance=SENSOR.tolerance(3.0), stuck_after=k_stuck)
+    ref = Tracker(model, map1, joint_tolerance=SENSOR.tolerance(3.0))
+    tr.reset(X[0], q[0])
+    ref.reset(X[0], q[0])
+    for k in range(1, 201):
+        tr.step(q[k], 1e-3)
+        ref.step(q[k], 1e-3)
+    clean = ref.state
+    statuses = []
+    for k in range(201, 221):
+        x, info = tr.step(q[k], 1e-3)
+        statuses.append(info.status)
+        if info.status == REJECTED:
+            assert not info.certain
+            np.testing.assert_array_equal(x, clean.X)            # the pose before the repeats
+    first = statuses.index(REJECTED)
+    assert first == k_stuck - 2 and statuses[first:] == [REJECTED] * (20 - first)
+    np.testing.assert_array_equal(tr.state.q, clean.q)
+    np.testing.assert_array_equal(tr.state.candidates, clean.candidates)
+    assert tr.state.skipped == 20
+    # the release: one step from the clean state over 21 ms, as if the stuck readings never came
+    x, info = tr.step(q[221], 1e-3)
+    xr, info_r = ref.step(q[221], 21e-3)
+    np.testing.assert_array_equal(x, xr)
+    assert info.certain == info_r.certain and info.status == info_r.status
+
+
+def test_the_detector_leaves_a_noisy_stream_without_stuck_joints_alone(model, map1, noisy):
+    X, q = noisy
+    tr = Tracker(model, map1, joint_tolerance=SENSOR.tolerance(3.0), stuck_after=SENSOR.stuck_after())
+    ref = Tracker(model, map1, joint_tolerance=SENSOR.tolerance(3.0))
+    tr.reset(X[0], q[0])
+    ref.reset(X[0], q[0])
+    repeats = 0
+    for k in range(1, len(q)):
+        x, info = tr.step(q[k], 1e-3)
+        xr, _ = ref.step(q[k], 1e-3)
+        np.testing.assert_array_equal(x, xr)
+        repeats += int(tr.state.repeats.max() > 0)
+    assert repeats > 10                                          # repeats happen; none was long enough
+
+
+def test_the_state_with_a_clean_state_round_trips(model, map1, noisy):
+    X, q = noisy
+    q = q.copy()
+    q[51:54, 0] = q[50, 0]
+    tr = Tracker(model, map1, joint_tolerance=SENSOR.tolerance(3.0), stuck_after=SENSOR.stuck_after())
+    tr.reset(X[0], q[0])
+    for k in range(1, 54):
+        tr.step(q[k], 1e-3)
+    st = tr.state
+    assert st.clean is not None and st.clean_lag == 3 and st.repeats[0] == 3
+    again = TrackerState.from_array(st.as_array())
+    np.testing.assert_array_equal(again.as_array(), st.as_array())
+    np.testing.assert_array_equal(again.clean.X, st.clean.X)
+
+
+@pytest.mark.parametrize("bad", [1, -1, 2.5, True])
+def test_stuck_after_is_checked(model, map1, bad):
+    with pytest.raises(TrackerError, match="stuck_after"):
+        Tracker(model, map1, joint_tolerance=1e-3, stuck_after=bad)
