@@ -77,10 +77,10 @@ from typing import NamedTuple
 import numpy as np
 
 from ._kernels import direct_kinematics as _dk
-from ._kernels.layout import RULE_ASPECT, pack_model
+from ._kernels.layout import KIND_RPR, KIND_RRR, RULE_ASPECT, pack_model
 from ._kernels.ordering import number_batch
 from .checks import SolverInputError, as_array
-from .kinematics import check_model, wrap_angle
+from .kinematics import check_manipulator, wrap_angle
 from .manipulator import Manipulator
 from .ordering import DEFAULT_RULE, rule_code
 
@@ -155,11 +155,13 @@ def kernel_constants(model: Manipulator) -> dict:
         for mm in range(8):
             w = np.array([np.exp(1j * kk * (psi - phis[mm])) / 8.0 for kk in range(-3, 4)])
             T[j, mm] = (w @ basis).real
-    k = {"M": np.array(model.motors), "l1": np.array(model.l1), "l2sq": model.l2 ** 2,
-         "b": np.array(model.platform), "cos8": np.cos(phis), "sin8": np.sin(phis), "phis": phis,
-         "sample_to_sextic": T, "psi": wrap_angle(phis + np.pi)}
-    k["pack"] = pack_model(k["M"], k["l1"], k["l2sq"], k["b"], k["cos8"], k["sin8"], k["psi"], REAL_SNAP,
-                           REAL_RESIDUAL * float(np.min(k["l2sq"])), NEWTON_STEPS)
+    M, l1, l2sq = model.circle_legs()                # every leg a circle constraint (the interface)
+    k = {"M": M, "l1": l1, "l2sq": l2sq, "b": np.array(model.platform), "cos8": np.cos(phis),
+         "sin8": np.sin(phis), "phis": phis, "sample_to_sextic": T, "psi": wrap_angle(phis + np.pi)}
+    rpr = model.kind == "3-RPR"                      # the joints are the radii: residuals scale with the platform
+    scale = float(np.max(model.platform_radius)) ** 2 if rpr else float(np.min(l2sq))
+    k["pack"] = pack_model(M, l1, l2sq, k["b"], k["cos8"], k["sin8"], k["psi"], REAL_SNAP, REAL_RESIDUAL * scale,
+                           NEWTON_STEPS, KIND_RPR if rpr else KIND_RRR)
     object.__setattr__(model, "_kernel_constants", k)
     return k
 
@@ -194,7 +196,7 @@ def dk_all(model: Manipulator, q, rule: str = DEFAULT_RULE) -> DKSolutions:
     :mod:`solver._kernels.direct_kinematics`.  Batches of :data:`PARALLEL_MIN` or more joint
     vectors run on all cores.
     """
-    check_model(model)
+    check_manipulator(model)
     q = as_array("q", q)
     code = rule_code(rule)
     k = kernel_constants(model)

@@ -48,8 +48,8 @@ def default_bounds(model: Manipulator, step=DEFAULT_STEP) -> np.ndarray:
     c, s = np.cos(phis)[:, None], np.sin(phis)[:, None]
     b = model.platform
     Rb = np.stack([c * b[:, 0] - s * b[:, 1], s * b[:, 0] + c * b[:, 1]], axis=-1)
-    C = model.motors - Rb                                                 # (n, 3, 2) disc centres
-    R = model.l1 + model.l2                                               # (3,) radii
+    centres, R = model.reach_discs()                                      # (3, 2), (3,)
+    C = centres - Rb                                                      # (n, 3, 2) disc centres
     cands = [C + R[:, None] * np.array(e) for e in ((1, 0), (-1, 0), (0, 1), (0, -1))]
     for i, j in ((0, 1), (0, 2), (1, 2)):
         d = C[:, j] - C[:, i]

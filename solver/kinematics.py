@@ -19,11 +19,13 @@ import numpy as np
 
 from ._kernels import kinematics as _kin
 from .checks import SolverInputError, as_array, check_posture
+from . import rpr as _rpr
 from .manipulator import Manipulator
+from .manipulators import check_manipulator
 
 __all__ = [
     "SingularityMeasures", "wrap_angle", "elbow_points", "platform_points", "constraints", "ik", "ik_pose",
-    "posture_of", "jacobians", "singularity_measures", "check_model",
+    "posture_of", "jacobians", "singularity_measures", "check_model", "check_manipulator",
 ]
 
 #: The compiled inverse kinematics of one pose, ``ik_pose(x, y, phi, elbow_bits, motors, l1, l2, platform, q)
@@ -66,10 +68,14 @@ def _rot(c, s, b):
 
 
 def check_model(model) -> Manipulator:
-    """``model`` if it is a :class:`Manipulator`, else :class:`SolverInputError`."""
+    """``model`` if it is a :class:`Manipulator` (3-RRR), else :class:`SolverInputError`."""
     if not isinstance(model, Manipulator):
         raise SolverInputError(f"model: expected a Manipulator, got {type(model).__name__}")
     return model
+
+
+def _is_rpr(model) -> bool:
+    return isinstance(model, _rpr.RPRManipulator)
 
 
 def elbow_points(model: Manipulator, q) -> np.ndarray:
@@ -77,7 +83,7 @@ def elbow_points(model: Manipulator, q) -> np.ndarray:
 
     Parameters
     ----------
-    model : Manipulator
+    model : Manipulator or RPRManipulator
     q : array_like, shape (..., 3)
         Motor angles, rad.
 
@@ -100,7 +106,7 @@ def platform_points(model: Manipulator, X) -> np.ndarray:
 
     Parameters
     ----------
-    model : Manipulator
+    model : Manipulator or RPRManipulator
     X : array_like, shape (..., 3)
         Poses ``(x, y, phi)``, m, m, rad.
 
@@ -124,7 +130,7 @@ def constraints(model: Manipulator, X, q) -> np.ndarray:
 
     Parameters
     ----------
-    model : Manipulator
+    model : Manipulator or RPRManipulator
     X : array_like, shape (..., 3)
         Poses, m, m, rad.
     q : array_like, shape (..., 3)
@@ -135,6 +141,8 @@ def constraints(model: Manipulator, X, q) -> np.ndarray:
     ndarray, shape (..., 3)
         ``F_i`` in m^2; zero where ``(X, q)`` is an assembled configuration.
     """
+    if _is_rpr(model):
+        return _rpr.constraints(model, X, q)
     check_model(model)
     X, q = as_array("X", X), as_array("q", q)
     L = _platform(model, X) - _elbows(model, q)
@@ -147,7 +155,7 @@ def ik(model: Manipulator, X, posture=1) -> np.ndarray:
 
     Parameters
     ----------
-    model : Manipulator
+    model : Manipulator or RPRManipulator
     X : array_like, shape (..., 3)
         Poses ``(x, y, phi)``, m, m, rad.
     posture : int or array_like of int, shape broadcastable to (...)
@@ -165,6 +173,11 @@ def ik(model: Manipulator, X, posture=1) -> np.ndarray:
     SolverInputError
         Wrong shape, non-finite pose, posture outside 1..8.
     """
+    if _is_rpr(model):                             # one posture: rho_i = |B_i - A_i|
+        if np.any(check_posture(posture) != 1):
+            raise SolverInputError(f"posture: a 3-RPR has posture 1 only, got {posture!r}")
+        rho = _rpr.ik(model, X)                    # NaN outside the joint limits (the tool space)
+        return np.where(np.any((rho < model.rho_min) | (rho > model.rho_max), axis=-1, keepdims=True), np.nan, rho)
     check_model(model)
     X = as_array("X", X)
     j = check_posture(posture)
@@ -186,7 +199,7 @@ def posture_of(model: Manipulator, X, q) -> np.ndarray:
 
     Parameters
     ----------
-    model : Manipulator
+    model : Manipulator or RPRManipulator
     X : array_like, shape (..., 3)
         Poses, m, m, rad.
     q : array_like, shape (..., 3)
@@ -199,6 +212,9 @@ def posture_of(model: Manipulator, X, q) -> np.ndarray:
         ``(D_i - M_i) x (A_i - D_i)``; a leg exactly stretched or folded (``s_i = 0``)
         counts as positive, as the formula says.
     """
+    if _is_rpr(model):
+        X, q = as_array("X", X), as_array("q", q)
+        return np.ones(np.broadcast_shapes(X.shape, q.shape)[:-1], dtype=int)
     check_model(model)
     X, q = as_array("X", X), as_array("q", q)
     D = _elbows(model, q)
@@ -213,7 +229,7 @@ def jacobians(model: Manipulator, X, q) -> tuple[np.ndarray, np.ndarray]:
 
     Parameters
     ----------
-    model : Manipulator
+    model : Manipulator or RPRManipulator
     X : array_like, shape (..., 3)
         Poses, m, m, rad.
     q : array_like, shape (..., 3)
@@ -227,6 +243,8 @@ def jacobians(model: Manipulator, X, q) -> tuple[np.ndarray, np.ndarray]:
     K : ndarray, shape (..., 3, 3)
         ``dF/dq``, diagonal, ``K_ii = -2 L . dD_i/dq_i``, m^2/rad.
     """
+    if _is_rpr(model):
+        return _rpr.jacobians(model, X, q)
     check_model(model)
     X, q = as_array("X", X), as_array("q", q)
     return _jacobians(model, X, q)
@@ -249,7 +267,7 @@ def singularity_measures(model: Manipulator, X, q) -> SingularityMeasures:
 
     Parameters
     ----------
-    model : Manipulator
+    model : Manipulator or RPRManipulator
     X : array_like, shape (..., 3)
         Poses, m, m, rad.
     q : array_like, shape (..., 3)
@@ -261,13 +279,17 @@ def singularity_measures(model: Manipulator, X, q) -> SingularityMeasures:
         ``det_J``, ``det_K`` and the normalised measures ``type1``, ``type2``
         (shape (...), 0 at the singularity, 1 far from it).
     """
-    check_model(model)
-    X, q = as_array("X", X), as_array("q", q)
-    J, K = _jacobians(model, X, q)
+    if _is_rpr(model):
+        J, K = _rpr.jacobians(model, X, q)
+    else:
+        check_model(model)
+        J, K = _jacobians(model, as_array("X", X), as_array("q", q))
     Js = J * np.array([1.0, 1.0, 1.0 / float(np.mean(model.platform_radius))])
     sv = np.linalg.svd(Js, compute_uv=False)
     with np.errstate(divide="ignore", invalid="ignore"):
         type1 = np.where(sv[..., 0] > 0, sv[..., -1] / sv[..., 0], 0.0)
-    # |K_ii| = 2 l1 l2 |sin beta_i|
-    type2 = np.min(np.abs(np.diagonal(K, axis1=-2, axis2=-1)) / (2.0 * model.l1 * model.l2), axis=-1)
+    if _is_rpr(model):                             # |K_ii| = 2 rho_i: singular only at a zero leg
+        type2 = np.min(np.abs(np.diagonal(K, axis1=-2, axis2=-1)) / (2.0 * model.rho_max), axis=-1)
+    else:                                          # |K_ii| = 2 l1 l2 |sin beta_i|
+        type2 = np.min(np.abs(np.diagonal(K, axis1=-2, axis2=-1)) / (2.0 * model.l1 * model.l2), axis=-1)
     return SingularityMeasures(np.linalg.det(J), np.linalg.det(K), type1, type2)

@@ -86,6 +86,11 @@ class Manipulator:
     platform: np.ndarray
     name: str = field(default="3-RRR")
 
+    #: The manipulator interface (:mod:`solver.manipulators`): kind, postures, joint unit.
+    kind = "3-RRR"
+    n_postures = 8
+    joint_unit = "rad"
+
     def __post_init__(self):
         object.__setattr__(self, "motors", _frozen("motors", self.motors, (3, 2)))
         for key in ("l1", "l2"):
@@ -179,6 +184,16 @@ class Manipulator:
     def reach(self) -> np.ndarray:
         """Largest distance ``|M_i A_i|`` per leg, ``l1 + l2``, shape (3,), m."""
         return self.l1 + self.l2
+
+    def circle_legs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every leg as a circle constraint ``|P + R(phi) b_i - D_i(q_i)|^2 = r_i(q_i)^2`` for the
+        compiled kernels: the leg bases ``M_i`` (3, 2) m, the arms ``l1`` (3,) m that move ``D_i``
+        (``D_i = M_i + l1_i (cos q_i, sin q_i)``) and the squared radii ``l2^2`` (3,) m^2."""
+        return np.array(self.motors), np.array(self.l1), self.l2 ** 2
+
+    def reach_discs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Centres (3, 2) and radii (3,) of the discs each platform joint stays in, m."""
+        return np.array(self.motors), self.l1 + self.l2
 
     @property
     def platform_radius(self) -> np.ndarray:

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .manipulator import Manipulator
+from .manipulators import manipulator_from_dict
 from .ordering import ORDERING_RULES
 
 __all__ = ["FORMAT_NAME", "FORMAT_VERSION", "MapTensorFileError", "labels_checksum", "metadata", "save_map",
@@ -113,7 +114,7 @@ def read_map(path, model: Manipulator | None = None, posture: int | None = None)
         raise MapTensorFileError(f"{path}: labels checksum {digest[:16]}... does not match the recorded "
                                  f"{str(meta.get('labels_sha256'))[:16]}... (file modified or corrupted)")
     try:
-        file_model = Manipulator.from_dict(meta["geometry"])
+        file_model = manipulator_from_dict(meta["geometry"])
     except (KeyError, ValueError) as exc:
         raise MapTensorFileError(f"{path}: invalid geometry record ({exc})") from None
     if file_model.digest() != meta.get("geometry_sha256"):

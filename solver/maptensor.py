@@ -28,7 +28,8 @@ from ._kernels import maptensor as _mk
 from .checks import SolverInputError, as_array, check_posture
 from .direct_kinematics import dk_all
 from .grid import DEFAULT_STEP, default_bounds, grid_shape
-from .kinematics import check_model, ik, wrap_angle
+from .kinematics import ik, wrap_angle
+from .manipulators import check_manipulator
 from .manipulator import Manipulator
 from .ordering import DEFAULT_RULE, rule_code
 
@@ -198,8 +199,10 @@ class MapTensor:
         Runs phi slice by phi slice (memory bounded by one slice); the labels
         are deterministic: the same inputs give byte-identical labels.
         """
-        check_model(model)
+        check_manipulator(model)
         posture = int(check_posture(posture))
+        if posture > model.n_postures:
+            raise SolverInputError(f"posture: a {model.kind} has postures 1..{model.n_postures}, got {posture}")
         rule = DEFAULT_RULE if rule is None else rule
         rule_code(rule)
         bounds = default_bounds(model) if bounds is None else as_array("bounds", bounds, (3, 2))

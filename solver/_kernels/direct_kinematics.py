@@ -19,7 +19,8 @@ import numpy as np
 from numba import njit, prange
 
 from .kinematics import elbows, geometry, loop_row, newton_step
-from .layout import MODEL_COS8, MODEL_NEWTON_STEPS, MODEL_PSI, MODEL_REAL_TOL, MODEL_SIN8, MODEL_SNAP_TOL
+from .layout import (KIND_RPR, MODEL_COS8, MODEL_KIND, MODEL_NEWTON_STEPS, MODEL_PSI, MODEL_REAL_TOL, MODEL_SIN8,
+                     MODEL_SNAP_TOL)
 from .linalg import solve3, wrap
 from .ordering import number_solutions
 
@@ -223,7 +224,9 @@ def dk_one(q, model_pack, sample_to_sextic, rule, poses, real):
     snap_tol, real_tol = model_pack[MODEL_SNAP_TOL], model_pack[MODEL_REAL_TOL]
     steps = int(model_pack[MODEL_NEWTON_STEPS])
     D = np.empty((3, 2))
-    elbows(q, M, l1, D)
+    elbows(q, M, l1, D)                              # the 3-RPR has l1 = 0: D = M, its base joints
+    if model_pack[MODEL_KIND] == KIND_RPR:
+        l2sq = q * q                                 # ... and the joints are the legs' lengths
     # 2-3: eliminant at the eight samples; psi + pi at the sample of largest |f|
     f = np.empty(8)
     jbest, fbest = 0, -1.0
