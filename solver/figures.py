@@ -69,7 +69,7 @@ def cross_section(model: Manipulator, posture: int, phi: float, step: float = 0.
     X = np.stack([gx, gy, np.full_like(gx, phi)], axis=-1)
     labels, _ = label_poses(model, X, posture, rule)
     q = ik(model, X, posture)
-    J, _ = jacobians(model, X, np.nan_to_num(q))
+    J, _ = jacobians(model, X, np.where(np.isnan(q), 1.0, q))     # masked below
     det_j = np.where(np.isnan(q[..., 0]), np.nan, np.linalg.det(J))
     return xs, ys, labels, det_j
 
@@ -117,21 +117,25 @@ def singular_border_stats(labels: np.ndarray, det_j: np.ndarray) -> dict:
 
 
 def plot_cross_sections(model: Manipulator, posture: int = 1, phis_deg=(-60.0, 0.0, 60.0),
-                        out_dir="results/figures", step: float = 0.004, rule: str = DEFAULT_RULE):
+                        out_dir="results/figures", step: float = 0.004, rule: str = DEFAULT_RULE, bounds=None):
     """Figs 13-15: one PNG per orientation, regions coloured by solution number,
     singular curves (det J = 0) in black.  Returns {phi_deg: (path, stats)}.
+
+    Any manipulator of the interface (:mod:`solver.manipulators`); a 3-RPR's files are named
+    ``rpr_regions_phi<deg>.png``.  ``bounds``: x and y ranges (m), default the tool space.
     """
+    rrr = model.kind == "3-RRR"
     plt, cmap, norm = _mpl()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     result = {}
     for k, phd in enumerate(phis_deg):
-        xs, ys, labels, det_j = cross_section(model, posture, np.deg2rad(phd), step, rule)
+        xs, ys, labels, det_j = cross_section(model, posture, np.deg2rad(phd), step, rule, bounds)
         stats = singular_border_stats(labels, det_j)
         fig, ax = plt.subplots(figsize=(6.4, 6.0), dpi=110)
         ax.pcolormesh(xs, ys, labels.T, cmap=cmap, norm=norm, shading="nearest")
         ax.contour(xs, ys, np.where(labels.T > 0, det_j.T, np.nan), levels=[0.0], colors="k", linewidths=1.2)
-        ax.plot(*model.motors.T, "k^", ms=8)
+        ax.plot(*model.reach_discs()[0].T, "k^", ms=8)
         present = [lab for lab in range(1, 7) if np.any(labels == lab)]
         handles = [plt.Rectangle((0, 0), 1, 1, color=LABEL_COLOURS[lab]) for lab in present]
         handles.append(plt.Line2D([], [], color="k", lw=1.2))
@@ -140,11 +144,13 @@ def plot_cross_sections(model: Manipulator, posture: int = 1, phis_deg=(-60.0, 0
         ax.set_aspect("equal")
         ax.set_xlabel("x [m]")
         ax.set_ylabel("y [m]")
-        ax.set_title(f"Fig. {13 + k}: basic regions, posture {posture}, phi = {phd:g} deg\n"
+        ax.set_title((f"Fig. {13 + k}: basic regions, posture {posture}" if rrr else f"{model.kind} basic regions")
+                     + f", phi = {phd:g} deg\n"
                      f"rule {rule!r}; singular nodes on a border: "
                      f"{100 * stats['singular_near_border']:.0f} %, border nodes singular: "
                      f"{100 * stats['border_singular']:.0f} %", fontsize=9)
-        path = _save(plt, fig, out_dir / f"fig{13 + k}_regions_phi{int(phd):+d}.png")
+        name = f"fig{13 + k}_regions_phi{int(phd):+d}.png" if rrr else f"rpr_regions_phi{int(phd):+d}.png"
+        path = _save(plt, fig, out_dir / name)
         result[phd] = (path, stats)
     return result
 
@@ -161,7 +167,7 @@ def plot_map_slice(mt, phi_deg: float, out_dir="results/figures"):
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
     X = np.stack([gx, gy, np.full_like(gx, ps[k])], axis=-1)
     q = ik(mt.model, X, mt.posture)
-    J, _ = jacobians(mt.model, X, np.nan_to_num(q))
+    J, _ = jacobians(mt.model, X, np.where(np.isnan(q), 1.0, q))     # masked below
     det_j = np.where(labels > 0, np.linalg.det(J), np.nan)
     fig, ax = plt.subplots(figsize=(6.4, 6.0), dpi=110)
     ax.pcolormesh(xs, ys, labels.T, cmap=cmap, norm=norm, shading="nearest")

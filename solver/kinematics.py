@@ -257,7 +257,7 @@ def _jacobians(model, X, q):
         raise SolverInputError(f"X, q: expected broadcastable shapes, got {X.shape} and {q.shape}") from None
     Xf, qf = np.ascontiguousarray(X.reshape(-1, 3)), np.ascontiguousarray(q.reshape(-1, 3))
     J, kd = np.empty((len(Xf), 3, 3)), np.empty((len(Xf), 3))
-    _kin.jacobian_batch(Xf, qf, model.motors, model.l1, model.platform, J, kd)
+    _kin.jacobian_batch(Xf, qf, model.motors, model.l1, model.l2 ** 2, model.platform, J, kd)
     kd = kd.reshape(X.shape)
     return J.reshape(X.shape + (3,)), kd[..., :, None] * np.eye(3)
 

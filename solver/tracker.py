@@ -154,7 +154,7 @@ class Tracker(_TrackerBase):
 
     Parameters
     ----------
-    model : Manipulator
+    model : Manipulator or RPRManipulator
     map_tensor : MapTensor
         Map of the tracker's posture, built for ``model`` (same geometry digest).
     mode : {"default", "paper"}

@@ -24,7 +24,7 @@ from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, F_DQ, F_INNOV, I_AMB
 from .checks import SolverInputError, as_array
 from .direct_kinematics import kernel_constants
 from .kinematics import wrap_angle
-from .manipulator import Manipulator
+from .manipulators import MANIPULATOR_TYPES
 from .stuck import reading_fields, repeat_counts, stuck_refusal
 from .tracker_state import STEP_FIELDS, StepInfo, TrackerError, TrackerState, TrackResult
 
@@ -50,9 +50,9 @@ class _TrackerBase:
     #: Identical readings in a row that mark a joint stuck (0: off); see :mod:`solver.stuck`.
     stuck_after = 0
 
-    def __init__(self, model: Manipulator):
-        if not isinstance(model, Manipulator):
-            raise TrackerError(f"model: expected a Manipulator, got {type(model).__name__}")
+    def __init__(self, model):
+        if not isinstance(model, tuple(MANIPULATOR_TYPES.values())):
+            raise TrackerError(f"model: expected a Manipulator or an RPRManipulator, got {type(model).__name__}")
         self.model = model
         k = kernel_constants(model)
         self._model_pack, self._sample_to_sextic = k["pack"], k["sample_to_sextic"]

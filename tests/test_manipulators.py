@@ -6,7 +6,8 @@ from solver import MapTensor, Manipulator, SolverInputError, constraints, defaul
     posture_of, singularity_measures
 from solver.maptensor import MATCH_TOL, label_poses
 from solver.manipulators import MANIPULATOR_TYPES, check_manipulator, manipulator_from_dict
-from solver.rpr import RPRManipulator, det_j, dk_all_scan
+from solver.rpr import RPRManipulator, det_j
+from solver.rpr_scan import dk_all_scan
 from solver.rpr import ik as rpr_ik
 from solver.rpr import jacobians as rpr_jacobians
 
@@ -112,3 +113,32 @@ def test_the_3rrr_results_are_unchanged_by_the_interface(model):
         assert np.min(np.abs(P - X[n]).max(axis=1)) < 1e-12
     assert isinstance(model, Manipulator)
     np.testing.assert_allclose(default_bounds(model)[:2], [[-0.38, 1.38], [-0.51, 1.24]], atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def loop_map(rpr):
+    return MapTensor.build(rpr, 1, bounds=[[-2.0, 2.5], [-1.5, 2.5], [-np.pi, np.pi]], shape=(46, 41, 60))
+
+
+@pytest.mark.parametrize("n", [30, 9, 5])
+def test_the_tracker_follows_a_nonsingular_assembly_mode_change_where_newton_jumps(rpr, loop_map, n):
+    """Around cusp 1 the legs come back to their start and the platform to another assembly mode;
+    the tracker (certificates, not the map) ends in it, vouching all the way; at 9 samples a loop
+    Newton from the previous pose jumps branch and says nothing."""
+    from solver import Tracker
+    from solver.baselines import NewtonTracker
+    from solver.rpr_suite import cusp_loop_path
+    path = cusp_loop_path(rpr, 1, n)
+    assert np.array_equal(path.q[0], path.q[-1]) and np.abs(path.X[-1] - path.X[0]).max() > 0.3
+    res = Tracker(rpr, loop_map).track(path.q, path.X[0])
+    wrong = np.abs(res.X - path.X).max(axis=1) > 1e-9
+    assert not wrong.any() and res.certain.all()
+    newton = NewtonTracker(rpr).track(path.q, path.X[0])
+    jumped = np.abs(newton.X - path.X).max(axis=1) > 1e-6
+    assert jumped.any() == (n == 9)
+
+
+def test_the_tracker_refuses_a_map_of_another_manipulator(model, rpr, loop_map):
+    from solver import Tracker, TrackerError
+    with pytest.raises(TrackerError, match="map_tensor"):
+        Tracker(model, loop_map)

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from solver.checks import GeometryError, SolverInputError
-from solver.rpr import (ZEIN_RHO1, RPRManipulator, assembly_mode_change_path, constraints, cusp_points,
-                        det_j, dk_all_scan, follow, ik, jacobians)
+from solver.rpr import ZEIN_RHO1, RPRManipulator, constraints, det_j, ik, jacobians
+from solver.rpr_cusps import assembly_mode_change_path, cusp_points
+from solver.rpr_scan import dk_all_scan, follow
 from conftest import pose_distance
 
 

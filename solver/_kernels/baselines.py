@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit
 
 from .direct_kinematics import dk_one
-from .kinematics import elbows, geometry, newton_step, velocity
+from .kinematics import elbows, geometry, newton_step, radius_sq, velocity
 from .layout import (BASELINE_CLDK, BASELINE_NEAREST, BASELINE_NEWTON, BASELINE_NEWTON_SEPARATION,
                      BASELINE_SEPARATION, BASELINE_TOL, BASELINE_WEIGHTS, F_COND, F_D_SECOND, I_CERTAIN,
                      F_COND_PREV, F_D_BEST, F_DQ, I_LABEL, I_N_REAL, I_STATUS, INFO_F_SIZE, INFO_I_SIZE, OUT_INFO,
@@ -26,6 +26,10 @@ def newton(X0, q, M, l1, l2sq, b, damping, max_iter, tol, X_out):
     """
     D = np.empty((3, 2))
     elbows(q, M, l1, D)
+    r2 = np.empty(3)
+    for i in range(3):
+        r2[i] = radius_sq(l2sq[i], q[i])
+    l2sq = r2
     x, y, p = X0[0], X0[1], X0[2]
     res, dx, dy, dp, ok, had = newton_step(x, y, p, D, b, l2sq)
     it = 0
@@ -78,7 +82,7 @@ def baseline_step(kind, rule, q, state, model_pack, sample_to_sextic, baseline_p
         X_pred[:] = Xp
     else:
         dX = np.empty(3)
-        info_f[F_COND_PREV] = velocity(Xp, qp, dq, M, l1, b, dX)
+        info_f[F_COND_PREV] = velocity(Xp, qp, dq, M, l1, l2sq, b, dX)
         for i in range(3):
             X_pred[i] = Xp[i] + dX[i]
     if kind == BASELINE_CLDK:

@@ -18,9 +18,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .kinematics import elbows, geometry, loop_row, newton_step
-from .layout import (KIND_RPR, MODEL_COS8, MODEL_KIND, MODEL_NEWTON_STEPS, MODEL_PSI, MODEL_REAL_TOL, MODEL_SIN8,
-                     MODEL_SNAP_TOL)
+from .kinematics import elbows, geometry, loop_row, newton_step, radius_sq
+from .layout import MODEL_COS8, MODEL_NEWTON_STEPS, MODEL_PSI, MODEL_REAL_TOL, MODEL_SIN8, MODEL_SNAP_TOL
 from .linalg import solve3, wrap
 from .ordering import number_solutions
 
@@ -225,8 +224,10 @@ def dk_one(q, model_pack, sample_to_sextic, rule, poses, real):
     steps = int(model_pack[MODEL_NEWTON_STEPS])
     D = np.empty((3, 2))
     elbows(q, M, l1, D)                              # the 3-RPR has l1 = 0: D = M, its base joints
-    if model_pack[MODEL_KIND] == KIND_RPR:
-        l2sq = q * q                                 # ... and the joints are the legs' lengths
+    r2 = np.empty(3)
+    for i in range(3):
+        r2[i] = radius_sq(l2sq[i], q[i])             # ... and its joints are the legs' lengths
+    l2sq = r2
     # 2-3: eliminant at the eight samples; psi + pi at the sample of largest |f|
     f = np.empty(8)
     jbest, fbest = 0, -1.0

@@ -50,6 +50,10 @@ def leg_misses(box, i, sign, qlo_t, qhi_t, M, l1, l2sq, b):
     a1lo, a1hi = _smul(b[i, 0], slo, shi)
     a2lo, a2hi = _smul(b[i, 1], clo, chi)
     dylo, dyhi = box[2] + a1lo + a2lo - M[i, 1] - PAD, box[3] + a1hi + a2hi - M[i, 1] + PAD
+    if l2sq[i] < 0.0:                                   # a prismatic leg: its length is |A_i - M_i|
+        x2lo, x2hi = _sq(dxlo, dxhi)
+        y2lo, y2hi = _sq(dylo, dyhi)
+        return math.sqrt(x2hi + y2hi) + PAD < qlo_t or math.sqrt(x2lo + y2lo) - PAD > qhi_t
     if dxlo <= 0.0 <= dxhi and dylo <= 0.0 <= dyhi:
         return False                                    # the motor may be inside: no bound on the angle
     # the angle of M_i -> A_i: extreme at the corners of a box that does not hold the origin

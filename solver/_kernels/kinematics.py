@@ -23,6 +23,19 @@ def geometry(model_pack):
             model_pack[MODEL_L2SQ:MODEL_L2SQ + 3], model_pack[MODEL_PLATFORM:MODEL_PLATFORM + 6].reshape((3, 2)))
 
 
+@njit(cache=True, inline="always")
+def radius_sq(l2sq_i, q_i):
+    """Squared radius of leg ``i``'s circle: ``l2sq_i`` (3-RRR), or ``q_i^2`` for a prismatic leg,
+    which the model pack marks by ``l2sq_i < 0`` (3-RPR: the joint is the leg's length)."""
+    return q_i * q_i if l2sq_i < 0.0 else l2sq_i
+
+
+@njit(cache=True, inline="always")
+def radius_sq_dq(l2sq_i, q_i):
+    """d(radius_sq)/dq_i: ``2 q_i`` for a prismatic leg, 0 for a revolute one."""
+    return 2.0 * q_i if l2sq_i < 0.0 else 0.0
+
+
 @njit(cache=True)
 def elbows(q, M, l1, D):
     """Elbow positions ``D`` (3, 2) of joints ``q``."""
@@ -82,8 +95,9 @@ def ik_batch(X, elbow_bits, M, l1, l2, b, out):
 
 # ----------------------------------------------------------------------------- Jacobians
 @njit(cache=True)
-def jacobian(X, q, M, l1, b, J, kd):
-    """``J = dF/dX`` (3, 3) and the diagonal ``kd`` (3,) of ``K = dF/dq`` at ``(X, q)``, written in place."""
+def jacobian(X, q, M, l1, l2sq, b, J, kd):
+    """``J = dF/dX`` (3, 3) and the diagonal ``kd`` (3,) of ``K = dF/dq`` at ``(X, q)``, written in place
+    (a revolute leg's joint moves its circle's centre, a prismatic leg's its radius)."""
     c, s = math.cos(X[2]), math.sin(X[2])
     for i in range(3):
         cq, sq = math.cos(q[i]), math.sin(q[i])
@@ -92,22 +106,22 @@ def jacobian(X, q, M, l1, b, J, kd):
         J[i, 0] = 2.0 * lx
         J[i, 1] = 2.0 * ly
         J[i, 2] = 2.0 * lr
-        kd[i] = -2.0 * l1[i] * (ly * cq - lx * sq)
+        kd[i] = -2.0 * l1[i] * (ly * cq - lx * sq) - radius_sq_dq(l2sq[i], q[i])
 
 
 @njit(cache=True)
-def jacobian_batch(X, q, M, l1, b, J, kd):
+def jacobian_batch(X, q, M, l1, l2sq, b, J, kd):
     """:func:`jacobian` of ``X``, ``q`` (N, 3) into ``J`` (N, 3, 3) and ``kd`` (N, 3)."""
     for n in range(X.shape[0]):
-        jacobian(X[n], q[n], M, l1, b, J[n], kd[n])
+        jacobian(X[n], q[n], M, l1, l2sq, b, J[n], kd[n])
 
 
 @njit(cache=True)
-def velocity(X, q, dq, M, l1, b, out):
+def velocity(X, q, dq, M, l1, l2sq, b, out):
     """dX = -J^-1 K dq at (X, q) (the velocity model, eq. 20); returns the Hadamard ratio of J."""
     J = np.empty((3, 3))
     kd = np.empty(3)
-    jacobian(X, q, M, l1, b, J, kd)
+    jacobian(X, q, M, l1, l2sq, b, J, kd)
     r = np.empty(3)
     for i in range(3):
         r[i] = -kd[i] * dq[i]

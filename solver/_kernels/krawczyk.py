@@ -1,4 +1,5 @@
-"""Krawczyk's test for the planar 3-RRR's loop constraints over a box of poses and a piece of joint path.
+"""Krawczyk's test for the loop constraints (circle legs: 3-RRR and 3-RPR) over a box of poses and a piece
+of joint path.
 
 Path model.  Between two samples the joints are taken to move along
 ``q(s) = q0 + s d1 + s^2 d2``, ``s`` in [0, 1]: the straight segment
@@ -24,6 +25,8 @@ import math
 
 import numpy as np
 from numba import njit
+
+from .kinematics import radius_sq, radius_sq_dq
 
 #: Absolute pad of every interval end and point evaluation.
 PAD = 1e-14
@@ -83,11 +86,11 @@ def point_terms(x, y, phi, q0, d1, d2, s, M, l1, b, l2sq, w):
         cq, sq = math.cos(qi), math.sin(qi)
         lx = x + rbx - M[i, 0] - l1[i] * cq
         ly = y + rby - M[i, 1] - l1[i] * sq
-        w[W_F + i] = lx * lx + ly * ly - l2sq[i]
+        w[W_F + i] = lx * lx + ly * ly - radius_sq(l2sq[i], qi)
         w[W_J + 3 * i] = 2.0 * lx
         w[W_J + 3 * i + 1] = 2.0 * ly
         w[W_J + 3 * i + 2] = 2.0 * (ly * rbx - lx * rby)
-        w[W_G + i] = 2.0 * l1[i] * (lx * sq - ly * cq) * (d1[i] + 2.0 * s * d2[i])
+        w[W_G + i] = (2.0 * l1[i] * (lx * sq - ly * cq) - radius_sq_dq(l2sq[i], qi)) * (d1[i] + 2.0 * s * d2[i])
 
 
 @njit(cache=True)
@@ -163,6 +166,8 @@ def krawczyk(m, rho, q0, d1, d2, s_lo, s_hi, eps, M, l1, b, l2sq, w):
         u2lo, u2hi = _mul(mylo, myhi, cqlo, cqhi)
         k2 = 2.0 * l1[i]
         fqlo, fqhi = k2 * (u1lo - u2hi) - PAD, k2 * (u1hi - u2lo) + PAD        # dF_i/dq_i at m
+        if l2sq[i] < 0.0:                            # a prismatic leg: dF_i/dq_i = -2 q_i over the tube
+            fqlo, fqhi = fqlo - 2.0 * (qhi + eps[i]) - PAD, fqhi - 2.0 * (qlo - eps[i]) + PAD
         w[W_GLO + i], w[W_GHI + i] = _mul(fqlo, fqhi, vlo, vhi)
         w[W_FQ + i] = max(abs(fqlo), abs(fqhi)) * eps[i]
     ok = True

@@ -41,7 +41,7 @@ def joint_step(q, qp, dq):
 
 
 @njit(cache=True)
-def continuation(X0, q0, dq, nsub, M, l1, b, out):
+def continuation(X0, q0, dq, nsub, M, l1, l2sq, b, out):
     """Integrate J dX = -K dq along the joint segment q0 + s dq, s in [0, 1] (RK4, ``nsub`` steps).
 
     Writes the end pose to ``out``; returns the smallest Hadamard ratio of J met.
@@ -55,18 +55,18 @@ def continuation(X0, q0, dq, nsub, M, l1, b, out):
         s0 = n * h
         for i in range(3):
             qs[i] = q0[i] + s0 * dq[i]
-        worst = min(worst, velocity(X, qs, dq, M, l1, b, k1))
+        worst = min(worst, velocity(X, qs, dq, M, l1, l2sq, b, k1))
         for i in range(3):
             Xs[i] = X[i] + 0.5 * h * k1[i]
             qs[i] = q0[i] + (s0 + 0.5 * h) * dq[i]
-        worst = min(worst, velocity(Xs, qs, dq, M, l1, b, k2))
+        worst = min(worst, velocity(Xs, qs, dq, M, l1, l2sq, b, k2))
         for i in range(3):
             Xs[i] = X[i] + 0.5 * h * k2[i]
-        worst = min(worst, velocity(Xs, qs, dq, M, l1, b, k3))
+        worst = min(worst, velocity(Xs, qs, dq, M, l1, l2sq, b, k3))
         for i in range(3):
             Xs[i] = X[i] + h * k3[i]
             qs[i] = q0[i] + (s0 + h) * dq[i]
-        worst = min(worst, velocity(Xs, qs, dq, M, l1, b, k4))
+        worst = min(worst, velocity(Xs, qs, dq, M, l1, l2sq, b, k4))
         for i in range(3):
             X[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
     out[:] = X
@@ -244,7 +244,7 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
         qu[i] = qp[i] + dq[i]
     # eq. 22: the linear predictor at the previous pose
     dX = np.empty(3)
-    cond_prev = velocity(Xp, qp, dq, M, l1, b, dX)
+    cond_prev = velocity(Xp, qp, dq, M, l1, l2sq, b, dX)
     X_lin = np.empty(3)
     for i in range(3):
         X_lin[i] = Xp[i] + dX[i]
@@ -292,7 +292,7 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
     else:
         # continuation predictor along the joint segment, guarded near singularities
         nsub = int(min(params[PARAM_MAX_SUBSTEPS], max(1.0, math.ceil(dqn / params[PARAM_SUBSTEP_DQ]))))
-        worst = continuation(Xp, qp, dq, nsub, M, l1, b, X_pred)
+        worst = continuation(Xp, qp, dq, nsub, M, l1, l2sq, b, X_pred)
         ok = worst > params[PARAM_SINGULAR]
         for i in range(3):
             ok = ok and math.isfinite(X_pred[i])
@@ -399,7 +399,7 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
             return
     J = np.empty((3, 3))
     kd = np.empty(3)
-    jacobian(X_out, qu, M, l1, b, J, kd)
+    jacobian(X_out, qu, M, l1, l2sq, b, J, kd)
     cond = hadamard(J)
     info_f[F_COND] = cond
     info_i[I_LABEL] = chosen + 1
