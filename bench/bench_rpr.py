@@ -22,11 +22,8 @@ import numpy as np
 
 from bench_tracker import methods, pose_errors, print_totals, run_suite, totals
 from solver import MapTensor
-from solver.rpr import RPRManipulator
+from solver.rpr import RPR_WORK_BOUNDS, RPRManipulator
 from solver.rpr_suite import rpr_suite
-
-#: The region of the suite (x, y in m; phi all round).
-RPR_BOUNDS = ((-2.0, 2.5), (-1.5, 2.5), (-np.pi, np.pi))
 
 
 def main(argv=None):
@@ -39,7 +36,7 @@ def main(argv=None):
     model = RPRManipulator.zein_wenger_chablat()
     t0 = time.perf_counter()
     suite = rpr_suite(model)
-    b = np.array(RPR_BOUNDS)
+    b = np.array(RPR_WORK_BOUNDS)
     st = np.array([args.step_mm / 1e3, args.step_mm / 1e3, np.deg2rad(args.step_deg)])
     shape = (int(round((b[0, 1] - b[0, 0]) / st[0])) + 1, int(round((b[1, 1] - b[1, 0]) / st[1])) + 1,
              int(round(2 * np.pi / st[2])))
@@ -77,7 +74,7 @@ def main(argv=None):
     if not args.no_plot:
         from solver.figures import plot_cross_sections
         res = plot_cross_sections(model, 1, (-60.0, 0.0, 60.0), out_dir=out / "figures", step=0.01,
-                                  bounds=[[-2.0, 2.5], [-1.5, 2.5], [-np.pi, np.pi]])
+                                  bounds=RPR_WORK_BOUNDS)
         for phd, (path, stats) in res.items():
             print(f"{path}: label-border nodes within a cell of a singular curve {100 * stats['border_singular']:.0f} %"
                   f" (the rest: borders that are not singular curves)")

@@ -49,6 +49,7 @@ class RRRDirectKinematics(TableSlave):
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=1e-3)
 
     MODES = ("default", "paper")                 # value of the Integer parameter ``mode``
+    JOINTS = ("q1", "q2", "q3")                   # the joint inputs (a subclass may rename them)
     MAP_DIR = "maps"                              # resources/maps/manifest.json + one .npz per posture
     Q0_TOL = 1e-6                                 # rad: q inputs at initialization "consistent" with X0
     _HOME_Q = _home_joints(BUILD_POSTURE)
@@ -229,13 +230,13 @@ class RRRDirectKinematics(TableSlave):
         if np.isnan(q_ik[0]):
             raise ValueError(f"the initial pose (x0, y0, phi0) = ({X0[0]!r}, {X0[1]!r}, {X0[2]!r}) is outside "
                              f"the tool space of posture {self.posture} (no inverse-kinematics solution)")
-        q_in = np.array([self.q1, self.q2, self.q3], dtype=float)
+        q_in = np.array(self._joints(), dtype=float)
         gap = float(np.max(np.abs(wrap_angle(q_in - q_ik)))) if np.all(np.isfinite(q_in)) else math.inf
         if gap <= self.Q0_TOL:
             q0 = q_in                             # the joints at t0 are the inputs
         else:
             q0 = q_ik
-            self._report(f"initialization: inputs (q1, q2, q3) = ({q_in[0]!r}, {q_in[1]!r}, {q_in[2]!r}) "
+            self._report(f"initialization: inputs ({', '.join(self.JOINTS)}) = ({q_in[0]!r}, {q_in[1]!r}, {q_in[2]!r}) "
                          f"are not the joints of the initial pose (x0, y0, phi0) in posture {self.posture} "
                          f"(largest difference {gap:.3g} rad > {self.Q0_TOL:g} rad); the tracker starts "
                          f"from the inverse kinematics q = ({q_ik[0]!r}, {q_ik[1]!r}, {q_ik[2]!r}) and "
@@ -323,8 +324,12 @@ class RRRDirectKinematics(TableSlave):
         self.uncertain_since = -1.0 if since is None else since[1]
         return since
 
+    def _joints(self):
+        """The joint inputs, in order (a tuple of floats)."""
+        return tuple(getattr(self, name) for name in self.JOINTS)
+
     def step(self, t, dt):
-        q = (self.q1, self.q2, self.q3)
+        q = self._joints()
         # the tracker's extrapolation scales with the ratio of successive time steps (a master that
         # rolls back and evaluates Runge-Kutta stages steps by h/2 and h from the same state)
         X, info, after = self._solve(q, dt if dt > 0 else None)
@@ -342,7 +347,7 @@ class RRRDirectKinematics(TableSlave):
         """
         if self._track is None:
             return
-        q = (self.q1, self.q2, self.q3)
+        q = self._joints()
         committed_q, outputs = self._committed
         if q == committed_q:
             for name, value in zip(self._output_attrs, outputs):
@@ -352,7 +357,7 @@ class RRRDirectKinematics(TableSlave):
         self._publish(X, info, self._time)        # tentative: the episode is not committed
 
     def _log_episode(self, t, info):
-        q = f"(q1, q2, q3) = ({self.q1!r}, {self.q2!r}, {self.q3!r})"
+        q = f"({', '.join(self.JOINTS)}) = ({', '.join(repr(v) for v in self._joints())})"
         if info.status == 1:
             self._report(f"t={t!r}: {q} has no real direct-kinematics solution (outside the joint space); "
                          f"status 1 unreachable, pose held at (x, y, phi) = ({self.x!r}, {self.y!r}, "

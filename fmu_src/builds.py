@@ -129,14 +129,14 @@ def _stage_script(dest: Path, posture: int, mode: str) -> Path:
     return script
 
 
-def _stage_documentation(dest: Path) -> Path:
-    readme = HERE / f"{DK_NAME}.md"
+def _stage_documentation(dest: Path, name: str = DK_NAME) -> Path:
+    readme = HERE / f"{name}.md"
     doc = dest / "documentation"
     doc.mkdir()
     text = readme.read_text()
     shutil.copyfile(readme, doc / "index.md")
     (doc / "_main.html").write_text(
-        f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{DK_NAME}</title></head>\n"
+        f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{name}</title></head>\n"
         f"<body><pre>\n{html.escape(text)}</pre></body></html>\n")
     return doc
 

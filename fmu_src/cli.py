@@ -4,6 +4,7 @@
                         [--map FILE [FILE ...]] [--mode default|paper] [--rule real-phi]
                         [--only NAME [NAME ...]] [--no-reference] [--ssp]
     python build_fmu.py --write-reference      # regenerate fmu_src/reference/<FMU>.csv
+    python build_fmu.py --manipulator 3rpr [--resolution 25mm,3deg] [--no-reference | --write-reference]
 
 1. The FMUs (:mod:`fmu_src.builds`) are built into ``--out`` and validated: ``RRRDirectKinematics``
    with the map tensor(s) of ``--posture`` at ``--resolution`` (cached in ``<out>/maps/``) or the
@@ -19,6 +20,10 @@
    schemas when ``pyssp-standard`` is installed (:func:`fmu_src.ssp.schema_problems`).  Only
    through ``build_fmu.py``: the closed loop is defined on the co-simulation side, which
    :mod:`fmu_src` never imports (``main(write_ssp=...)``).
+
+``--manipulator 3rpr`` builds the cuspidal 3-RPR's DK FMU instead, ``RPRDirectKinematics``
+(:mod:`fmu_src.rpr_build`; leg lengths in, pose out; map at ``--resolution``, default 25 mm, 3 deg),
+and its reference run (the loop around a cusp) against ``fmu_src/reference/RPRDirectKinematics.csv``.
 
 ``--write-reference`` does step 2 only and rewrites the kept CSVs.  Same options and the same map
 files give byte-identical FMUs.  ``--resolution`` accepts ``"10mm,2deg"``, ``"0.04m 6deg"``,
@@ -60,7 +65,35 @@ def _parser(default_out) -> argparse.ArgumentParser:
                     help="build the reference configurations and rewrite fmu_src/reference/<FMU>.csv")
     ap.add_argument("--ssp", action="store_true",
                     help="also write <out>/RRRClosedLoop.ssp, the closed loop of the three FMUs (SSP 1.0)")
+    ap.add_argument("--manipulator", choices=("3rrr", "3rpr"), default="3rrr",
+                    help="3rpr: build RPRDirectKinematics.fmu (the cuspidal 3-RPR's DK) instead of the three")
     return ap
+
+
+def _rpr(args) -> int:
+    """``--manipulator 3rpr``: the 3-RPR's DK FMU and its reference run; the exit status."""
+    from .rpr_build import (RPR_NAME, RPR_REFERENCE_RESOLUTION, RPR_RESOLUTION, build_rpr_dk, run_rpr_loop,
+                            write_rpr_reference)
+
+    out = Path(args.out)
+    if not args.write_reference:
+        resolution = RPR_RESOLUTION if args.resolution is None else parse_resolution(args.resolution)
+        result = build_rpr_dk(out, resolution=resolution, rule=args.rule)
+        print(f"{result.fmu}: {result.size / 1e6:.3f} MB; built in {result.seconds:.1f} s "
+              f"(map {result.map_seconds:.1f} s)")
+        if result.problems:
+            print("validation: FAILED\n  " + "\n  ".join(result.problems))
+            return 1
+        print("validation: OK (fmpy.validation + fmu_src.checks.validate report nothing)")
+        if args.no_reference:
+            return 0
+    ref = build_rpr_dk(out / "reference", resolution=RPR_REFERENCE_RESOLUTION, cache_dir=out / "maps")
+    path = write_rpr_reference(run_rpr_loop(ref.fmu), None if args.write_reference else out / "reference"
+                               / f"{RPR_NAME}.csv")
+    kept = _KEPT / path.name
+    same = path.resolve() == kept.resolve() or (kept.is_file() and kept.read_bytes() == path.read_bytes())
+    print(f"{path}: {'equal to' if same else 'DIFFERS from'} the kept fmu_src/reference/{path.name}")
+    return 0
 
 
 def _build(args) -> int:
@@ -135,6 +168,8 @@ def main(argv=None, default_out="build", write_ssp=None) -> int:
     """
     args = _parser(default_out).parse_args(argv)
     try:
+        if args.manipulator == "3rpr":
+            return _rpr(args)
         if args.write_reference:
             _references(args.out, _KEPT)
             return 0

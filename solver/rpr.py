@@ -24,10 +24,17 @@ import numpy as np
 from .checks import GeometryError, SolverInputError, as_array
 from .manipulator import _frozen, _triangle_area
 
-__all__ = ["RPRManipulator", "ZEIN_RHO1", "ik", "constraints", "jacobians", "det_j"]
+__all__ = ["RPRManipulator", "ZEIN_RHO1", "RPR_HOME_POSE", "RPR_WORK_BOUNDS", "ik", "constraints", "jacobians",
+           "det_j"]
 
 #: Leg 1 length (m) of the joint-space slice of Zein, Wenger & Chablat (14.98 units / 10, recalled).
 ZEIN_RHO1 = 1.498
+#: A pose of the cuspidal geometry (m, m, rad): the start of the loop around cusp 1 of that slice
+#: (:func:`solver.rpr_suite.cusp_loop_path`), the start values of the 3-RPR DK FMU.
+RPR_HOME_POSE = (-1.4918043755112846, -0.1361018192581785, 0.07873145427675467)
+#: The region of the tool space (x, y in m; phi) where the suite and the cusp loops of that slice run:
+#: what the 3-RPR's map tensors cover (its joint limits allow far more).
+RPR_WORK_BOUNDS = ((-2.0, 2.5), (-1.5, 2.5), (-np.pi, np.pi))
 _E = np.array([[0.0, -1.0], [1.0, 0.0]])            # rotation by +90 deg
 
 

@@ -6,7 +6,7 @@ from solver import MapTensor, Manipulator, SolverInputError, constraints, defaul
     posture_of, singularity_measures
 from solver.maptensor import MATCH_TOL, label_poses
 from solver.manipulators import MANIPULATOR_TYPES, check_manipulator, manipulator_from_dict
-from solver.rpr import RPRManipulator, det_j
+from solver.rpr import RPR_HOME_POSE, RPR_WORK_BOUNDS, RPRManipulator, det_j
 from solver.rpr_scan import dk_all_scan
 from solver.rpr import ik as rpr_ik
 from solver.rpr import jacobians as rpr_jacobians
@@ -117,7 +117,7 @@ def test_the_3rrr_results_are_unchanged_by_the_interface(model):
 
 @pytest.fixture(scope="module")
 def loop_map(rpr):
-    return MapTensor.build(rpr, 1, bounds=[[-2.0, 2.5], [-1.5, 2.5], [-np.pi, np.pi]], shape=(46, 41, 60))
+    return MapTensor.build(rpr, 1, bounds=RPR_WORK_BOUNDS, shape=(46, 41, 60))
 
 
 @pytest.mark.parametrize("n", [30, 9, 5])
@@ -129,6 +129,7 @@ def test_the_tracker_follows_a_nonsingular_assembly_mode_change_where_newton_jum
     from solver.baselines import NewtonTracker
     from solver.rpr_suite import cusp_loop_path
     path = cusp_loop_path(rpr, 1, n)
+    np.testing.assert_allclose(path.X[0], RPR_HOME_POSE, atol=1e-12)           # the FMU's start values
     assert np.array_equal(path.q[0], path.q[-1]) and np.abs(path.X[-1] - path.X[0]).max() > 0.3
     res = Tracker(rpr, loop_map).track(path.q, path.X[0])
     wrong = np.abs(res.X - path.X).max(axis=1) > 1e-9
