@@ -22,7 +22,7 @@ import numpy as np
 
 from .checks import GeometryError
 
-__all__ = ["Manipulator", "HOME_POSE"]
+__all__ = ["Manipulator", "HOME_POSE", "GeometryIdentity"]
 
 #: Platform joint angles g_i of the paper's manipulator (CONVENTIONS.md), degrees.
 PAPER_PLATFORM_ANGLES_DEG = (210.0, 330.0, 90.0)
@@ -49,8 +49,45 @@ def _triangle_area(p: np.ndarray) -> float:
     return 0.5 * float(u[0] * v[1] - u[1] * v[0])
 
 
+class GeometryIdentity:
+    """What the frozen manipulator models share: identity by geometry (``digest``, ``==``, ``hash``,
+    all from ``to_dict`` without the name) and the platform joints' distances from the tool point."""
+
+    def digest(self) -> str:
+        """SHA-256 of the geometry (name excluded), stable across platforms.
+
+        Two manipulators with the same digest have the same kinematics; map
+        tensor files record it so a map is never used with another geometry.
+        """
+        payload = {k: v for k, v in self.to_dict().items() if k != "name"}
+        # repr of a float is exact and round-trips, so the text is canonical.
+        text = json.dumps(payload, sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode()).hexdigest()
+
+    def __eq__(self, other):
+        if not isinstance(other, type(self)):
+            return NotImplemented
+        return self.digest() == other.digest()
+
+    def __hash__(self):
+        return hash(self.digest())
+
+    @classmethod
+    def _from_fields(cls, data: dict, fields: tuple, default_name: str):
+        """``cls(**fields of data, name=...)``; GeometryError naming a missing key."""
+        try:
+            return cls(**{k: data[k] for k in fields}, name=data.get("name", default_name))
+        except KeyError as exc:
+            raise GeometryError(f"geometry: missing key {exc.args[0]!r} in {sorted(data)}") from exc
+
+    @property
+    def platform_radius(self) -> np.ndarray:
+        """Distance of each platform joint from the tool point, shape (3,), m."""
+        return np.hypot(self.platform[:, 0], self.platform[:, 1])
+
+
 @dataclass(frozen=True, eq=False)
-class Manipulator:
+class Manipulator(GeometryIdentity):
     """Geometry of a planar 3-RRR manipulator (metres).
 
     Parameters
@@ -155,30 +192,7 @@ class Manipulator:
     @classmethod
     def from_dict(cls, data: dict) -> "Manipulator":
         """Inverse of :meth:`to_dict`."""
-        try:
-            return cls(motors=data["motors"], l1=data["l1"], l2=data["l2"],
-                       platform=data["platform"], name=data.get("name", "3-RRR"))
-        except KeyError as exc:
-            raise GeometryError(f"geometry: missing key {exc.args[0]!r} in {sorted(data)}") from exc
-
-    def digest(self) -> str:
-        """SHA-256 of the geometry (name excluded), stable across platforms.
-
-        Two manipulators with the same digest have the same kinematics; map
-        tensor files record it so a map is never used with another geometry.
-        """
-        payload = {k: v for k, v in self.to_dict().items() if k != "name"}
-        # repr of a float is exact and round-trips, so the text is canonical.
-        text = json.dumps(payload, sort_keys=True, separators=(",", ":"))
-        return hashlib.sha256(text.encode()).hexdigest()
-
-    def __eq__(self, other):
-        if not isinstance(other, Manipulator):
-            return NotImplemented
-        return self.digest() == other.digest()
-
-    def __hash__(self):
-        return hash(self.digest())
+        return cls._from_fields(data, ("motors", "l1", "l2", "platform"), "3-RRR")
 
     @property
     def reach(self) -> np.ndarray:
@@ -194,11 +208,6 @@ class Manipulator:
     def reach_discs(self) -> tuple[np.ndarray, np.ndarray]:
         """Centres (3, 2) and radii (3,) of the discs each platform joint stays in, m."""
         return np.array(self.motors), self.l1 + self.l2
-
-    @property
-    def platform_radius(self) -> np.ndarray:
-        """Distance of each platform joint from the tool point, shape (3,), m."""
-        return np.hypot(self.platform[:, 0], self.platform[:, 1])
 
     def __repr__(self):
         return (f"Manipulator(name={self.name!r}, motors={self.motors.tolist()}, l1={self.l1.tolist()}, "

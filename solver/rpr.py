@@ -15,14 +15,12 @@ the same sextic kernel as the 3-RRR's (:func:`solver.dk_all`, :mod:`solver.manip
 """
 from __future__ import annotations
 
-import hashlib
-import json
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .checks import GeometryError, SolverInputError, as_array
-from .manipulator import _frozen, _triangle_area
+from .manipulator import GeometryIdentity, _frozen, _triangle_area
 
 __all__ = ["RPRManipulator", "ZEIN_RHO1", "RPR_HOME_POSE", "RPR_WORK_BOUNDS", "ik", "constraints", "jacobians",
            "det_j"]
@@ -39,7 +37,7 @@ _E = np.array([[0.0, -1.0], [1.0, 0.0]])            # rotation by +90 deg
 
 
 @dataclass(frozen=True, eq=False)
-class RPRManipulator:
+class RPRManipulator(GeometryIdentity):
     """Geometry of a planar 3-RPR manipulator (metres).
 
     Parameters
@@ -116,11 +114,6 @@ class RPRManipulator:
         """Centres (3, 2) and radii (3,) of the discs each platform joint stays in, m."""
         return np.array(self.base), np.full(3, self.rho_max)
 
-    @property
-    def platform_radius(self) -> np.ndarray:
-        """Distance of each platform joint from the tool point, shape (3,), m."""
-        return np.hypot(self.platform[:, 0], self.platform[:, 1])
-
     def to_dict(self) -> dict:
         """A JSON-ready description (floats as Python floats, lists of lists)."""
         return {"name": self.name, "base": self.base.tolist(), "platform": self.platform.tolist(),
@@ -129,22 +122,7 @@ class RPRManipulator:
     @classmethod
     def from_dict(cls, data: dict) -> "RPRManipulator":
         """Inverse of :meth:`to_dict`."""
-        try:
-            return cls(base=data["base"], platform=data["platform"], rho_min=data["rho_min"],
-                       rho_max=data["rho_max"], name=data.get("name", "3-RPR"))
-        except KeyError as exc:
-            raise GeometryError(f"geometry: missing key {exc.args[0]!r} in {sorted(data)}") from exc
-
-    def digest(self) -> str:
-        """SHA-256 of the geometry (name excluded), stable across platforms."""
-        payload = {k: v for k, v in self.to_dict().items() if k != "name"}
-        return hashlib.sha256(json.dumps(payload, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
-
-    def __eq__(self, other):
-        return self.digest() == other.digest() if isinstance(other, RPRManipulator) else NotImplemented
-
-    def __hash__(self):
-        return hash(self.digest())
+        return cls._from_fields(data, ("base", "platform", "rho_min", "rho_max"), "3-RPR")
 
 
 # ----------------------------------------------------------------------------- checks and helpers

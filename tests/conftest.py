@@ -19,6 +19,18 @@ def rng():
     return np.random.default_rng(20261121)
 
 
+@pytest.fixture(scope="session")
+def coarse_map1(model):
+    """A coarse map of posture 1 (20 mm, 4 deg) over the default bounds: quick, for tracker tests."""
+    from solver import MapTensor, default_bounds
+
+    step = (0.02, 0.02, np.deg2rad(4.0))
+    b = default_bounds(model, step)
+    span = b[:, 1] - b[:, 0]
+    shape = (int(round(span[0] / step[0])) + 1, int(round(span[1] / step[1])) + 1, 90)
+    return MapTensor.build(model, 1, bounds=b, shape=shape, rule="aspect")
+
+
 def random_poses(rng, n, model=None):
     """Uniform poses over a box that covers the paper manipulator's tool space."""
     return np.column_stack([rng.uniform(-0.2, 1.2, n), rng.uniform(-0.3, 1.1, n),

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from conftest import pose_distance
-from solver import STATUS, MapTensor, SolverInputError, Tracker, default_bounds
+from solver import STATUS, SolverInputError, Tracker
 from solver._kernels.certify import TINY
 from solver._kernels.krawczyk import W_SIZE, krawczyk, newton_on_path
 from solver._kernels.kinematics import geometry
@@ -12,17 +12,13 @@ from solver.sensors import SENSOR_GRADES, Sensor, quantize, sensor_truth
 from solver.suite import default_suite, near_singular_circle, make_path
 from solver.trajectories import circle_path
 
-STEP = (0.02, 0.02, np.deg2rad(4.0))
 REJECTED = [k for k, v in STATUS.items() if v == "rejected"][0]
 TOL = Sensor("14-bit", bits=14, noise=1e-3).tolerance(3.0)
 
 
 @pytest.fixture(scope="module")
-def map1(model):
-    b = default_bounds(model, STEP)
-    span = b[:, 1] - b[:, 0]
-    shape = (int(round(span[0] / STEP[0])) + 1, int(round(span[1] / STEP[1])) + 1, 90)
-    return MapTensor.build(model, 1, bounds=b, shape=shape, rule="aspect")
+def map1(coarse_map1):
+    return coarse_map1
 
 
 @pytest.fixture(scope="module")

@@ -2,23 +2,19 @@
 import numpy as np
 import pytest
 
-from solver import STATUS, MapTensor, Tracker, default_bounds, ik
+from solver import STATUS, Tracker, ik
 from solver.sensors import SENSOR_GRADES, Sensor
 from solver.stuck import repeat_probability, stuck_samples
 from solver.tracker_state import TrackerError, TrackerState
 from solver.trajectories import circle_path
 
-STEP = (0.02, 0.02, np.deg2rad(4.0))
 REJECTED = [k for k, v in STATUS.items() if v == "rejected"][0]
 SENSOR = Sensor("14-bit", bits=14, noise=1e-3)
 
 
 @pytest.fixture(scope="module")
-def map1(model):
-    b = default_bounds(model, STEP)
-    span = b[:, 1] - b[:, 0]
-    shape = (int(round(span[0] / STEP[0])) + 1, int(round(span[1] / STEP[1])) + 1, 90)
-    return MapTensor.build(model, 1, bounds=b, shape=shape, rule="aspect")
+def map1(coarse_map1):
+    return coarse_map1
 
 
 @pytest.fixture(scope="module")
