@@ -135,7 +135,7 @@ MAX_TESTS = 2000
 GATE = 4.0
 
 #: With measured joints: pose boxes one re-acquisition may examine (see "Sensors").
-REACQUIRE_BOXES = 2000
+REACQUIRE_BOXES = 10000
 
 
 _TOOL_SPACE: dict = {}
