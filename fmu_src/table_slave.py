@@ -93,6 +93,7 @@ from . import kernel_cache
 from .fmi_states import ERROR, INITIALIZATION_MODE, INSTANTIATED, STEP_COMPLETE, STEP_FAILED, TERMINATED, FmiStates
 from .slave_state import StateHandling, values_getter
 from .value_access import ValueAccess
+from .value_checks import _IN_PAR, _OUT, ValueChecks
 from .variables import CAUSALITIES, INITIALS, VARIABILITIES, TableError, Var, check_table
 
 kernel_cache.install()
@@ -104,15 +105,13 @@ _ENUM_VARIABILITY = {v: getattr(Fmi2Variability, v) for v in VARIABILITIES}
 _ENUM_INITIAL = {i: getattr(Fmi2Initial, i) for i in INITIALS}
 _PY_TYPE = {"Real": float, "Integer": int, "Boolean": bool}
 _FMI_VAR = {"Real": Real, "Integer": Integer, "Boolean": Boolean}
-_IN_PAR = ("input", "parameter")
-_OUT = ("output",)
 
 
 class StepRefused(Exception):
     """Raised by ``step``/``evaluate`` to refuse a step; the message reaches the master's log."""
 
 
-class TableSlave(FmiStates, StateHandling, ValueAccess, Fmi2Slave):
+class TableSlave(FmiStates, StateHandling, ValueAccess, ValueChecks, Fmi2Slave):
     """pythonfmu slave whose interface is the class attribute ``VARIABLES`` (see the module doc)."""
 
     VARIABLES: ClassVar[tuple[Var, ...]] = ()
@@ -127,6 +126,7 @@ class TableSlave(FmiStates, StateHandling, ValueAccess, Fmi2Slave):
     _table: ClassVar[tuple[Var, ...]] = ()
     VR: ClassVar[dict[str, int]] = {}
     _feedthrough: ClassVar[bool] = False
+    _has_initial_outputs: ClassVar[bool] = False
     _evaluate_after_step: ClassVar[bool] = False
     _table_values: ClassVar[Any] = None
     _rollback_attrs: ClassVar[tuple[str, ...]] = ()
@@ -147,6 +147,7 @@ class TableSlave(FmiStates, StateHandling, ValueAccess, Fmi2Slave):
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
+        cls._has_initial_outputs = cls.initial_outputs is not TableSlave.initial_outputs
         # rollback snapshots bypass get_state/set_state where they are the defaults (see _capture)
         cls._default_state = cls.get_state is TableSlave.get_state and cls.set_state is TableSlave.set_state
         names = cls.STATE
@@ -369,75 +370,6 @@ class TableSlave(FmiStates, StateHandling, ValueAccess, Fmi2Slave):
         return "invalid " + "; ".join(bad) if bad else ""
 
     # ------------------------------------------------------------------ internals
-    def _all_finite(self, check: tuple) -> bool:
-        """The fast path of :meth:`_non_finite`: True if every Real value of the group is finite
-        and every ranged value in its range (False: ask :meth:`_non_finite` which).
-
-        All Real values are finite iff their sum is (NaN and inf propagate; a finite overflow to
-        inf only sends the caller to the exact loop, which then finds nothing).
-        """
-        reals, ranged = check
-        try:
-            if not math.isfinite(sum(reals(self))):
-                return False
-        except TypeError:
-            return False
-        for attr, lo, hi in ranged:
-            value = getattr(self, attr)
-            if value < lo or value > hi:
-                return False
-        return True
-
-    def _non_finite(self, causalities: tuple[str, ...], check_range: bool = True) -> list[str]:
-        """Descriptions of the non-finite (and, with ``check_range``, out-of-range) values of the
-        variables of ``causalities``; [] if there are none."""
-        fast = self._checks.get((causalities, check_range))
-        if fast is not None and self._all_finite(fast):
-            return []
-        bad = []
-        for v in self._table:
-            if v.causality not in causalities or v.type == "Boolean":
-                continue
-            value = getattr(self, v.attr)
-            if v.type == "Real" and not math.isfinite(value):
-                bad.append(f"{v.causality} {v.name!r} = {value!r}")
-            elif check_range and ((v.min is not None and value < v.min) or (v.max is not None and value > v.max)):
-                bad.append(f"{v.causality} {v.name!r} = {value!r} outside [{v.min}, {v.max}]")
-        return bad
-
-    def _refresh(self) -> None:
-        """Lazy direct feedthrough for fmi2Get*: never raises (that would be fmi2Fatal)."""
-        self._dirty = False
-        if self._init_mode:
-            self._refresh_initial()
-            return
-        bad = self._non_finite(_IN_PAR)
-        if bad:
-            self._report("outputs not updated, invalid " + "; ".join(bad), Fmi2Status.warning)
-            return
-        snapshot = None
-        try:
-            snapshot = self._capture()
-            self.evaluate()
-        except Exception as exc:
-            if snapshot is not None:
-                self._rollback_quietly(snapshot)
-            self._report(f"outputs not updated, evaluate() failed: {type(exc).__name__}: {exc}",
-                         Fmi2Status.warning)
-
-    def _refresh_initial(self) -> None:
-        """The outputs in Initialization Mode (:meth:`initial_outputs`); never raises."""
-        if type(self).initial_outputs is TableSlave.initial_outputs:
-            return
-        bad = self._non_finite(_IN_PAR)
-        if bad:
-            self._report("initial outputs not computed, invalid " + "; ".join(bad), Fmi2Status.warning)
-            return
-        try:
-            self.initial_outputs()
-        except Exception as exc:
-            self._report(f"initial outputs not computed: {type(exc).__name__}: {exc}", Fmi2Status.warning)
-
     def _refuse(self, t: float, dt: float, msg: str) -> bool:
         """Refuse a doStep (after its rollback, if any): count, log, return False (fmi2Discard).
         Every refusal ends here; a slave may extend it (the DK FMU sets its status output)."""

@@ -6,7 +6,7 @@ them through one ``ScalarVariable`` object and one getter or setter closure per 
 check each.  Here one dictionary lookup per value reference gives the attribute (the tables are
 built per class by :class:`fmu_src.table_slave.TableSlave`): the same values set and returned,
 the same conversions (``float``, ``int``, ``bool``), the same staleness of direct-feedthrough
-outputs (an input set marks them; a get of one refreshes them first, :meth:`TableSlave._refresh`)
+outputs (an input set marks them; a get of one refreshes them first, :meth:`fmu_src.value_checks.ValueChecks._refresh`)
 and, in Initialization Mode, of every output (any set marks them; :meth:`TableSlave.initial_outputs`).
 
 Every call keeps the FMI 2.0 state table (:mod:`fmu_src.fmi_states`): a set is refused as a whole
