@@ -75,6 +75,12 @@ def _rpr(args) -> int:
     from .rpr_build import (RPR_NAME, RPR_REFERENCE_RESOLUTION, RPR_RESOLUTION, build_rpr_dk, run_rpr_loop,
                             write_rpr_reference)
 
+    given = [opt for opt, used in (("--posture", args.posture is not None), ("--map", bool(args.map)),
+                                   ("--mode", args.mode != "default"), ("--only", list(args.only) != list(FMU_NAMES)),
+                                   ("--ssp", args.ssp)) if used]
+    if given:
+        raise ValueError(f"--manipulator 3rpr: {', '.join(given)}: not for the 3-RPR (one posture, its own map, the "
+                         "DK FMU alone; the closed loop is the 3-RRR's)")
     out = Path(args.out)
     if not args.write_reference:
         resolution = RPR_RESOLUTION if args.resolution is None else parse_resolution(args.resolution)
@@ -88,6 +94,9 @@ def _rpr(args) -> int:
         if args.no_reference:
             return 0
     ref = build_rpr_dk(out / "reference", resolution=RPR_REFERENCE_RESOLUTION, cache_dir=out / "maps")
+    if ref.problems:
+        print("reference FMU validation: FAILED\n  " + "\n  ".join(ref.problems))
+        return 1
     path = write_rpr_reference(run_rpr_loop(ref.fmu), None if args.write_reference else out / "reference"
                                / f"{RPR_NAME}.csv")
     kept = _KEPT / path.name

@@ -243,7 +243,9 @@ def order_solutions(poses, real, rule: str = DEFAULT_RULE, model: Manipulator | 
         qf = np.ascontiguousarray(as_array("q", q).reshape(-1, 3))
         if len(qf) != n:
             raise SolverInputError(f"q: expected one joint vector per solution set ({n}), got {len(qf)}")
-        M, l1, b = model.motors, model.l1, model.platform
+        check_manipulator(model)
+        M, l1, _ = model.circle_legs()
+        b = np.array(model.platform)
     else:
         qf, M, l1, b = np.zeros((n, 3)), np.zeros((3, 2)), np.zeros(3), np.zeros((3, 2))
     out_p, out_r = np.empty_like(flat_p), np.empty_like(flat_r)

@@ -83,7 +83,8 @@ def elbow_points(model: Manipulator, q) -> np.ndarray:
 
     Parameters
     ----------
-    model : Manipulator or RPRManipulator
+    model : Manipulator
+        A 3-RRR (the 3-RPR has no elbows; its platform points: :mod:`solver.rpr`).
     q : array_like, shape (..., 3)
         Motor angles, rad.
 
@@ -106,7 +107,8 @@ def platform_points(model: Manipulator, X) -> np.ndarray:
 
     Parameters
     ----------
-    model : Manipulator or RPRManipulator
+    model : Manipulator
+        A 3-RRR.
     X : array_like, shape (..., 3)
         Poses ``(x, y, phi)``, m, m, rad.
 

@@ -103,6 +103,10 @@ def reading_fields(before: TrackerState, q: np.ndarray, repeats: np.ndarray) -> 
     (``reading``, ``repeats``, ``clean``, ``clean_lag``: :class:`TrackerState`)."""
     if repeats is _NO_REPEATS:
         return {"reading": q.copy(), "repeats": repeats, "clean": None, "clean_lag": 0}
-    if before.clean is None:
-        return {"reading": q.copy(), "repeats": repeats, "clean": before, "clean_lag": 1}
+    if before.clean is None or int(repeats.max()) == 1:
+        # a run starts here (and every run still going started here): clean is the state before it.
+        # A run that started earlier while another one ended keeps the older clean (a rollback then
+        # goes a sample or two further back than needed)
+        return {"reading": q.copy(), "repeats": repeats, "clean": before if before.clean is None else replace(before, clean=None),
+                "clean_lag": 1}
     return {"reading": q.copy(), "repeats": repeats, "clean": before.clean, "clean_lag": before.clean_lag + 1}

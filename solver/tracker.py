@@ -108,6 +108,8 @@ Every step reports a :class:`StepInfo`.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ._kernels import layout as _lay
@@ -222,8 +224,12 @@ class Tracker(_TrackerBase):
                 raise TrackerError(f"{key}: expected an integer >= 0, got {val!r}")
         if stuck_after == 1:
             raise TrackerError("stuck_after: expected 0 (off) or at least 2 identical readings, got 1")
+        if stuck_after and not joint_tolerance > 0:
+            raise TrackerError(f"stuck_after = {stuck_after}: needs joint_tolerance > 0 (measured joints); an "
+                               "exact joint at rest repeats its value")
         self.stuck_after = int(stuck_after)
-        bounds = _tool_space(model)
+        bounds = _tool_space(model if model.kind == "3-RRR" else
+                             replace(model, rho_max=model.rho_max + float(joint_tolerance)))
         self.map = map_tensor
         self.mode = mode
         self.posture = map_tensor.posture

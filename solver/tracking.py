@@ -54,6 +54,8 @@ class _TrackerBase:
         if not isinstance(model, tuple(MANIPULATOR_TYPES.values())):
             raise TrackerError(f"model: expected a Manipulator or an RPRManipulator, got {type(model).__name__}")
         self.model = model
+        # a 3-RPR's legs have limits: the tool space its re-acquisition searches ends there
+        self._limits = (model.rho_min, model.rho_max) if model.kind == "3-RPR" else None
         k = kernel_constants(model)
         self._model_pack, self._sample_to_sextic = k["pack"], k["sample_to_sextic"]
         self._w = np.array([1.0, 1.0, float(np.mean(model.platform_radius)) ** 2])
@@ -78,7 +80,8 @@ class _TrackerBase:
             raise SolverInputError(f"X0, q0: expected shapes (3,) and (3,), got {X0.shape} and {q0.shape}")
         X0 = X0.copy()
         X0[2] = wrap_angle(X0[2])
-        self.state = TrackerState(X0, q0.copy(), None, 0.0, 0, float("nan"), anchor=X0, anchor_age=0.0)
+        self.state = TrackerState(X0, q0.copy(), None, 0.0, 0, float("nan"), anchor=X0, anchor_age=0.0,
+                                  reading=q0.copy())
 
     def _kernel(self, q, state_pack):                              # pragma: no cover - abstract
         """Run the compiled step on joints ``q`` and the state pack into the output packs."""
@@ -110,6 +113,9 @@ class _TrackerBase:
             No state yet (call :meth:`reset`).
         """
         q = _check_q(q)
+        if self._limits is not None and (np.any(q < self._limits[0]) or np.any(q > self._limits[1])):
+            raise SolverInputError(f"q: expected leg lengths within the joint limits [{self._limits[0]}, "
+                                   f"{self._limits[1]}] m, got {q.tolist()}")
         st = self.state
         if st is None:
             raise TrackerError(f"{self.name}: no state; call reset(X0, q0) first")
@@ -120,7 +126,7 @@ class _TrackerBase:
             held = stuck_refusal(st, q, repeats, self.stuck_after)
             if held is not None:                             # a stuck joint: back to the clean state, refused
                 self.state = held
-                since = st.uncertain_since if st.uncertain_since >= 0 else st.steps + 1
+                since = held.uncertain_since if held.uncertain_since >= 0 else held.steps + 1
                 return held.X.copy(), StepInfo(0, False, held.X.copy(), 0, 0.0, False, STATUS_REJECTED, False,
                                                0.0, 0.0, False, 0, max(len(held.candidates), 1), since)
             extra = reading_fields(st, q, repeats)
@@ -133,8 +139,9 @@ class _TrackerBase:
         pk[STATE_EXT_SCALE] = (dt / st.dt if dt is not None and np.isfinite(st.dt) else 1.0) * (st.skipped + 1)
         # the speed gate (measured joints): not after the sensor broke its tolerance (a forced sample)
         # nor after MAX_HELD samples held in a row (the robot moved on: follow the joints again)
-        # (samples refused as stuck, st.clean set, are known not to be the robot's: the gate stays on)
-        gate_on = dt is not None and st.refused < MAX_REFUSED and (st.skipped < MAX_HELD or st.clean is not None)
+        # (samples refused as a stuck joint's are known not to be the robot's: the gate stays on)
+        stuck = self.stuck_after > 0 and st.clean is not None and int(st.repeats.max()) >= self.stuck_after - 1
+        gate_on = dt is not None and st.refused < MAX_REFUSED and (st.skipped < MAX_HELD or stuck)
         pk[STATE_STEP_DT] = dt * (st.skipped + 1) if gate_on else float("nan")
         if st.q2 is None:
             pk[STATE_HAVE_Q2] = 0.0

@@ -143,3 +143,19 @@ def test_the_tracker_refuses_a_map_of_another_manipulator(model, rpr, loop_map):
     from solver import Tracker, TrackerError
     with pytest.raises(TrackerError, match="map_tensor"):
         Tracker(model, loop_map)
+
+
+def test_legs_outside_the_joint_limits_are_refused_by_name(rpr, loop_map):
+    """The re-acquisition proof searches the tool space the joint limits bound: a leg beyond them is
+    refused (SolverInputError naming q), and the state is kept."""
+    from solver import SolverInputError, Tracker
+    from solver.rpr_suite import cusp_loop_path
+    path = cusp_loop_path(rpr, 1, 30)
+    tr = Tracker(rpr, loop_map, joint_tolerance=1e-6)
+    tr.reset(path.X[0], path.q[0])
+    before = tr.state
+    with pytest.raises(SolverInputError, match="joint limits"):
+        tr.step(path.q[1] + np.array([0.0, rpr.rho_max, 0.0]), 1e-3)
+    assert tr.state is before
+    _, info = tr.step(path.q[1], 1e-3)
+    assert info.status == 0

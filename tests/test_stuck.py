@@ -115,3 +115,40 @@ def test_the_state_with_a_clean_state_round_trips(model, map1, noisy):
 def test_stuck_after_is_checked(model, map1, bad):
     with pytest.raises(TrackerError, match="stuck_after"):
         Tracker(model, map1, joint_tolerance=1e-3, stuck_after=bad)
+
+
+def test_refusals_of_a_stuck_joint_report_the_uncertainty_of_the_clean_state(model, map1, noisy):
+    X, q = noisy
+    q = q.copy()
+    q[201:221, 1] = q[200, 1]
+    tr = Tracker(model, map1, joint_tolerance=SENSOR.tolerance(3.0), stuck_after=SENSOR.stuck_after())
+    tr.reset(X[0], q[0])
+    for k in range(1, 201):
+        tr.step(q[k], 1e-3)
+    clean_since = tr.state.uncertain_since
+    since = set()
+    for k in range(201, 221):
+        _, info = tr.step(q[k], 1e-3)
+        if info.status == REJECTED:
+            since.add(info.uncertain_since)
+    assert since == {clean_since if clean_since >= 0 else 201}
+
+
+def test_a_stuck_joint_rolls_back_to_before_its_own_run(model, map1, noisy):
+    """Joint 1 repeats once at sample 100, joint 2 sticks from sample 101: the rollback goes to the state
+    after sample 100, not to before joint 1's repeat."""
+    X, q = noisy
+    q = q.copy()
+    q[100, 0] = q[99, 0]
+    q[101:121, 1] = q[100, 1]
+    tr = Tracker(model, map1, joint_tolerance=SENSOR.tolerance(3.0), stuck_after=SENSOR.stuck_after())
+    tr.reset(X[0], q[0])
+    for k in range(1, 121):
+        _, info = tr.step(q[k], 1e-3)
+    assert info.status == REJECTED and tr.state.steps == 100
+    np.testing.assert_array_equal(tr.state.q, q[100])
+
+
+def test_stuck_after_needs_measured_joints(model, map1):
+    with pytest.raises(TrackerError, match="joint_tolerance"):
+        Tracker(model, map1, stuck_after=8)
