@@ -26,6 +26,15 @@ def noisy(model):
     return X, q
 
 
+def _detecting(model, map1, X, q, upto):
+    """A tracker with the detector, reset at the stream's start and stepped through ``q[1:upto]``."""
+    tr = Tracker(model, map1, joint_tolerance=SENSOR.tolerance(3.0), stuck_after=SENSOR.stuck_after())
+    tr.reset(X[0], q[0])
+    for k in range(1, upto):
+        tr.step(q[k], 1e-3)
+    return tr
+
+
 @pytest.mark.parametrize("bits", [12, 14, 16])
 def test_repeat_probability_is_that_of_a_simulated_encoder_at_rest(rng, bits):
     step = 2 * np.pi / 2 ** bits
@@ -100,11 +109,7 @@ def test_the_state_with_a_clean_state_round_trips(model, map1, noisy):
     X, q = noisy
     q = q.copy()
     q[51:54, 0] = q[50, 0]
-    tr = Tracker(model, map1, joint_tolerance=SENSOR.tolerance(3.0), stuck_after=SENSOR.stuck_after())
-    tr.reset(X[0], q[0])
-    for k in range(1, 54):
-        tr.step(q[k], 1e-3)
-    st = tr.state
+    st = _detecting(model, map1, X, q, 54).state
     assert st.clean is not None and st.clean_lag == 3 and st.repeats[0] == 3
     again = TrackerState.from_array(st.as_array())
     np.testing.assert_array_equal(again.as_array(), st.as_array())
@@ -121,10 +126,7 @@ def test_refusals_of_a_stuck_joint_report_the_uncertainty_of_the_clean_state(mod
     X, q = noisy
     q = q.copy()
     q[201:221, 1] = q[200, 1]
-    tr = Tracker(model, map1, joint_tolerance=SENSOR.tolerance(3.0), stuck_after=SENSOR.stuck_after())
-    tr.reset(X[0], q[0])
-    for k in range(1, 201):
-        tr.step(q[k], 1e-3)
+    tr = _detecting(model, map1, X, q, 201)
     clean_since = tr.state.uncertain_since
     since = set()
     for k in range(201, 221):
@@ -141,10 +143,8 @@ def test_a_stuck_joint_rolls_back_to_before_its_own_run(model, map1, noisy):
     q = q.copy()
     q[100, 0] = q[99, 0]
     q[101:121, 1] = q[100, 1]
-    tr = Tracker(model, map1, joint_tolerance=SENSOR.tolerance(3.0), stuck_after=SENSOR.stuck_after())
-    tr.reset(X[0], q[0])
-    for k in range(1, 121):
-        _, info = tr.step(q[k], 1e-3)
+    tr = _detecting(model, map1, X, q, 120)
+    _, info = tr.step(q[120], 1e-3)
     assert info.status == REJECTED and tr.state.steps == 100
     np.testing.assert_array_equal(tr.state.q, q[100])
 
