@@ -5,7 +5,7 @@
 
 Part 1, the loop.  :class:`dynamics.cosim.ClosedLoop` builds and initializes the three FMUs (default
 scenario, Gauss-Seidel, h = 1 ms); the loop makes the same FMI calls per step as
-``ClosedLoop.run`` (set, doStep, get per instance) but keeps no rows, so that the process's memory
+``ClosedLoop.run`` (its ``step_function``: set, doStep, get per instance) but keeps no rows, so that the process's memory
 is the FMUs' own.  It runs ``--steps`` steps (the circle repeats every 2 s) or until ``--budget``
 seconds have passed, and prints: the steps run (and the wall time of a million, extrapolated if
 fewer), the wall time per step over the first and the last 10,000 steps, the peak RSS and the
@@ -48,8 +48,6 @@ def peak_rss_mb() -> float:
 
 def soak(fmus: dict, steps: int, budget: float) -> dict:
     """Part 1 (module docstring); returns the figures."""
-    from fmpy.fmi2 import fmi2True
-
     from dynamics.cosim import ClosedLoop, Scenario
     from dynamics.cosim.master import INSTANCES
 
@@ -58,11 +56,9 @@ def soak(fmus: dict, steps: int, budget: float) -> dict:
     loop.initialize(sc, 0.0)
     ports = [loop.ports[inst] for inst in INSTANCES]
     by = {p.instance: p for p in ports}
-    (dk_set, ct_set, pl_set) = (p.set_inputs for p in ports)
-    (dk_step, ct_step, pl_step) = (p.step_call() for p in ports)
-    (dk_real,), (ct_real,), (pl_real,) = ([call for _, call in p.read_calls(False)] for p in ports)
-    for call in (dk_real, ct_real, pl_real):
-        call()
+    for p in ports:                                           # the outputs at initialization
+        p.read_calls(False)[0][1]()
+    advance = loop.step_function(sc.order)
     dk_buf, pl_buf = by["dk"].buffers["Real"], by["plant"].buffers["Real"]
     dk_idx = [by["dk"].where[f"dk.{n}"][1] for n in ("x", "y", "phi")]
     pl_idx = [by["plant"].where[f"plant.{n}_true"][1] for n in ("x", "y", "phi")]
@@ -76,15 +72,7 @@ def soak(fmus: dict, steps: int, budget: float) -> dict:
     while k < steps:
         t = k * h
         xt, yt, pt = pl_buf[px], pl_buf[py], pl_buf[pp]       # the plant at t_k
-        dk_set()
-        dk_step(t, h, fmi2True)
-        dk_real()
-        ct_set()
-        ct_step(t, h, fmi2True)
-        ct_real()
-        pl_set()
-        pl_step(t, h, fmi2True)
-        pl_real()
+        advance(t, h)
         e = max(abs(dk_buf[dx] - xt), abs(dk_buf[dy] - yt), abs(dk_buf[dp] - pt))
         if e > drift:
             drift = e

@@ -19,9 +19,8 @@ import numpy as np
 
 from .rpr import ZEIN_RHO1, RPRManipulator
 from .rpr_cusps import assembly_mode_change_path
-from .suite import CLEARANCES, SAMPLINGS, SuitePath, _wdist, _weights, make_path, near_singular_circle
+from .suite import CLEARANCES, SAMPLINGS, SuitePath, make_path, near_singular_circle
 from .trajectories import circle_path
-from .direct_kinematics import dk_all
 
 __all__ = ["rpr_suite", "cusp_loop_path", "RPR_SEEDS", "LOOP_CUSPS", "LOOP_SAMPLINGS"]
 
@@ -46,13 +45,7 @@ def cusp_loop_path(model: RPRManipulator, cusp: int, n: int, radius: float = LOO
     if fine is None:
         fine = assembly_mode_change_path(model, ZEIN_RHO1, cusp=cusp, radius=radius, n=1441)
     idx = np.round(np.linspace(0, len(fine.rho) - 1, n + 1)).astype(int)
-    X, q = fine.poses[idx], fine.rho[idx]
-    w = _weights(model)
-    sol = dk_all(model, q)
-    d = np.where(sol.real, _wdist(sol.poses.real, X[:, None, :], w), np.inf)
-    gap = np.sort(d, axis=1)[:, 1]
-    step = np.r_[0.0, _wdist(X[1:], X[:-1], w)]
-    return SuitePath(f"rpr-cusp{cusp}-loop/{n}", 1, X, q, float(np.max(step / gap)), float(np.min(gap)))
+    return make_path(model, f"rpr-cusp{cusp}-loop/{n}", 1, fine.poses[idx], q=fine.rho[idx], closed=False)
 
 
 def rpr_suite(model: RPRManipulator | None = None, samplings=SAMPLINGS,

@@ -93,9 +93,10 @@ def _wdist(a, b, w):
     return np.sqrt(np.sum(w * d * d, axis=-1))
 
 
-def make_path(model: Manipulator, name: str, posture: int, X: np.ndarray) -> SuitePath:
-    """Joints and difficulty of a closed sampled path (the last point steps back to the first)."""
-    q = ik(model, X, posture)
+def make_path(model: Manipulator, name: str, posture: int, X: np.ndarray, q=None, closed: bool = True) -> SuitePath:
+    """Joints and difficulty of a sampled path: ``closed`` (the last point steps back to the first)
+    or open; ``q`` (n, 3) its joints when already known (default ``ik(model, X, posture)``)."""
+    q = ik(model, X, posture) if q is None else q
     if np.any(np.isnan(q)):
         raise ValueError(f"{name}: path leaves the tool space of posture {posture}")
     w = _weights(model)
@@ -104,6 +105,8 @@ def make_path(model: Manipulator, name: str, posture: int, X: np.ndarray) -> Sui
     d_sorted = np.sort(d, axis=1)
     gap = d_sorted[:, 1]                                  # [:, 0] is the true pose itself
     step = _wdist(X, np.roll(X, 1, axis=0), w)
+    if not closed:
+        step[0] = 0.0                                     # no step into the first point
     return SuitePath(name, posture, X, q, float(np.max(step / gap)), float(np.min(gap)))
 
 

@@ -195,17 +195,12 @@ class ClosedLoop:
         DK's Integer and Boolean outputs (status, region, n_real, near_border, ambiguous: two more
         calls per step); without it the result has no such columns (:data:`FLAG_COLUMNS`).
         """
-        from fmpy.fmi2 import fmi2True
-
         sc = Scenario() if scenario is None else scenario
         self.initialize(sc, t0)
         n, h = sc.n_steps, sc.h
         ports = [self.ports[inst] for inst in INSTANCES]
-        (dk_set, ct_set, pl_set) = (p.set_inputs for p in ports)
-        (dk_step, ct_step, pl_step) = (p.step_call() for p in ports)
         reads = [p.read_calls(flags) for p in ports]
-        (dk_real, *dk_flags), (ct_real,), (pl_real,) = ((call for _, call in r) for r in reads)
-        dk_int, dk_bool = (dk_flags + [None, None])[:2]
+        dk_int, dk_bool = ([call for _, call in reads[0][1:]] + [None, None])[:2]   # after the Real read
         # what each instance's reads are kept as: one list of rows per buffer read
         kept = {(p.instance, kind): [] for p, r in zip(ports, reads) for kind, _ in r}
         rows = {key: (self.ports[key[0]].buffers[key[1]], kept[key]) for key in kept}
@@ -217,30 +212,11 @@ class ClosedLoop:
                 call()
         for buf, dest in rows.values():
             dest.append(buf[:])
-        gauss_seidel = sc.order == "gauss-seidel"
+        advance = self.step_function(sc.order)
         cpu = time.process_time()
         wall = time.perf_counter()
         for k in range(n):
-            t = t0 + k * h
-            if gauss_seidel:
-                dk_set()
-                dk_step(t, h, fmi2True)
-                dk_real()
-                ct_set()
-                ct_step(t, h, fmi2True)
-                ct_real()
-                pl_set()
-                pl_step(t, h, fmi2True)
-            else:
-                dk_set()
-                ct_set()
-                pl_set()
-                dk_step(t, h, fmi2True)
-                ct_step(t, h, fmi2True)
-                pl_step(t, h, fmi2True)
-                dk_real()
-                ct_real()
-            pl_real()
+            advance(t0 + k * h, h)
             dk_rows.append(dk_buf[:])
             ct_rows.append(ct_buf[:])
             pl_rows.append(pl_buf[:])
@@ -252,6 +228,44 @@ class ClosedLoop:
         columns = self._columns(kept, t0, n, h, flags)
         wall = time.perf_counter() - wall
         return ClosedLoopResult(sc, columns, wall, time.process_time() - cpu)
+
+    def step_function(self, order: str = "gauss-seidel"):
+        """``advance(t, h)``: one communication step of the initialized loop, from ``t`` to ``t + h``.
+
+        Per instance one fmi2SetReal (its connected inputs), fmi2DoStep and one fmi2GetReal (its Real
+        outputs, into the ports' buffers), in the order of ``order``: "gauss-seidel" (DK, controller,
+        plant, each seeing the outputs of those before it) or "jacobi" (all inputs from time ``t``).
+        """
+        from fmpy.fmi2 import fmi2True
+
+        ports = [self.ports[inst] for inst in INSTANCES]
+        (dk_set, ct_set, pl_set) = (p.set_inputs for p in ports)
+        (dk_step, ct_step, pl_step) = (p.step_call() for p in ports)
+        (dk_real, ct_real, pl_real) = (p.read_calls(False)[0][1] for p in ports)
+
+        def gauss_seidel(t, h):
+            dk_set()
+            dk_step(t, h, fmi2True)
+            dk_real()
+            ct_set()
+            ct_step(t, h, fmi2True)
+            ct_real()
+            pl_set()
+            pl_step(t, h, fmi2True)
+            pl_real()
+
+        def jacobi(t, h):
+            dk_set()
+            ct_set()
+            pl_set()
+            dk_step(t, h, fmi2True)
+            ct_step(t, h, fmi2True)
+            pl_step(t, h, fmi2True)
+            dk_real()
+            ct_real()
+            pl_real()
+
+        return gauss_seidel if order == "gauss-seidel" else jacobi
 
     def _columns(self, kept: dict, t0: float, n: int, h: float, flags: bool) -> dict:
         """The result's columns (float64, :data:`COLUMNS` order) from the rows the run kept."""
