@@ -14,6 +14,7 @@ import numpy as np  # noqa: E402
 from pythonfmu import DefaultExperiment  # noqa: E402
 
 from fmu_src.RRRDirectKinematics import RRRDirectKinematics  # noqa: E402
+from fmu_src.dk_variables import dk_outputs, sensor_parameters  # noqa: E402
 from fmu_src.table_slave import Var  # noqa: E402
 from solver.rpr import RPR_HOME_POSE, RPRManipulator, ik  # noqa: E402
 
@@ -42,31 +43,6 @@ class RPRDirectKinematics(RRRDirectKinematics):
             description="initial pose: platform orientation"),
         Var("mode", "Integer", "parameter", "fixed", start=0, min=0, max=1,
             description="tracker mode: 0 default (RK4 continuation + map), 1 paper (procedures 2-3 as written)"),
-        Var("joint_tolerance", "Real", "parameter", "fixed", start=0.0, unit="m", min=0.0,
-            description="bound on the leg lengths' measurement error; 0: exact joints"),
-        Var("speed_bound_linear", "Real", "parameter", "fixed", start=0.0, unit="m/s", min=0.0,
-            description="with joint_tolerance: bound on the platform's speed; 0: none"),
-        Var("speed_bound_angular", "Real", "parameter", "fixed", start=0.0, unit="rad/s", min=0.0,
-            description="with joint_tolerance: bound on the platform's angular speed; 0: none"),
-        Var("stuck_after", "Integer", "parameter", "fixed", start=0, min=0,
-            description="with joint_tolerance: identical readings in a row that mark a leg sensor stuck; 0: off"),
-        Var("x", "Real", "output", unit="m", depends_on=_DEPS, description="platform point P, x"),
-        Var("y", "Real", "output", unit="m", depends_on=_DEPS, description="platform point P, y"),
-        Var("phi", "Real", "output", unit="rad", depends_on=_DEPS,
-            description="platform orientation, wrapped to (-pi, pi]"),
-        Var("region", "Integer", "output", depends_on=_DEPS,
-            description="number 1..6 of the DK solution returned (map's ordering rule); 0 none"),
-        Var("near_border", "Boolean", "output", depends_on=_DEPS,
-            description="procedure 2 saw more than one region label near the previous pose"),
-        Var("n_real", "Integer", "output", depends_on=_DEPS, description="number of real DK solutions (0, 2, 4 or 6)"),
-        Var("ambiguous", "Boolean", "output", depends_on=_DEPS, description="the choice of solution is not certain"),
-        Var("status", "Integer", "output", depends_on=_DEPS,
-            description="0 ok, 1 unreachable (pose held), 2 singular, 3 rejected, 4 diverged"),
-        Var("cond", "Real", "output", unit="1", depends_on=_DEPS,
-            description="|det J| / prod |rows of J| at the pose (0 singular, 1 best)"),
-        Var("certain", "Boolean", "output", initial="exact", start=True, depends_on=_DEPS,
-            description="the tracker vouches for the pose (certificates back to the initial pose)"),
-        Var("uncertain_since", "Real", "output", "discrete", initial="exact", start=-1.0, unit="s",
-            depends_on=_DEPS,
-            description="time of the step since which the tracker cannot vouch for the pose; -1 while certain"),
+        *sensor_parameters("m"),
+        *dk_outputs(_DEPS, point="platform point P (= B1),"),
     )

@@ -23,6 +23,7 @@ import numpy as np
 from pythonfmu import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 
+from fmu_src.dk_variables import dk_outputs, sensor_parameters
 from fmu_src.table_slave import TableSlave, Var
 from solver import (HOME_POSE, STATUS, Manipulator, MapTensor, MapTensorFileError, Tracker, TrackerState, dk_all,
                     ik, jacobians, wrap_angle)
@@ -71,42 +72,8 @@ class RRRDirectKinematics(TableSlave):
             description="IK branch 1..8 (CONVENTIONS.md); needs an embedded map of that posture"),
         Var("mode", "Integer", "parameter", "fixed", start=MODES.index(BUILD_MODE), min=0, max=1,
             description="tracker mode: 0 default (RK4 continuation + map), 1 paper (procedures 2-3 as written)"),
-        Var("joint_tolerance", "Real", "parameter", "fixed", start=0.0, unit="rad", min=0.0,
-            description="bound on the joints' measurement error (encoders: about 3 noise sigmas plus half a "
-                        "step); 0: exact joints.  certain is then a proof for every joint path within it"),
-        Var("speed_bound_linear", "Real", "parameter", "fixed", start=0.0, unit="m/s", min=0.0,
-            description="with joint_tolerance: bound on the platform's speed, for re-acquisition and the "
-                        "speed gate; 0: none (then also speed_bound_angular = 0)"),
-        Var("speed_bound_angular", "Real", "parameter", "fixed", start=0.0, unit="rad/s", min=0.0,
-            description="with joint_tolerance: bound on the platform's angular speed; 0: none"),
-        Var("x", "Real", "output", unit="m", depends_on=("q1", "q2", "q3"),
-            description="platform centre x"),
-        Var("y", "Real", "output", unit="m", depends_on=("q1", "q2", "q3"),
-            description="platform centre y"),
-        Var("phi", "Real", "output", unit="rad", depends_on=("q1", "q2", "q3"),
-            description="platform orientation, wrapped to (-pi, pi]"),
-        Var("region", "Integer", "output", depends_on=("q1", "q2", "q3"),
-            description="number 1..6 of the DK solution returned (map's ordering rule); 0 none"),
-        Var("near_border", "Boolean", "output", depends_on=("q1", "q2", "q3"),
-            description="procedure 2 saw more than one region label near the previous pose"),
-        Var("n_real", "Integer", "output", depends_on=("q1", "q2", "q3"),
-            description="number of real DK solutions of q (0, 2, 4 or 6)"),
-        Var("ambiguous", "Boolean", "output", depends_on=("q1", "q2", "q3"),
-            description="the choice of solution is not certain"),
-        Var("status", "Integer", "output", depends_on=("q1", "q2", "q3"),
-            description="0 ok, 1 unreachable (pose held), 2 singular, 3 rejected: an outlier the tracker's "
-                        "gate refused (pose held, doStep ok) or an input the FMU refused (doStep discarded), "
-                        "4 diverged"),
-        Var("cond", "Real", "output", unit="1", depends_on=("q1", "q2", "q3"),
-            description="|det J| / prod |rows of J| at the pose (0 singular, 1 best)"),
-        Var("certain", "Boolean", "output", initial="exact", start=True, depends_on=("q1", "q2", "q3"),
-            description="the tracker vouches for the pose (certificates back to the initial pose)"),
-        Var("uncertain_since", "Real", "output", "discrete", initial="exact", start=-1.0, unit="s",
-            depends_on=("q1", "q2", "q3"),
-            description="time of the step since which the tracker cannot vouch for the pose; -1 while certain"),
-        Var("stuck_after", "Integer", "parameter", "fixed", start=0, min=0,
-            description="with joint_tolerance: identical readings in a row that mark a joint stuck (refused, "
-                        "state rolled back to before them); 0: off, for noisy encoders see the readme"),
+        *sensor_parameters("rad"),
+        *dk_outputs(("q1", "q2", "q3")),
     )
     # _track: the TrackerState (the tracker's whole mutable data: previous pose and joints, the pose
     # before, the joint-step scale, the step count); _committed: (q, outputs) of the last doStep (or of

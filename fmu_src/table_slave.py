@@ -59,7 +59,7 @@ Compiled kernels of bundled packages are cached on disk per FMU content
 (:mod:`fmu_src.kernel_cache`, installed when this module is imported).
 
 Rules for slave scripts: import only the runtime of ``fmu_src`` (``table_slave``, ``variables``,
-``slave_state``; the host side is not bundled); keep module-level code to imports and the class
+``slave_state``, ``dk_variables``; the host side is not bundled); keep module-level code to imports and the class
 (pythonfmu's C wrapper re-executes the module source at every instantiation to find the class);
 read data files in ``setup()`` from ``Path(self.resources) / <name given to build_fmu>`` and list
 the attribute in ``CONSTANT``.

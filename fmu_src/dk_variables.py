@@ -1,0 +1,57 @@
+"""The variable-table rows the two DK FMUs share (``RRRDirectKinematics``, ``RPRDirectKinematics``).
+
+Their outputs and sensor options are the same; only the joint inputs, their unit and the initial
+pose differ.  Each slave's ``VARIABLES`` lists its own rows and these.
+"""
+from __future__ import annotations
+
+from fmu_src.table_slave import Var
+
+__all__ = ["sensor_parameters", "dk_outputs"]
+
+
+def sensor_parameters(joint_unit: str) -> tuple:
+    """The table rows of the sensor options (joint_tolerance in ``joint_unit``, the two speed bounds)."""
+    return (
+        Var("joint_tolerance", "Real", "parameter", "fixed", start=0.0, unit=joint_unit, min=0.0,
+            description="bound on the joints' measurement error (encoders: about 3 noise sigmas plus half a "
+                        "step); 0: exact joints.  certain is then a proof for every joint path within it"),
+        Var("speed_bound_linear", "Real", "parameter", "fixed", start=0.0, unit="m/s", min=0.0,
+            description="with joint_tolerance: bound on the platform's speed, for re-acquisition and the "
+                        "speed gate; 0: none (then also speed_bound_angular = 0)"),
+        Var("speed_bound_angular", "Real", "parameter", "fixed", start=0.0, unit="rad/s", min=0.0,
+            description="with joint_tolerance: bound on the platform's angular speed; 0: none"),
+    )
+
+
+def dk_outputs(deps: tuple, point: str = "platform centre") -> tuple:
+    """The table rows of the DK outputs, each depending on the joint inputs ``deps``, then
+    ``stuck_after`` (added last: the other rows keep their value references)."""
+    return (
+        Var("x", "Real", "output", unit="m", depends_on=deps, description=f"{point} x"),
+        Var("y", "Real", "output", unit="m", depends_on=deps, description=f"{point} y"),
+        Var("phi", "Real", "output", unit="rad", depends_on=deps,
+            description="platform orientation, wrapped to (-pi, pi]"),
+        Var("region", "Integer", "output", depends_on=deps,
+            description="number 1..6 of the DK solution returned (map's ordering rule); 0 none"),
+        Var("near_border", "Boolean", "output", depends_on=deps,
+            description="procedure 2 saw more than one region label near the previous pose"),
+        Var("n_real", "Integer", "output", depends_on=deps,
+            description="number of real DK solutions of q (0, 2, 4 or 6)"),
+        Var("ambiguous", "Boolean", "output", depends_on=deps,
+            description="the choice of solution is not certain"),
+        Var("status", "Integer", "output", depends_on=deps,
+            description="0 ok, 1 unreachable (pose held), 2 singular, 3 rejected: an outlier the tracker's "
+                        "gate refused (pose held, doStep ok) or an input the FMU refused (doStep discarded), "
+                        "4 diverged"),
+        Var("cond", "Real", "output", unit="1", depends_on=deps,
+            description="|det J| / prod |rows of J| at the pose (0 singular, 1 best)"),
+        Var("certain", "Boolean", "output", initial="exact", start=True, depends_on=deps,
+            description="the tracker vouches for the pose (certificates back to the initial pose)"),
+        Var("uncertain_since", "Real", "output", "discrete", initial="exact", start=-1.0, unit="s",
+            depends_on=deps,
+            description="time of the step since which the tracker cannot vouch for the pose; -1 while certain"),
+        Var("stuck_after", "Integer", "parameter", "fixed", start=0, min=0,
+            description="with joint_tolerance: identical readings in a row that mark a joint stuck (refused, "
+                        "state rolled back to before them); 0: off, for noisy encoders see the readme"),
+    )
