@@ -14,7 +14,7 @@ import numpy as np  # noqa: E402
 from pythonfmu import DefaultExperiment  # noqa: E402
 
 from fmu_src.RRRDirectKinematics import RRRDirectKinematics  # noqa: E402
-from fmu_src.dk_variables import dk_outputs, sensor_parameters  # noqa: E402
+from fmu_src.dk_variables import dk_outputs, initial_pose, sensor_parameters  # noqa: E402
 from fmu_src.table_slave import Var  # noqa: E402
 from solver.rpr import RPR_HOME_POSE, RPRManipulator, ik  # noqa: E402
 
@@ -35,12 +35,7 @@ class RPRDirectKinematics(RRRDirectKinematics):
         Var("rho1", "Real", "input", start=_HOME_RHO[0], unit="m", description="length of leg 1 (A1 to B1)"),
         Var("rho2", "Real", "input", start=_HOME_RHO[1], unit="m", description="length of leg 2 (A2 to B2)"),
         Var("rho3", "Real", "input", start=_HOME_RHO[2], unit="m", description="length of leg 3 (A3 to B3)"),
-        Var("x0", "Real", "parameter", "fixed", start=float(RPR_HOME_POSE[0]), unit="m",
-            description="initial pose: x of the platform point P (= B1)"),
-        Var("y0", "Real", "parameter", "fixed", start=float(RPR_HOME_POSE[1]), unit="m",
-            description="initial pose: y of P"),
-        Var("phi0", "Real", "parameter", "fixed", start=float(RPR_HOME_POSE[2]), unit="rad",
-            description="initial pose: platform orientation"),
+        *initial_pose(RPR_HOME_POSE, "the platform point P (= B1)"),
         Var("mode", "Integer", "parameter", "fixed", start=0, min=0, max=1,
             description="tracker mode: 0 default (RK4 continuation + map), 1 paper (procedures 2-3 as written)"),
         *sensor_parameters("m"),

@@ -23,7 +23,7 @@ import numpy as np
 from pythonfmu import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 
-from fmu_src.dk_variables import dk_outputs, sensor_parameters
+from fmu_src.dk_variables import dk_outputs, initial_pose, sensor_parameters
 from fmu_src.table_slave import TableSlave, Var
 from solver import (HOME_POSE, STATUS, Manipulator, MapTensor, MapTensorFileError, Tracker, TrackerState, dk_all,
                     ik, jacobians, wrap_angle)
@@ -62,12 +62,7 @@ class RRRDirectKinematics(TableSlave):
             description="motor angle theta_2 of leg 2 (from +x)"),
         Var("q3", "Real", "input", start=_HOME_Q[2], unit="rad",
             description="motor angle theta_3 of leg 3 (from +x)"),
-        Var("x0", "Real", "parameter", "fixed", start=float(HOME_POSE[0]), unit="m",
-            description="initial pose: x of the platform centre"),
-        Var("y0", "Real", "parameter", "fixed", start=float(HOME_POSE[1]), unit="m",
-            description="initial pose: y of the platform centre"),
-        Var("phi0", "Real", "parameter", "fixed", start=float(HOME_POSE[2]), unit="rad",
-            description="initial pose: platform orientation"),
+        *initial_pose(HOME_POSE),
         Var("posture", "Integer", "parameter", "fixed", start=BUILD_POSTURE, min=1, max=8,
             description="IK branch 1..8 (CONVENTIONS.md); needs an embedded map of that posture"),
         Var("mode", "Integer", "parameter", "fixed", start=MODES.index(BUILD_MODE), min=0, max=1,

@@ -7,7 +7,19 @@ from __future__ import annotations
 
 from fmu_src.table_slave import Var
 
-__all__ = ["sensor_parameters", "dk_outputs"]
+__all__ = ["initial_pose", "sensor_parameters", "dk_outputs"]
+
+
+def initial_pose(pose, point: str = "the platform centre") -> tuple:
+    """The table rows of the initial pose ``x0, y0, phi0`` (start values ``pose``, m, m, rad)."""
+    return (
+        Var("x0", "Real", "parameter", "fixed", start=float(pose[0]), unit="m",
+            description=f"initial pose: x of {point}"),
+        Var("y0", "Real", "parameter", "fixed", start=float(pose[1]), unit="m",
+            description=f"initial pose: y of {point}"),
+        Var("phi0", "Real", "parameter", "fixed", start=float(pose[2]), unit="rad",
+            description="initial pose: platform orientation"),
+    )
 
 
 def sensor_parameters(joint_unit: str) -> tuple:
