@@ -77,7 +77,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ._kernels import direct_kinematics as _dk
-from ._kernels.layout import KIND_RPR, KIND_RRR, RULE_ASPECT, pack_model
+from ._kernels.layout import RULE_ASPECT, pack_model
 from ._kernels.ordering import number_batch
 from .checks import SolverInputError, as_array
 from .kinematics import check_manipulator, wrap_angle
@@ -161,7 +161,7 @@ def kernel_constants(model: Manipulator) -> dict:
     rpr = model.kind == "3-RPR"                      # the joints are the radii: residuals scale with the platform
     scale = float(np.max(model.platform_radius)) ** 2 if rpr else float(np.min(l2sq))
     k["pack"] = pack_model(M, l1, l2sq, k["b"], k["cos8"], k["sin8"], k["psi"], REAL_SNAP, REAL_RESIDUAL * scale,
-                           NEWTON_STEPS, KIND_RPR if rpr else KIND_RRR)
+                           NEWTON_STEPS)
     object.__setattr__(model, "_kernel_constants", k)
     return k
 

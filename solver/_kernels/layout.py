@@ -22,12 +22,10 @@ MODEL_PSI = 34            # (8,) half-angle shift psi_j of each sample j
 MODEL_SNAP_TOL = 42       # |Im phi| below which a root is tried as real
 MODEL_REAL_TOL = 43       # residual below which a polished root is real, m^2
 MODEL_NEWTON_STEPS = 44   # Newton steps that polish a real root (an integer)
-MODEL_KIND = 45           # KIND_RRR or KIND_RPR (a float holding the integer)
-MODEL_SIZE = 46
-#: Manipulator kinds.  Every leg is a circle constraint |P + R(phi) b_i - D_i|^2 = r_i^2: for the
-#: 3-RRR the joint moves the centre (D_i = M_i + l1_i (cos q_i, sin q_i), r_i = l2_i), for the 3-RPR
-#: the radius (D_i = M_i the base joint, l1 = 0, r_i = q_i the leg length).
-KIND_RRR, KIND_RPR = 0, 1
+MODEL_SIZE = 45
+#: Every leg is a circle constraint |P + R(phi) b_i - D_i|^2 = r_i^2: for the 3-RRR the joint moves the
+#: centre (D_i = M_i + l1_i (cos q_i, sin q_i), r_i^2 = MODEL_L2SQ), for the 3-RPR the radius (l1 = 0 so
+#: D_i = M_i, the base joint; MODEL_L2SQ < 0 marks the leg prismatic: r_i = q_i, kinematics.radius_sq).
 
 # ----------------------------------------------------------------------------- tracker state pack
 # What a step reads of the tracker's state (rewritten before every step).
@@ -120,8 +118,7 @@ RULE_REAL_PHI, RULE_LITERAL, RULE_REAL_X, RULE_REAL_Y, RULE_ASPECT = 0, 1, 2, 3,
 
 
 # ----------------------------------------------------------------------------- packers
-def pack_model(motors, l1, l2sq, platform, cos8, sin8, psi, snap_tol, real_tol, newton_steps,
-               kind: int = KIND_RRR) -> np.ndarray:
+def pack_model(motors, l1, l2sq, platform, cos8, sin8, psi, snap_tol, real_tol, newton_steps) -> np.ndarray:
     """The model pack (MODEL_SIZE,) of a geometry and its DK constants."""
     pack = np.empty(MODEL_SIZE)
     pack[MODEL_MOTORS:MODEL_MOTORS + 6] = np.ravel(motors)
@@ -134,7 +131,6 @@ def pack_model(motors, l1, l2sq, platform, cos8, sin8, psi, snap_tol, real_tol, 
     pack[MODEL_SNAP_TOL] = snap_tol
     pack[MODEL_REAL_TOL] = real_tol
     pack[MODEL_NEWTON_STEPS] = float(newton_steps)
-    pack[MODEL_KIND] = float(kind)
     return pack
 
 
