@@ -82,18 +82,26 @@ and ``certain`` means a proof for every joint path within that tolerance:
   map's posture whose joints are within the tolerance, searched over the tool
   space, or over the poses the platform can have reached since the last certain
   step when ``speed_bound`` (m/s, rad/s) is given;
-* an *outlier gate* refuses a sample whose joint step differs from the expected
-  one (constant joint velocity) by more than the tolerance allows plus ``gate``
-  times the recent mean difference: status ``rejected``, pose held, state kept
-  (only the count of refusals moves).  After ``MAX_REFUSED`` refusals in a row
-  the next sample is taken (the joints really moved) and vouching ends until a
-  re-acquisition, which then searches the whole tool space;
+* an *outlier gate* (:mod:`._kernels.gates`) looks at a sample whose joint step
+  differs from the expected one (constant joint velocity) by more than the
+  tolerance allows plus ``gate`` times the recent differences (an envelope that
+  rises at once and decays by a fifth per sample).  If that unexpected motion
+  moves the pose more than noise could (first order), the sample is refused:
+  status ``rejected``, pose held, state kept (only the count of refusals moves).
+  If it does not (a joint swinging next to a serial singularity), the sample is
+  taken but ends the chain of certificates.  After ``MAX_REFUSED`` refusals in a
+  row the next sample is taken (the joints really moved) and vouching ends until
+  a re-acquisition, which then searches the whole tool space;
 * with ``speed_bound``, a *speed gate*: when the chosen solution is farther
   than the platform can have moved since the last sample (plus 0.1 m / 0.1 rad),
   the measured joints crossed a fold that the robot did not.  If exactly one
   real solution is within that reach it is taken (not vouched for, the chain
   ends); otherwise the previous pose is held (status ``unreachable``), at most
-  ``MAX_HELD`` samples in a row (:mod:`solver.tracking`);
+  ``MAX_HELD`` samples in a row (:mod:`solver.tracking`).  The gate leaves alone
+  a solution that a chain of Krawczyk boxes joins to the previous candidate
+  along the measured joints (that segment crossed no fold) or that was
+  re-acquired: on an ill-conditioned path the measured solution jumps farther
+  than the platform moves, on its own branch;
 * with ``stuck_after``, a *stuck-joint detector* (:mod:`solver.stuck`): a
   noisy encoder rarely repeats a reading, so a joint read ``stuck_after`` times
   in a row with the same value is stuck; the state rolls back to before the
@@ -133,7 +141,8 @@ MAX_TESTS = 2000
 
 #: With measured joints (``joint_tolerance > 0``): a sample is refused as an outlier when its joint
 #: step differs from the one expected (constant joint velocity) by more than the noise allows,
-#: ``2 tol (1 + r)``, plus ``GATE`` times the running mean of recent differences (see "Sensors").
+#: ``2 tol (1 + r)``, plus ``GATE`` times the envelope of recent differences, and that difference
+#: moves the pose more than noise could (see "Sensors").
 GATE = 4.0
 
 #: With measured joints: pose boxes one re-acquisition may examine (see "Sensors").

@@ -65,7 +65,8 @@ class TrackerState:
         exact joints, ``joint_tolerance = 0``); once False, ``certain`` stays False
         until the next reset.
     a_scale : float
-        Running mean of recent joint innovations (rad): the outlier gate's scale.
+        Envelope of recent joint innovations (rad): the largest of the last innovation and
+        a running mean decaying by a fifth per sample; the outlier gate's scale.
     refused : int
         Samples refused in a row since the last accepted one.
     anchor : ndarray, shape (3,) or None

@@ -186,7 +186,7 @@ class _TrackerBase:
             self.state = TrackerState(X, q.copy(), st.X, scale, st.steps + 1,
                                       float("nan") if dt is None else float(dt) * (st.skipped + 1), st.q, cands,
                                       cert in (CERT_CONTINUATION, CERT_REACQUIRED), since, bool(ii[I_INTACT]),
-                                      innov if st.steps < 2 else 0.8 * st.a_scale + 0.2 * innov, 0,
+                                      innov if st.steps < 2 else max(innov, 0.8 * st.a_scale + 0.2 * innov), 0,
                                       X if certain else anchor, 0.0 if certain else age, **extra)
         return X, info
 

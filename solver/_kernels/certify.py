@@ -240,7 +240,10 @@ def certify(cands, n_cand, verified, intact, qp, dq, d2_par, have_par, eps, pose
     posture_bits: the tracker's posture - 1, or -1 for no posture certificate.
     Writes the new candidates to ``new_cands`` (6, 3) (verified chain ends when
     one remains by continuation) and, in ``keep`` (6,), which solutions they are.
-    Returns (number of candidates, certificate code).
+    Returns (number of candidates, certificate code, chain intact, linked): ``linked``
+    when the one candidate left is joined to a previous candidate by a chain of boxes
+    along the measured joints (forwards, or backwards in elimination), so that the
+    segment between the samples crossed no fold on its way.
     """
     M, l1, l2sq, b = geometry(model_pack)
     zero = np.zeros(3)
@@ -272,17 +275,19 @@ def certify(cands, n_cand, verified, intact, qp, dq, d2_par, have_par, eps, pose
                 if 0 <= hit < 6:
                     keep[hit] = True
                     new_cands[0, :] = end
-                    return 1, CERT_CONTINUATION, eps == 0.0 or p == 0
+                    return 1, CERT_CONTINUATION, eps == 0.0 or p == 0, True
     # elimination: follow every real solution back; drop those that come from a non-candidate
     rd1 = np.empty(3)
     rd2 = np.empty(3)
     n_new = 0
+    linked = np.zeros(6, dtype=np.bool_)      # followed back to a candidate
     for k in range(6):
         if not real[k]:
             continue
         for i in range(3):
             Xr[i] = poses[k, i].real
         kept = True
+        followed = False
         for p in range(n_paths):
             # the same path backwards: q(1 - u) = q(1) + u rd1 + u^2 rd2
             for i in range(3):
@@ -294,8 +299,10 @@ def certify(cands, n_cand, verified, intact, qp, dq, d2_par, have_par, eps, pose
                 kept = False
                 for j in range(n_cand):
                     kept = kept or same_pose(end, cands[j])
+                followed = kept
                 break
         if kept:
+            linked[k] = followed
             keep[k] = True
             new_cands[n_new, :] = Xr
             n_new += 1
@@ -325,4 +332,8 @@ def certify(cands, n_cand, verified, intact, qp, dq, d2_par, have_par, eps, pose
                 for i in range(3):
                     new_cands[n_new, i] = poses[k, i].real
                 n_new += 1
-    return n_new, code if n_new == 1 else CERT_NONE, eps == 0.0
+    sole_linked = False
+    if n_new == 1:
+        for k in range(6):
+            sole_linked = sole_linked or (keep[k] and linked[k])
+    return n_new, code if n_new == 1 else CERT_NONE, eps == 0.0, sole_linked

@@ -42,7 +42,7 @@ STATE_VERIFIED = 17       # > 0: the single candidate ends a verified chain (its
 STATE_CANDS = 18          # (6, 3) the candidates: the DK solutions the true branch can be
 STATE_INTACT = 36         # > 0: every step since the reset was vouched for over the joint tolerance tube
                           # (always, with exact joints)
-STATE_A_SCALE = 37        # running mean of recent joint innovations max|dq - expected dq|, rad (the gate's scale)
+STATE_A_SCALE = 37        # envelope of recent joint innovations max|dq - expected dq|, rad (the gate's scale)
 STATE_REFUSED = 38        # samples refused in a row since the last accepted one
 STATE_ANCHOR = 39         # (3,) the pose of the last certain step (re-acquisition's region)
 STATE_ANCHOR_AGE = 42     # seconds from that step to this one (NaN: unknown)

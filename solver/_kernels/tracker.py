@@ -11,8 +11,9 @@ import math
 import numpy as np
 from numba import njit
 
-from .certify import CERT_NONE, CERT_REACQUIRED, RHO_CAP, certify
+from .certify import CERT_NONE, CERT_REACQUIRED, certify
 from .exclusion import reacquire
+from .gates import GATE_PASS, GATE_REFUSE, GATE_SUSPECT, outlier_gate, reacquire_region, speed_gate
 from .direct_kinematics import dk_one
 from .kinematics import geometry, jacobian, velocity
 from .layout import (F_COND, F_COND_PREV, F_D_BEST, F_D_SECOND, F_DQ, I_AMBIGUOUS, I_JUMP, I_LABEL,
@@ -108,29 +109,6 @@ def nearest(poses, real, Xref, w, m1, m2, m3, use_map):
 
 
 @njit(cache=True)
-def reach(params, seconds):
-    """How far the platform can have moved in ``seconds`` under the speed bound, plus the pose
-    boxes' reach (2 RHO_CAP): (m, rad)."""
-    return 2.0 * RHO_CAP + params[PARAM_SPEED] * seconds, 2.0 * RHO_CAP + params[PARAM_SPEED + 1] * seconds
-
-
-@njit(cache=True)
-def reacquire_region(params, state, region):
-    """The pose box (6,) the robot is in: the tool space, cut to what the platform can have reached
-    since its last certain pose when a speed bound is given."""
-    region[0:4] = params[PARAM_ROOT:PARAM_ROOT + 4]
-    region[4], region[5] = -math.pi, math.pi
-    age = state[STATE_ANCHOR_AGE]
-    if params[PARAM_SPEED] > 0.0 and math.isfinite(age):
-        a = state[STATE_ANCHOR:STATE_ANCHOR + 3]
-        r, rp = reach(params, age)
-        region[0], region[1] = max(region[0], a[0] - r), min(region[1], a[0] + r)
-        region[2], region[3] = max(region[2], a[1] - r), min(region[3], a[1] + r)
-        if rp < math.pi:
-            region[4], region[5] = a[2] - rp, a[2] + rp
-
-
-@njit(cache=True)
 def certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred, w, params, model_pack,
                      new_cands, info_i):
     """The certificates of a step (:mod:`.certify`) and what they change in the choice.
@@ -139,7 +117,9 @@ def certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred
     I_CERTIFICATE and I_N_CAND.  In default mode a choice the certificates rule
     out is replaced: by the one candidate left, or by the candidate nearest the
     prediction.  Paper mode keeps its answer and is certain only when it is the
-    one candidate left.  Returns the (possibly new) chosen solution index.
+    one candidate left.  Returns the (possibly new) chosen solution index, and whether
+    it is joined to the previous candidate by a chain along the measured joints or
+    re-acquired (then the speed gate does not apply to it).
     """
     n_cand = int(state[STATE_N_CAND])
     cands = state[STATE_CANDS:STATE_CANDS + 18].reshape((6, 3))
@@ -154,9 +134,9 @@ def certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred
     intact_before = state[STATE_INTACT] > 0.0
     eps = params[PARAM_JOINT_TOL]
     posture_bits = int(params[PARAM_POSTURE_BITS])
-    n_new, cert, intact = certify(cands, n_cand, state[STATE_VERIFIED] > 0.0, intact_before, qp, dq, d2, have_par,
-                                  eps, poses, real, posture_bits, int(params[PARAM_MAX_TESTS]), model_pack,
-                                  new_cands, keep)
+    n_new, cert, intact, linked = certify(cands, n_cand, state[STATE_VERIFIED] > 0.0, intact_before, qp, dq, d2,
+                                          have_par, eps, poses, real, posture_bits, int(params[PARAM_MAX_TESTS]),
+                                          model_pack, new_cands, keep)
     intact = intact and intact_before
     if not (cert != CERT_NONE and intact) and eps > 0.0 and params[PARAM_REACQUIRE] > 0.0 and posture_bits >= 0:
         # measured joints: re-acquire the branch from this sample alone (see .exclusion)
@@ -175,7 +155,7 @@ def certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred
             for k in range(6):
                 keep[k] = k == target
             new_cands[0, :] = Xc
-            n_new, cert, intact = 1, CERT_REACQUIRED, True
+            n_new, cert, intact, linked = 1, CERT_REACQUIRED, True, True
     certain = False
     if cert != CERT_NONE:        # the choice follows the certificates; vouched only with the chain intact
         sole = 0
@@ -185,16 +165,19 @@ def certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred
         if mode != MODE_PAPER:
             chosen = sole
         certain = chosen == sole and intact
+        linked = linked and chosen == sole
     elif mode != MODE_PAPER and not keep[chosen]:
         mask = np.zeros(7, dtype=np.bool_)
         for k in range(6):
             mask[k + 1] = keep[k]
         chosen, _ = nearest(poses, real, X_pred, w, mask, mask, mask, True)
+    if cert == CERT_NONE:
+        linked = False
     info_i[I_CERTAIN] = 1 if certain else 0
     info_i[I_CERTIFICATE] = cert
     info_i[I_N_CAND] = n_new
     info_i[I_INTACT] = 1 if intact else 0
-    return chosen
+    return chosen, linked
 
 
 @njit(cache=True)
@@ -220,15 +203,21 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
     for i in range(INFO_F_SIZE):
         info_f[i] = 0.0
     # the outlier gate (measured joints): the step against the one expected from the last two samples
-    innov = 0.0
+    innov = np.zeros(3)
     if state[STATE_HAVE_Q2] > 0.0:
         for i in range(3):
-            innov = max(innov, abs(dq[i] - ext_scale * wrap(qp[i] - state[STATE_Q2 + i])))
-    info_f[F_INNOV] = innov
+            innov[i] = dq[i] - ext_scale * wrap(qp[i] - state[STATE_Q2 + i])
+    info_f[F_INNOV] = max(abs(innov[0]), max(abs(innov[1]), abs(innov[2])))
     tol = params[PARAM_JOINT_TOL]
     forced = state[STATE_REFUSED] >= MAX_REFUSED
-    if tol > 0.0 and params[PARAM_GATE] > 0.0 and state[STATE_HAVE_Q2] > 0.0 and not forced \
-            and innov > 2.0 * tol * (1.0 + ext_scale) + params[PARAM_GATE] * state[STATE_A_SCALE]:
+    gated = tol > 0.0 and params[PARAM_GATE] > 0.0 and state[STATE_HAVE_Q2] > 0.0 and not forced
+    noise = 2.0 * tol * (1.0 + ext_scale)
+    verdict = outlier_gate(innov, noise + params[PARAM_GATE] * state[STATE_A_SCALE], noise, Xp, qp, M, l1, l2sq,
+                           b) if gated else GATE_PASS
+    # a sample off the expected step that the pose explains (a serial singularity's swing) is taken,
+    # but the sensor may have broken its tolerance there: like a forced sample it ends the chain
+    forced = forced or verdict == GATE_SUSPECT
+    if verdict == GATE_REFUSE:
         X_out[:] = Xp
         X_pred[:] = Xp
         info_f[F_DQ] = dqn
@@ -341,7 +330,7 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
             ambiguous = True                       # no label seen nearby supports the choice
         if not ok:
             ambiguous = True
-    chosen = certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred, w, params,
+    chosen, linked = certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred, w, params,
                               model_pack, out_real[OUT_CANDS:OUT_CANDS + 18].reshape((6, 3)), info_i)
     if forced:                                     # a sample taken after refusals: the tube no longer holds
         info_i[I_INTACT] = 0
@@ -366,30 +355,26 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
     for i in range(3):
         X_out[i] = Xr[i]
     step_dt = state[STATE_STEP_DT]
-    if params[PARAM_JOINT_TOL] > 0.0 and params[PARAM_SPEED] > 0.0 and math.isfinite(step_dt):
+    if params[PARAM_JOINT_TOL] > 0.0 and params[PARAM_SPEED] > 0.0 and math.isfinite(step_dt) \
+            and not linked:
         # measured joints: a pose the platform cannot have reached since the last sample (the
-        # measured joints crossed a fold the robot did not) is not taken; the previous pose is held
-        r, rp = reach(params, step_dt)
-        if abs(X_out[0] - Xp[0]) > r or abs(X_out[1] - Xp[1]) > r or abs(wrap(X_out[2] - Xp[2])) > rp:
+        # measured joints crossed a fold the robot did not) is not taken; the previous pose is held.
+        # A solution a chain of Krawczyk boxes joins to the previous candidate crossed no fold.
+        taken = speed_gate(poses, real, chosen, Xp, params, step_dt)
+        if taken >= 0 and taken != chosen:
             # the solution the platform can have reached, if one alone can: taken, not vouched for
-            other, n_in = -1, 0
-            for k in range(6):
-                if real[k] and abs(poses[k, 0].real - Xp[0]) <= r and abs(poses[k, 1].real - Xp[1]) <= r \
-                        and abs(wrap(poses[k, 2].real - Xp[2])) <= rp:
-                    other, n_in = k, n_in + 1
-            if n_in == 1:
-                chosen = other
-                for i in range(3):
-                    Xr[i] = poses[chosen, i].real
-                    X_out[i] = Xr[i]
-                cands_out = out_real[OUT_CANDS:OUT_CANDS + 18].reshape((6, 3))
-                cands_out[0, :] = Xr
-                info_i[I_N_CAND] = 1
-                info_i[I_CERTIFICATE] = CERT_NONE
-                info_i[I_CERTAIN] = 0
-                info_i[I_INTACT] = 0
-                ambiguous = True
-        if abs(X_out[0] - Xp[0]) > r or abs(X_out[1] - Xp[1]) > r or abs(wrap(X_out[2] - Xp[2])) > rp:
+            chosen = taken
+            for i in range(3):
+                Xr[i] = poses[chosen, i].real
+                X_out[i] = Xr[i]
+            cands_out = out_real[OUT_CANDS:OUT_CANDS + 18].reshape((6, 3))
+            cands_out[0, :] = Xr
+            info_i[I_N_CAND] = 1
+            info_i[I_CERTIFICATE] = CERT_NONE
+            info_i[I_CERTAIN] = 0
+            info_i[I_INTACT] = 0
+            ambiguous = True
+        elif taken < 0:
             X_out[:] = Xp
             info_i[I_STATUS] = STATUS_UNREACHABLE
             info_i[I_CERTAIN] = 0

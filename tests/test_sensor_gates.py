@@ -1,0 +1,113 @@
+"""The tracker's gates on measured joints (solver._kernels.gates): the outlier gate near a serial
+singularity, and the speed gate on an ill-conditioned path."""
+import numpy as np
+import pytest
+
+from conftest import pose_distance
+from solver import STATUS, MapTensor, Tracker, default_bounds, jacobians
+from solver._kernels.gates import GATE_PASS, GATE_REFUSE, GATE_SUSPECT, outlier_gate, pose_gains
+from solver._kernels.kinematics import geometry
+from solver.baselines import NewtonTracker
+from solver.direct_kinematics import kernel_constants
+from solver.sensors import Sensor, sensor_truth
+from solver.suite import hard_suite
+
+REJECTED = [k for k, v in STATUS.items() if v == "rejected"][0]
+SENSOR = Sensor("16-bit", bits=16, noise=1e-3)
+
+
+@pytest.fixture(scope="module")
+def hard(model):
+    return {p.name: p for p in hard_suite(model, samplings=(1000,))}
+
+
+def coarse_map(model, posture):
+    step = (0.02, 0.02, np.deg2rad(4.0))
+    b = default_bounds(model, step)
+    span = b[:, 1] - b[:, 0]
+    shape = (int(round(span[0] / step[0])) + 1, int(round(span[1] / step[1])) + 1, 90)
+    return MapTensor.build(model, posture, bounds=b, shape=shape, rule="aspect")
+
+
+def measured(path, seed):
+    q = SENSOR.measure(path.q, seed=seed).q.copy()
+    q[0] = path.q[0]
+    return q
+
+
+def track(tracker, q, X0):
+    tracker.reset(X0, q[0])
+    X, infos = [tracker.state.X], [None]
+    for k in range(1, len(q)):
+        x, info = tracker.step(q[k], 1e-3)
+        X.append(x)
+        infos.append(info)
+    return np.array(X), infos
+
+
+def test_pose_gains_are_the_jacobians_velocity_model(model, rng):
+    M, l1, l2sq, b = geometry(kernel_constants(model)["pack"])
+    p = hard_suite(model, samplings=(50,))[0]
+    for k in range(0, 50, 7):
+        S = np.empty((3, 3))
+        assert pose_gains(p.X[k], p.q[k], M, l1, l2sq, b, S)
+        J, K = jacobians(model, p.X[k], p.q[k])
+        np.testing.assert_allclose(S, np.abs(np.linalg.solve(J, K)), rtol=1e-9, atol=1e-12)
+
+
+def test_the_outlier_gate_weighs_a_joints_swing_by_what_it_does_to_the_pose(model, hard):
+    """Next to a serial singularity a joint swings by a radian within a sample while the platform
+    barely moves: suspect, not refused.  The same swing where the joint moves the platform, or a
+    0.1 rad jump of the joint that moves it most, is refused; a step within the threshold passes."""
+    M, l1, l2sq, b = geometry(kernel_constants(model)["pack"])
+    p = hard["p2-lissajous-0.5mm/1000"]
+    d2 = np.abs(np.diff(np.unwrap(p.q, axis=0), 2, axis=0))
+    k = int(np.argmax(d2.max(axis=1))) + 2                      # the sample of the largest swing
+    j = int(np.argmax(d2[k - 2]))
+    assert d2[k - 2, j] > 1.0
+    innov = np.zeros(3)
+    innov[j] = d2[k - 2, j]
+    thr, noise = 0.02, 0.012
+    assert outlier_gate(innov, thr, noise, p.X[k - 1], p.q[k - 1], M, l1, l2sq, b) == GATE_SUSPECT
+    S = np.empty((3, 3))
+    pose_gains(p.X[k - 1], p.q[k - 1], M, l1, l2sq, b, S)
+    strong = np.zeros(3)
+    strong[int(np.argmax(S.max(axis=0)))] = 0.1
+    assert outlier_gate(strong, thr, noise, p.X[k - 1], p.q[k - 1], M, l1, l2sq, b) == GATE_REFUSE
+    regular = hard["p2-lissajous-far/1000"]
+    assert outlier_gate(innov, thr, noise, regular.X[100], regular.q[100], M, l1, l2sq, b) == GATE_REFUSE
+    assert outlier_gate(innov * thr / innov.max() * 0.99, thr, noise, p.X[k - 1], p.q[k - 1], M, l1, l2sq,
+                        b) == GATE_PASS
+
+
+def test_a_serial_singularitys_swing_is_taken_and_an_outlier_still_refused(model, hard):
+    """On the path passing 0.5 mm from a serial singularity (16-bit encoder, 1e-3 rad noise) no sample
+    is refused and no wrong pose vouched for; a 0.1 rad outlier on the same stream is refused."""
+    p = hard["p2-lissajous-0.5mm/1000"]
+    q = measured(p, 7)
+    truth, counted = sensor_truth(model, q, p.X)
+    tr = Tracker(model, coarse_map(model, 2), joint_tolerance=SENSOR.tolerance(3.0))
+    X, infos = track(tr, q, p.X[0])
+    assert not any(i.status == REJECTED for i in infos[1:])
+    certain = np.array([True] + [i.certain for i in infos[1:]])
+    assert np.sum((pose_distance(X, truth) > 1e-6) & counted & certain) == 0
+    bad = q.copy()
+    bad[600, 1] += 0.1
+    X2, infos2 = track(tr, bad, p.X[0])
+    assert infos2[600].status == REJECTED and not infos2[600].certain
+    np.testing.assert_allclose(X2[601:], X[601:], atol=1e-6)
+
+
+def test_the_speed_gate_does_not_hold_a_solution_a_chain_of_boxes_reached(model, hard):
+    """An ill-conditioned path (1 mrad of joint noise moves phi by about 0.1 rad) far from any fold:
+    the measured solution jumps more than a speed bound allows, but along a branch the certificates
+    follow; the tracker errs no more often than Newton from the previous pose."""
+    p = hard["p3-circle-far/1000"]
+    q = measured(p, 1000 + 62)
+    truth, counted = sensor_truth(model, q, p.X)
+    counted[0] = False
+    tr = Tracker(model, coarse_map(model, 3), joint_tolerance=SENSOR.tolerance(3.0), speed_bound=(3.76, 1.10))
+    X, _ = track(tr, q, p.X[0])
+    Xn, _ = track(NewtonTracker(model), q, p.X[0])
+    errors = np.sum((pose_distance(X, truth) > 1e-6) & counted)
+    assert errors <= np.sum((pose_distance(Xn, truth) > 1e-6) & counted)
