@@ -89,7 +89,9 @@ and ``certain`` means a proof for every joint path within that tolerance:
   moves the pose more than noise could (first order), the sample is refused:
   status ``rejected``, pose held, state kept (only the count of refusals moves).
   If it does not (a joint swinging next to a serial singularity), the sample is
-  taken but ends the chain of certificates.  After ``MAX_REFUSED`` refusals in a
+  taken.  Any sample taken with a step off by more than the noise allows (the
+  envelope lets fast joints through) may still be a glitch: it is vouched for by
+  nothing and ends the chain of certificates.  After ``MAX_REFUSED`` refusals in a
   row the next sample is taken (the joints really moved) and vouching ends until
   a re-acquisition, which then searches the whole tool space;
 * with ``speed_bound``, a *speed gate*: when the chosen solution is farther
@@ -98,10 +100,10 @@ and ``certain`` means a proof for every joint path within that tolerance:
   real solution is within that reach it is taken (not vouched for, the chain
   ends); otherwise the previous pose is held (status ``unreachable``), at most
   ``MAX_HELD`` samples in a row (:mod:`solver.tracking`).  The gate leaves alone
-  a solution that a chain of Krawczyk boxes joins to the previous candidate
-  along the measured joints (that segment crossed no fold) or that was
-  re-acquired: on an ill-conditioned path the measured solution jumps farther
-  than the platform moves, on its own branch;
+  a solution that a chain of Krawczyk boxes joins to a previous candidate along
+  the measured joints (the segment between the samples crossed no fold: a
+  choice, not a proof) or that was re-acquired: on an ill-conditioned path the
+  measured solution jumps farther than the platform moves, on its own branch;
 * with ``stuck_after``, a *stuck-joint detector* (:mod:`solver.stuck`): a
   noisy encoder rarely repeats a reading, so a joint read ``stuck_after`` times
   in a row with the same value is stuck; the state rolls back to before the

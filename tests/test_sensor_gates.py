@@ -5,6 +5,7 @@ import pytest
 
 from conftest import pose_distance
 from solver import STATUS, MapTensor, Tracker, default_bounds, jacobians
+from solver._kernels.exclusion import reacquire
 from solver._kernels.gates import GATE_PASS, GATE_REFUSE, GATE_SUSPECT, outlier_gate, pose_gains
 from solver._kernels.kinematics import geometry
 from solver.baselines import NewtonTracker
@@ -107,7 +108,38 @@ def test_the_speed_gate_does_not_hold_a_solution_a_chain_of_boxes_reached(model,
     truth, counted = sensor_truth(model, q, p.X)
     counted[0] = False
     tr = Tracker(model, coarse_map(model, 3), joint_tolerance=SENSOR.tolerance(3.0), speed_bound=(3.76, 1.10))
-    X, _ = track(tr, q, p.X[0])
+    X, infos = track(tr, q, p.X[0])
+    certain = np.array([False] + [i.certain for i in infos[1:]])
+    assert np.sum((pose_distance(X, truth) > 1e-6) & certain) == 0
     Xn, _ = track(NewtonTracker(model), q, p.X[0])
     errors = np.sum((pose_distance(X, truth) > 1e-6) & counted)
     assert errors <= np.sum((pose_distance(Xn, truth) > 1e-6) & counted)
+
+
+@pytest.mark.parametrize("k", [190, 200, 208])
+def test_an_outlier_after_a_swing_is_never_vouched_for(model, hard, k):
+    """Right after the serial singularity's swing the gate's envelope is wide open, and a 0.1 rad
+    outlier may be taken; with a speed bound, re-acquisition then has nothing to prove about the
+    robot.  Neither that sample nor any later one is vouched for wrongly."""
+    p = hard["p2-lissajous-0.5mm/1000"]
+    q = measured(p, 7)
+    truth, _ = sensor_truth(model, q, p.X)
+    q[k, 1] += 0.1
+    tr = Tracker(model, coarse_map(model, 2), joint_tolerance=SENSOR.tolerance(3.0), speed_bound=(2.35, 1.05))
+    X, infos = track(tr, q, p.X[0])
+    certain = np.array([False] + [i.certain for i in infos[1:]])
+    assert not certain[k]
+    assert np.sum((pose_distance(X, truth) > 1e-6) & certain) == 0
+
+
+def test_reacquisition_refuses_a_solution_outside_the_region(model):
+    """The branch and bound proves that no *other* pose of the region reaches the joints: for a
+    solution outside the region that is no proof about the robot (its joints were off)."""
+    from solver import ik
+    pack = kernel_constants(model)["pack"]
+    X = np.array([0.5, 0.35, 0.1])
+    q = ik(model, X, 1)
+    around = np.array([X[0] - 0.05, X[0] + 0.05, X[1] - 0.05, X[1] + 0.05, X[2] - 0.2, X[2] + 0.2])
+    assert reacquire(X, q, 1e-3, 0, around, 10000, pack)
+    away = around + np.array([0.3, 0.3, 0.0, 0.0, 0.0, 0.0])
+    assert not reacquire(X, q, 1e-3, 0, away, 10000, pack)

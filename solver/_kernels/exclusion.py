@@ -105,6 +105,17 @@ def _inside(box, c, rho):
 
 
 @njit(cache=True)
+def _in_region(X, region):
+    """The pose ``X`` (3,) lies in the region (x, y, phi lo/hi; phi compared modulo 2 pi)."""
+    if not (region[0] <= X[0] <= region[1] and region[2] <= X[1] <= region[3]):
+        return False
+    for n in (-1.0, 0.0, 1.0):
+        if region[4] <= X[2] + n * TWO_PI <= region[5]:
+            return True
+    return False
+
+
+@njit(cache=True)
 def posture_preimage_in(c, rho, q, eps, posture_bits, root, M, l1, l2sq, b, max_boxes):
     """Every pose in the region ``root`` with inverse kinematics (posture ``posture_bits + 1``)
     in ``q +- eps`` lies in the box ``c +- rho``.
@@ -154,11 +165,13 @@ def reacquire(X, q, eps, posture_bits, region, max_boxes, model_pack):
     """The proof of the module docstring for the solution ``X`` (3,) of the measured joints ``q`` (3,).
 
     ``region`` (6,): a pose box known to hold the robot (x, y, phi lo/hi).  True when
-    ``X`` is in the posture, a Krawczyk box about it holds one solution for every joint
-    vector in ``q +- eps``, and no other pose of the region in the posture reaches them.
+    ``X`` is in the posture and in the region, a Krawczyk box about it holds one solution
+    for every joint vector in ``q +- eps``, and no other pose of the region in the posture
+    reaches them.  (``X`` outside the region would make the last clause true of a region
+    that no pose reaching ``q +- eps`` is in: joints off by more than ``eps``.)
     """
     M, l1, l2sq, b = geometry(model_pack)
-    if elbow_bits(X, q, M, l1, b) != posture_bits:
+    if elbow_bits(X, q, M, l1, b) != posture_bits or not _in_region(X, region):
         return False
     w = np.empty(W_SIZE)
     xc, rho, none = np.empty(3), np.empty(3), np.zeros(3)

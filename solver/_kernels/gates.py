@@ -4,7 +4,9 @@ A speed bound (m/s, rad/s) says how far the platform moves between two samples. 
 gate (:func:`speed_gate`) holds back a solution farther than that from the previous output
 (plus the reach of two pose boxes, 2 ``RHO_CAP``): the measured joints crossed a fold that
 the robot did not.  The tracker does not apply it to a solution that a chain of Krawczyk
-boxes reached along the measured joints: that path crossed no fold.  The re-acquisition
+boxes joins to a previous candidate along the measured joints (the straight segment between
+the samples crossed no fold; the robot's joints, within the tolerance of it, may have: a
+choice, not a proof, and the chain does not vouch) nor to a re-acquired one.  The re-acquisition
 region (:func:`reacquire_region`) is anchored at a certain pose, whose Krawczyk box
 (half-width at most ``RHO_CAP``) holds the platform.
 
@@ -12,7 +14,8 @@ The outlier gate (:func:`outlier_gate`) refuses a sample whose joint step is off
 expected one (constant joint velocity) by more than the tolerance and the recent
 innovations allow, weighed by what the unexpected motion does to the pose: near a serial
 (type-1) singularity a joint swings fast while the platform barely moves, and such a swing
-is not an outlier.
+is not an outlier.  A sample the gate lets through with a step off by more than the noise
+allows is not vouched for: it may still be a glitch (the tracker ends the chain there).
 """
 from __future__ import annotations
 

@@ -13,7 +13,7 @@ from numba import njit
 
 from .certify import CERT_NONE, CERT_REACQUIRED, certify
 from .exclusion import reacquire
-from .gates import GATE_PASS, GATE_REFUSE, GATE_SUSPECT, outlier_gate, reacquire_region, speed_gate
+from .gates import GATE_PASS, GATE_REFUSE, outlier_gate, reacquire_region, speed_gate
 from .direct_kinematics import dk_one
 from .kinematics import geometry, jacobian, velocity
 from .layout import (F_COND, F_COND_PREV, F_D_BEST, F_D_SECOND, F_DQ, I_AMBIGUOUS, I_JUMP, I_LABEL,
@@ -110,16 +110,18 @@ def nearest(poses, real, Xref, w, m1, m2, m3, use_map):
 
 @njit(cache=True)
 def certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred, w, params, model_pack,
-                     new_cands, info_i):
+                     new_cands, info_i, untrusted):
     """The certificates of a step (:mod:`.certify`) and what they change in the choice.
 
     Updates the candidate set (into ``new_cands``) and writes I_CERTAIN,
     I_CERTIFICATE and I_N_CAND.  In default mode a choice the certificates rule
     out is replaced: by the one candidate left, or by the candidate nearest the
     prediction.  Paper mode keeps its answer and is certain only when it is the
-    one candidate left.  Returns the (possibly new) chosen solution index, and whether
-    it is joined to the previous candidate by a chain along the measured joints or
-    re-acquired (then the speed gate does not apply to it).
+    one candidate left.  An ``untrusted`` sample (its joints may be a glitch) is not
+    re-acquired from, vouched for nothing and ends the chain.  Returns the (possibly
+    new) chosen solution index, and whether a chain of boxes along the measured joints
+    joins it to a previous candidate or it was re-acquired (the speed gate then leaves
+    it alone).
     """
     n_cand = int(state[STATE_N_CAND])
     cands = state[STATE_CANDS:STATE_CANDS + 18].reshape((6, 3))
@@ -138,7 +140,8 @@ def certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred
                                           have_par, eps, poses, real, posture_bits, int(params[PARAM_MAX_TESTS]),
                                           model_pack, new_cands, keep)
     intact = intact and intact_before
-    if not (cert != CERT_NONE and intact) and eps > 0.0 and params[PARAM_REACQUIRE] > 0.0 and posture_bits >= 0:
+    if not (cert != CERT_NONE and intact) and eps > 0.0 and params[PARAM_REACQUIRE] > 0.0 and posture_bits >= 0 \
+            and not untrusted:
         # measured joints: re-acquire the branch from this sample alone (see .exclusion)
         region = np.empty(6)
         reacquire_region(params, state, region)
@@ -171,8 +174,8 @@ def certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred
         for k in range(6):
             mask[k + 1] = keep[k]
         chosen, _ = nearest(poses, real, X_pred, w, mask, mask, mask, True)
-    if cert == CERT_NONE:
-        linked = False
+    if untrusted:
+        certain, intact, linked = False, False, False
     info_i[I_CERTAIN] = 1 if certain else 0
     info_i[I_CERTIFICATE] = cert
     info_i[I_N_CAND] = n_new
@@ -214,9 +217,10 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
     noise = 2.0 * tol * (1.0 + ext_scale)
     verdict = outlier_gate(innov, noise + params[PARAM_GATE] * state[STATE_A_SCALE], noise, Xp, qp, M, l1, l2sq,
                            b) if gated else GATE_PASS
-    # a sample off the expected step that the pose explains (a serial singularity's swing) is taken,
-    # but the sensor may have broken its tolerance there: like a forced sample it ends the chain
-    forced = forced or verdict == GATE_SUSPECT
+    # a sample taken after refusals, or off the expected step by more than noise can be (a fast
+    # joint the gate lets through, or a serial singularity's swing): it may be a glitch, so it is
+    # vouched for by nothing and ends the chain
+    untrusted = forced or (gated and info_f[F_INNOV] > noise)
     if verdict == GATE_REFUSE:
         X_out[:] = Xp
         X_pred[:] = Xp
@@ -331,10 +335,8 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
         if not ok:
             ambiguous = True
     chosen, linked = certified_choice(mode, chosen, state, qp, dq, ext_scale, poses, real, X_pred, w, params,
-                              model_pack, out_real[OUT_CANDS:OUT_CANDS + 18].reshape((6, 3)), info_i)
-    if forced:                                     # a sample taken after refusals: the tube no longer holds
-        info_i[I_INTACT] = 0
-        info_i[I_CERTAIN] = 0
+                                      model_pack, out_real[OUT_CANDS:OUT_CANDS + 18].reshape((6, 3)), info_i,
+                                      untrusted)
     # distances to the prediction: chosen and the nearest other real solution
     for i in range(3):
         Xr[i] = poses[chosen, i].real
