@@ -103,7 +103,9 @@ and ``certain`` means a proof for every joint path within that tolerance:
   a solution that a chain of Krawczyk boxes joins to a previous candidate along
   the measured joints (the segment between the samples crossed no fold: a
   choice, not a proof) or that was re-acquired: on an ill-conditioned path the
-  measured solution jumps farther than the platform moves, on its own branch;
+  measured solution jumps farther than the platform moves, on its own branch.
+  Before it holds the pose, a chain back to the last candidates may use ten
+  times ``max_tests`` tests (only then: the slow steps stay rare);
 * with ``stuck_after``, a *stuck-joint detector* (:mod:`solver.stuck`): a
   noisy encoder rarely repeats a reading, so a joint read ``stuck_after`` times
   in a row with the same value is stuck; the state rolls back to before the

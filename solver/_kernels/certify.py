@@ -209,6 +209,22 @@ def follow_branch(X0, verified, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, out)
 
 
 @njit(cache=True)
+def comes_from(X, q, dq, cands, n_cand, max_tests, model_pack):
+    """The solution ``X`` (3,) at the joints ``q`` (3,) is joined by a chain of Krawczyk boxes,
+    back along the straight joint segment to ``q - dq``, to one of ``cands[:n_cand]`` (6, 3)
+    (at most ``max_tests`` tests)."""
+    M, l1, l2sq, b = geometry(model_pack)
+    end = np.empty(3)
+    zero = np.zeros(3)
+    if follow_branch(X, False, q, -dq, zero, 0.0, M, l1, b, l2sq, max_tests, end) <= 0:
+        return False
+    for j in range(n_cand):
+        if same_pose(end, cands[j]):
+            return True
+    return False
+
+
+@njit(cache=True)
 def same_pose(a, b):
     """The poses are the same solution (within MATCH, phi wrapped)."""
     return abs(a[0] - b[0]) < MATCH and abs(a[1] - b[1]) < MATCH and abs(wrap(a[2] - b[2])) < MATCH

@@ -11,7 +11,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .certify import CERT_NONE, CERT_REACQUIRED, certify
+from .certify import CERT_NONE, CERT_REACQUIRED, certify, comes_from
 from .exclusion import reacquire
 from .gates import GATE_PASS, GATE_REFUSE, outlier_gate, reacquire_region, speed_gate
 from .direct_kinematics import dk_one
@@ -29,6 +29,12 @@ from .layout import (F_COND, F_COND_PREV, F_D_BEST, F_D_SECOND, F_DQ, I_AMBIGUOU
                      STRATEGY_CONTINUATION, STRATEGY_EXTRAPOLATION, STRATEGY_SEGMENT)
 from .linalg import hadamard, wrap
 from .maptensor import label_at_one, near_mask_one
+
+#: Before the speed gate holds the pose, the chain back to the last candidates may use this many
+#: times ``max_tests`` tests (it runs only then).
+LINK_TESTS = 10
+#: ... and only over a step of at most this many samples' time (not over a stuck joint's gap).
+LINK_GAP = 4.0
 
 
 @njit(cache=True)
@@ -363,6 +369,11 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
         # measured joints crossed a fold the robot did not) is not taken; the previous pose is held.
         # A solution a chain of Krawczyk boxes joins to the previous candidate crossed no fold.
         taken = speed_gate(poses, real, chosen, Xp, params, step_dt)
+        if taken != chosen and mode != MODE_PAPER and ext_scale <= LINK_GAP and state[STATE_N_CAND] == 1.0 and \
+                comes_from(Xr, qu, dq, state[STATE_CANDS:STATE_CANDS + 18].reshape((6, 3)), int(state[STATE_N_CAND]),
+                           LINK_TESTS * int(params[PARAM_MAX_TESTS]), model_pack):
+            taken = chosen                         # a longer chain joins it to a previous candidate after all
+                                                   # (the one candidate; not across a stuck joint's gap)
         if taken >= 0 and taken != chosen:
             # the solution the platform can have reached, if one alone can: taken, not vouched for
             chosen = taken
