@@ -15,7 +15,7 @@ from .layout import (BASELINE_CLDK, BASELINE_NEAREST, BASELINE_NEWTON, BASELINE_
                      F_COND_PREV, F_D_BEST, F_DQ, I_LABEL, I_N_REAL, I_STATUS, INFO_F_SIZE, INFO_I_SIZE, OUT_INFO,
                      OUT_X, OUT_X_PRED, STATE_Q, STATE_X, STATUS_DIVERGED, STATUS_OK, STATUS_UNREACHABLE)
 from .linalg import wrap
-from .tracker import joint_step, nearest, wdist
+from .choice import joint_step, nearest, wdist
 
 
 @njit(cache=True)

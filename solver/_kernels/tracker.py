@@ -16,18 +16,18 @@ from .exclusion import reacquire
 from .gates import GATE_PASS, GATE_REFUSE, outlier_gate, reacquire_region, speed_gate
 from .direct_kinematics import dk_one
 from .kinematics import geometry, jacobian, velocity
-from .layout import (F_COND, F_COND_PREV, F_D_BEST, F_D_SECOND, F_DQ, I_AMBIGUOUS, I_JUMP, I_LABEL,
-                     I_N_REAL, I_NEAR_BORDER, I_REGION, I_STATUS, INFO_F_SIZE, INFO_I_SIZE, MAP_ORIGIN,
-                     MAP_PERIODIC, MAP_R2, MAP_STEP, MAP_WEIGHTS, MODE_PAPER, OUT_INFO, OUT_X, OUT_X_PRED,
-                     PARAM_AMBIGUITY, PARAM_JUMP, PARAM_MAX_SUBSTEPS, PARAM_SEGMENT_SINGULAR, PARAM_SINGULAR,
-                     PARAM_STRATEGY, PARAM_SUBSTEP_DQ, PARAM_USE_MAP, STATE_DQ_SCALE, STATE_EXT_SCALE,
-                     STATE_HISTORY, STATE_Q, STATE_X, STATE_X2, I_CERTAIN, I_CERTIFICATE, I_N_CAND, OUT_CANDS,
-                     PARAM_MAX_TESTS, PARAM_POSTURE_BITS, STATE_CANDS, STATE_HAVE_Q2, STATE_N_CAND, STATE_Q2,
-                     STATE_VERIFIED, STATE_INTACT, PARAM_JOINT_TOL, I_INTACT, STATUS_OK, F_INNOV,
-                     STATE_A_SCALE, STATE_REFUSED, PARAM_GATE, MAX_REFUSED, STATUS_REJECTED, STATE_ANCHOR,
-                     STATE_ANCHOR_AGE, PARAM_ROOT, PARAM_SPEED, PARAM_REACQUIRE, STATE_STEP_DT, STATUS_SINGULAR, STATUS_UNREACHABLE,
+from .layout import (F_COND, F_COND_PREV, F_D_BEST, F_D_SECOND, F_DQ, I_AMBIGUOUS, I_JUMP, I_LABEL, I_N_REAL,
+                     I_NEAR_BORDER, I_REGION, I_STATUS, INFO_F_SIZE, INFO_I_SIZE, MAP_ORIGIN, MAP_PERIODIC, MAP_R2,
+                     MAP_STEP, MAP_WEIGHTS, MODE_PAPER, OUT_INFO, OUT_X, OUT_X_PRED, PARAM_AMBIGUITY, PARAM_JUMP,
+                     PARAM_MAX_SUBSTEPS, PARAM_SEGMENT_SINGULAR, PARAM_SINGULAR, PARAM_STRATEGY, PARAM_SUBSTEP_DQ,
+                     PARAM_USE_MAP, STATE_DQ_SCALE, STATE_EXT_SCALE, STATE_HISTORY, STATE_Q, STATE_X, STATE_X2,
+                     I_CERTAIN, I_CERTIFICATE, I_N_CAND, OUT_CANDS, PARAM_MAX_TESTS, PARAM_POSTURE_BITS, STATE_CANDS,
+                     STATE_HAVE_Q2, STATE_N_CAND, STATE_Q2, STATE_VERIFIED, STATE_INTACT, PARAM_JOINT_TOL, I_INTACT,
+                     STATUS_OK, F_INNOV, STATE_A_SCALE, STATE_REFUSED, PARAM_GATE, MAX_REFUSED, STATUS_REJECTED,
+                     PARAM_SPEED, PARAM_REACQUIRE, STATE_STEP_DT, STATUS_SINGULAR, STATUS_UNREACHABLE,
                      STRATEGY_CONTINUATION, STRATEGY_EXTRAPOLATION, STRATEGY_SEGMENT)
 from .linalg import hadamard, wrap
+from .choice import continuation, joint_step, nearest, wdist
 from .maptensor import label_at_one, near_mask_one
 
 #: Before the speed gate holds the pose, the chain back to the last candidates may use this many
@@ -35,83 +35,6 @@ from .maptensor import label_at_one, near_mask_one
 LINK_TESTS = 10
 #: ... and only over a step of at most this many samples' time (not over a stuck joint's gap).
 LINK_GAP = 4.0
-
-
-@njit(cache=True)
-def joint_step(q, qp, dq):
-    """The joint step ``dq = q - qp`` (3,) with wrapped angles, written in place; returns max|dq_i|."""
-    dqn = 0.0
-    for i in range(3):
-        dq[i] = wrap(q[i] - qp[i])
-        dqn = max(dqn, abs(dq[i]))
-    return dqn
-
-
-@njit(cache=True)
-def continuation(X0, q0, dq, nsub, M, l1, l2sq, b, out):
-    """Integrate J dX = -K dq along the joint segment q0 + s dq, s in [0, 1] (RK4, ``nsub`` steps).
-
-    Writes the end pose to ``out``; returns the smallest Hadamard ratio of J met.
-    """
-    h = 1.0 / nsub
-    X = X0.copy()
-    k1, k2, k3, k4 = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-    Xs, qs = np.empty(3), np.empty(3)
-    worst = 1.0
-    for n in range(nsub):
-        s0 = n * h
-        for i in range(3):
-            qs[i] = q0[i] + s0 * dq[i]
-        worst = min(worst, velocity(X, qs, dq, M, l1, l2sq, b, k1))
-        for i in range(3):
-            Xs[i] = X[i] + 0.5 * h * k1[i]
-            qs[i] = q0[i] + (s0 + 0.5 * h) * dq[i]
-        worst = min(worst, velocity(Xs, qs, dq, M, l1, l2sq, b, k2))
-        for i in range(3):
-            Xs[i] = X[i] + 0.5 * h * k2[i]
-        worst = min(worst, velocity(Xs, qs, dq, M, l1, l2sq, b, k3))
-        for i in range(3):
-            Xs[i] = X[i] + h * k3[i]
-            qs[i] = q0[i] + (s0 + h) * dq[i]
-        worst = min(worst, velocity(Xs, qs, dq, M, l1, l2sq, b, k4))
-        for i in range(3):
-            X[i] += h / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-    out[:] = X
-    return worst
-
-
-@njit(cache=True)
-def wdist(a, b, w):
-    """Weighted pose distance of eq. 19 with the phi difference wrapped."""
-    dp = wrap(a[2] - b[2])
-    return math.sqrt(w[0] * (a[0] - b[0]) ** 2 + w[1] * (a[1] - b[1]) ** 2 + w[2] * dp * dp)
-
-
-@njit(cache=True)
-def nearest(poses, real, Xref, w, m1, m2, m3, use_map):
-    """The real solution nearest to ``Xref`` among those whose label is in one of the masks
-    (all real ones if ``use_map`` is off or none qualifies), and its decisiveness
-    ``d_best / d_second`` (0 = certain, 1 = a tie)."""
-    Xr = np.empty(3)
-    best, second, k_best = np.inf, np.inf, -1
-    best_any, second_any, k_any = np.inf, np.inf, -1
-    for k in range(6):
-        if real[k]:
-            for i in range(3):
-                Xr[i] = poses[k, i].real
-            d = wdist(Xr, Xref, w)
-            if d < best_any:
-                best_any, second_any, k_any = d, best_any, k
-            elif d < second_any:
-                second_any = d
-            if m1[k + 1] or m2[k + 1] or m3[k + 1]:
-                if d < best:
-                    best, second, k_best = d, best, k
-                elif d < second:
-                    second = d
-    if not use_map or k_best < 0:
-        return k_any, best_any / second_any if second_any > 0 else 1.0
-    return k_best, best / second if second > 0 else 1.0
 
 
 @njit(cache=True)
