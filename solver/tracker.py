@@ -104,7 +104,8 @@ and ``certain`` means a proof for every joint path within that tolerance:
   the measured joints (the segment between the samples crossed no fold: a
   choice, not a proof) or that was re-acquired: on an ill-conditioned path the
   measured solution jumps farther than the platform moves, on its own branch.
-  Before it holds the pose, a chain back to the last candidates may use ten
+  Before it holds the pose or takes another solution (default mode, a trusted
+  sample, one previous candidate), a chain back to that candidate may use ten
   times ``max_tests`` tests (only then: the slow steps stay rare);
 * with ``stuck_after``, a *stuck-joint detector* (:mod:`solver.stuck`): a
   noisy encoder rarely repeats a reading, so a joint read ``stuck_after`` times

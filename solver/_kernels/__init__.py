@@ -11,6 +11,10 @@ into flat float arrays whose fields are read through the named offsets of :mod:`
 - :mod:`.direct_kinematics`: all six DK solutions of one joint vector (the sextic);
 - :mod:`.ordering`: the numbering rules of the six solutions;
 - :mod:`.maptensor`: procedure 2 (labels near a pose) and the nearest node's label;
+- :mod:`.krawczyk`, :mod:`.certify`: Krawczyk's test, and chains and tubes of its boxes;
+- :mod:`.exclusion`: re-acquiring the branch from one sample (a branch and bound);
+- :mod:`.gates`: the outlier and speed gates for measured joints;
+- :mod:`.choice`: the predictor along the joint step and the nearest solution to a prediction;
 - :mod:`.tracker`, :mod:`.baselines`: one step of procedure 3 and of each baseline.
 
 All kernels are compiled on first use and cached by numba next to their source.

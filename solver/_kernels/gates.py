@@ -7,7 +7,8 @@ the robot did not.  The tracker does not apply it to a solution that a chain of 
 boxes joins to a previous candidate along the measured joints (the straight segment between
 the samples crossed no fold; the robot's joints, within the tolerance of it, may have: a
 choice, not a proof, and the chain does not vouch) nor to a re-acquired one; before it
-holds the pose it tries that chain once more with a larger budget of tests.  The re-acquisition
+acts on a trusted sample with one previous candidate, the tracker tries that chain once more
+with a larger budget of tests (default mode).  The re-acquisition
 region (:func:`reacquire_region`) is anchored at a certain pose, whose Krawczyk box
 (half-width at most ``RHO_CAP``) holds the platform.
 

@@ -30,10 +30,11 @@ from .linalg import hadamard, wrap
 from .choice import continuation, joint_step, nearest, wdist
 from .maptensor import label_at_one, near_mask_one
 
-#: Before the speed gate holds the pose, the chain back to the last candidates may use this many
-#: times ``max_tests`` tests (it runs only then).
+#: Before the speed gate holds the pose or takes another solution (default mode, a trusted sample, one
+#: previous candidate), the chain back to that candidate may use this many times ``max_tests`` tests.
 LINK_TESTS = 10
-#: ... and only over a step of at most this many samples' time (not over a stuck joint's gap).
+#: ... and only over a step of at most this many samples' time (not over a stuck joint's gap, which is
+#: at least ``stuck_after`` >= 5 samples for every sensor grade of the benchmark).
 LINK_GAP = 4.0
 
 
@@ -292,7 +293,8 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
         # measured joints crossed a fold the robot did not) is not taken; the previous pose is held.
         # A solution a chain of Krawczyk boxes joins to the previous candidate crossed no fold.
         taken = speed_gate(poses, real, chosen, Xp, params, step_dt)
-        if taken != chosen and mode != MODE_PAPER and ext_scale <= LINK_GAP and state[STATE_N_CAND] == 1.0 and \
+        if taken != chosen and mode != MODE_PAPER and not untrusted and ext_scale <= LINK_GAP and \
+                state[STATE_N_CAND] == 1.0 and \
                 comes_from(Xr, qu, dq, state[STATE_CANDS:STATE_CANDS + 18].reshape((6, 3)), int(state[STATE_N_CAND]),
                            LINK_TESTS * int(params[PARAM_MAX_TESTS]), model_pack):
             taken = chosen                         # a longer chain joins it to a previous candidate after all
