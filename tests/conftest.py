@@ -19,16 +19,39 @@ def rng():
     return np.random.default_rng(20261121)
 
 
-@pytest.fixture(scope="session")
-def coarse_map1(model):
-    """A coarse map of posture 1 (20 mm, 4 deg) over the default bounds: quick, for tracker tests."""
+_COARSE_MAPS = {}
+
+
+def coarse_map(model, posture):
+    """A coarse map of ``posture`` (20 mm, 4 deg) over the default bounds: quick, for tracker tests;
+    built once per session and posture."""
     from solver import MapTensor, default_bounds
 
-    step = (0.02, 0.02, np.deg2rad(4.0))
-    b = default_bounds(model, step)
-    span = b[:, 1] - b[:, 0]
-    shape = (int(round(span[0] / step[0])) + 1, int(round(span[1] / step[1])) + 1, 90)
-    return MapTensor.build(model, 1, bounds=b, shape=shape, rule="aspect")
+    if posture not in _COARSE_MAPS:
+        step = (0.02, 0.02, np.deg2rad(4.0))
+        b = default_bounds(model, step)
+        span = b[:, 1] - b[:, 0]
+        shape = (int(round(span[0] / step[0])) + 1, int(round(span[1] / step[1])) + 1, 90)
+        _COARSE_MAPS[posture] = MapTensor.build(model, posture, bounds=b, shape=shape, rule="aspect")
+    return _COARSE_MAPS[posture]
+
+
+@pytest.fixture(scope="session")
+def coarse_map1(model):
+    """The coarse map of posture 1 (:func:`coarse_map`)."""
+    return coarse_map(model, 1)
+
+
+def track_stream(tracker, q, X0, dt=1e-3):
+    """Reset ``tracker`` at ``(X0, q[0])`` and step it through the joints ``q`` (n, 3) with time step
+    ``dt``: poses (n, 3) and the step infos (n,; None at the reset)."""
+    tracker.reset(X0, q[0])
+    X, infos = [tracker.state.X], [None]
+    for k in range(1, len(q)):
+        x, info = tracker.step(q[k], dt)
+        X.append(x)
+        infos.append(info)
+    return np.array(X), infos
 
 
 def random_poses(rng, n, model=None):

@@ -3,8 +3,8 @@ singularity, and the speed gate on an ill-conditioned path."""
 import numpy as np
 import pytest
 
-from conftest import pose_distance
-from solver import STATUS, MapTensor, Tracker, default_bounds, jacobians
+from conftest import coarse_map, pose_distance, track_stream
+from solver import STATUS, Tracker, jacobians
 from solver._kernels.exclusion import reacquire
 from solver._kernels.gates import GATE_PASS, GATE_REFUSE, GATE_SUSPECT, outlier_gate, pose_gains
 from solver._kernels.kinematics import geometry
@@ -22,31 +22,13 @@ def hard(model):
     return {p.name: p for p in hard_suite(model, samplings=(1000,))}
 
 
-def coarse_map(model, posture):
-    step = (0.02, 0.02, np.deg2rad(4.0))
-    b = default_bounds(model, step)
-    span = b[:, 1] - b[:, 0]
-    shape = (int(round(span[0] / step[0])) + 1, int(round(span[1] / step[1])) + 1, 90)
-    return MapTensor.build(model, posture, bounds=b, shape=shape, rule="aspect")
-
-
 def measured(path, seed):
     q = SENSOR.measure(path.q, seed=seed).q.copy()
     q[0] = path.q[0]
     return q
 
 
-def track(tracker, q, X0):
-    tracker.reset(X0, q[0])
-    X, infos = [tracker.state.X], [None]
-    for k in range(1, len(q)):
-        x, info = tracker.step(q[k], 1e-3)
-        X.append(x)
-        infos.append(info)
-    return np.array(X), infos
-
-
-def test_pose_gains_are_the_jacobians_velocity_model(model, rng):
+def test_pose_gains_are_the_jacobians_velocity_model(model):
     M, l1, l2sq, b = geometry(kernel_constants(model)["pack"])
     p = hard_suite(model, samplings=(50,))[0]
     for k in range(0, 50, 7):
@@ -88,13 +70,13 @@ def test_a_serial_singularitys_swing_is_taken_and_an_outlier_still_refused(model
     q = measured(p, 7)
     truth, counted = sensor_truth(model, q, p.X)
     tr = Tracker(model, coarse_map(model, 2), joint_tolerance=SENSOR.tolerance(3.0))
-    X, infos = track(tr, q, p.X[0])
+    X, infos = track_stream(tr, q, p.X[0])
     assert not any(i.status == REJECTED for i in infos[1:])
     certain = np.array([True] + [i.certain for i in infos[1:]])
     assert np.sum((pose_distance(X, truth) > 1e-6) & counted & certain) == 0
     bad = q.copy()
     bad[600, 1] += 0.1
-    X2, infos2 = track(tr, bad, p.X[0])
+    X2, infos2 = track_stream(tr, bad, p.X[0])
     assert infos2[600].status == REJECTED and not infos2[600].certain
     np.testing.assert_allclose(X2[601:], X[601:], atol=1e-6)
 
@@ -110,10 +92,10 @@ def test_the_speed_gate_does_not_hold_a_solution_a_chain_of_boxes_reached(model,
     truth, counted = sensor_truth(model, q, p.X)
     counted[0] = False
     tr = Tracker(model, coarse_map(model, 3), joint_tolerance=SENSOR.tolerance(3.0), speed_bound=(3.76, 1.10))
-    X, infos = track(tr, q, p.X[0])
+    X, infos = track_stream(tr, q, p.X[0])
     certain = np.array([False] + [i.certain for i in infos[1:]])
     assert np.sum((pose_distance(X, truth) > 1e-6) & certain) == 0
-    Xn, _ = track(NewtonTracker(model), q, p.X[0])
+    Xn, _ = track_stream(NewtonTracker(model), q, p.X[0])
     errors = np.sum((pose_distance(X, truth) > 1e-6) & counted)
     assert errors <= np.sum((pose_distance(Xn, truth) > 1e-6) & counted)
 
@@ -128,7 +110,7 @@ def test_an_outlier_after_a_swing_is_never_vouched_for(model, hard, k):
     truth, _ = sensor_truth(model, q, p.X)
     q[k, 1] += 0.1
     tr = Tracker(model, coarse_map(model, 2), joint_tolerance=SENSOR.tolerance(3.0), speed_bound=(2.35, 1.05))
-    X, infos = track(tr, q, p.X[0])
+    X, infos = track_stream(tr, q, p.X[0])
     certain = np.array([False] + [i.certain for i in infos[1:]])
     assert not certain[k]
     assert np.sum((pose_distance(X, truth) > 1e-6) & certain) == 0

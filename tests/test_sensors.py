@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from conftest import pose_distance
+from conftest import pose_distance, track_stream
 from solver import STATUS, SolverInputError, Tracker
 from solver._kernels.certify import TINY
 from solver._kernels.krawczyk import W_SIZE, krawczyk, newton_on_path
@@ -29,13 +29,9 @@ def near_fold(model):
 
 
 def run(tracker, q, X0):
-    tracker.reset(X0, q[0])
-    X, certain = [tracker.state.X], [True]
-    for k in range(1, len(q)):
-        x, info = tracker.step(q[k], 1e-3)
-        X.append(x)
-        certain.append(info.certain)
-    return np.array(X), np.array(certain)
+    """Poses (n, 3) and ``certain`` (n,) of a tracked stream (the reset counts as certain)."""
+    X, infos = track_stream(tracker, q, X0)
+    return X, np.array([True] + [i.certain for i in infos[1:]])
 
 
 def wrong(X, truth):

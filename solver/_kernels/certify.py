@@ -209,19 +209,33 @@ def follow_branch(X0, verified, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, out)
 
 
 @njit(cache=True)
+def follow_back(X, q, d1, d2, cands, n_cand, max_tests, M, l1, b, l2sq):
+    """Where the solution ``X`` (3,) at the joints ``q`` (3,) came from: a chain of Krawczyk boxes
+    back along the joint path ``q0 + s d1 + s^2 d2`` (``s`` from 1 to 0, ``q = q0 + d1 + d2``),
+    walked as ``q(1 - u) = q + u rd1 + u^2 rd2`` with ``rd1 = -(d1 + 2 d2)``, ``rd2 = d2``.
+
+    Returns 1 when it ends on one of ``cands[:n_cand]`` (6, 3), 0 when it ends elsewhere, -1 when
+    the chain could not be closed within ``max_tests`` tests.
+    """
+    rd1, rd2, end = np.empty(3), np.empty(3), np.empty(3)
+    for i in range(3):
+        rd1[i] = -(d1[i] + 2.0 * d2[i])
+        rd2[i] = d2[i]
+    if follow_branch(X, False, q, rd1, rd2, 0.0, M, l1, b, l2sq, max_tests, end) <= 0:
+        return -1
+    for j in range(n_cand):
+        if same_pose(end, cands[j]):
+            return 1
+    return 0
+
+
+@njit(cache=True)
 def comes_from(X, q, dq, cands, n_cand, max_tests, model_pack):
     """The solution ``X`` (3,) at the joints ``q`` (3,) is joined by a chain of Krawczyk boxes,
     back along the straight joint segment to ``q - dq``, to one of ``cands[:n_cand]`` (6, 3)
     (at most ``max_tests`` tests)."""
     M, l1, l2sq, b = geometry(model_pack)
-    end = np.empty(3)
-    zero = np.zeros(3)
-    if follow_branch(X, False, q, -dq, zero, 0.0, M, l1, b, l2sq, max_tests, end) <= 0:
-        return False
-    for j in range(n_cand):
-        if same_pose(end, cands[j]):
-            return True
-    return False
+    return follow_back(X, q, dq, np.zeros(3), cands, n_cand, max_tests, M, l1, b, l2sq) == 1
 
 
 @njit(cache=True)
@@ -293,8 +307,6 @@ def certify(cands, n_cand, verified, intact, qp, dq, d2_par, have_par, eps, pose
                     new_cands[0, :] = end
                     return 1, CERT_CONTINUATION, eps == 0.0 or p == 0, True
     # elimination: follow every real solution back; drop those that come from a non-candidate
-    rd1 = np.empty(3)
-    rd2 = np.empty(3)
     n_new = 0
     linked = np.zeros(6, dtype=np.bool_)      # followed back to a candidate
     for k in range(6):
@@ -305,17 +317,11 @@ def certify(cands, n_cand, verified, intact, qp, dq, d2_par, have_par, eps, pose
         kept = True
         followed = False
         for p in range(n_paths):
-            # the same path backwards: q(1 - u) = q(1) + u rd1 + u^2 rd2
-            for i in range(3):
-                d1i = dq[i] if p == 0 else d1_par[i]
-                d2i = 0.0 if p == 0 else d2_par[i]
-                rd1[i] = -(d1i + 2.0 * d2i)
-                rd2[i] = d2i
-            if follow_branch(Xr, False, qu, rd1, rd2, 0.0, M, l1, b, l2sq, max_tests, end) > 0:
-                kept = False
-                for j in range(n_cand):
-                    kept = kept or same_pose(end, cands[j])
-                followed = kept
+            # the same path backwards (the segment, then the parabola)
+            came = follow_back(Xr, qu, dq if p == 0 else d1_par, zero if p == 0 else d2_par, cands, n_cand,
+                               max_tests, M, l1, b, l2sq)
+            if came >= 0:
+                kept = followed = came == 1
                 break
         if kept:
             linked[k] = followed
