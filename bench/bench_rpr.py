@@ -3,7 +3,7 @@
     python bench/bench_rpr.py [--step-mm 25 --step-deg 3] [--out results] [--no-plot]
 
 Manipulator: the cuspidal 3-RPR (:meth:`solver.rpr.RPRManipulator.zein_wenger_chablat`).
-Suite (:func:`solver.rpr_suite.rpr_suite`): circles passing 20, 5 and 1 mm from a singular
+Suite (:func:`experiments.rpr_suite.rpr_suite`): circles passing 20, 5 and 1 mm from a singular
 curve about three seed poses (1000, 300, 100, 30 points), and loops of 2 cm in joint space
 around five cusps (1000, 100, 30, 12 points) along which the platform changes assembly mode
 without meeting a singularity.  The map tensor covers the suite's region, built here.
@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from bench_tracker import methods, pose_errors, print_totals, run_suite, totals
+from experiments.rpr_suite import rpr_suite
 from solver import MapTensor
 from solver.rpr import RPR_WORK_BOUNDS, RPRManipulator
-from solver.rpr_suite import rpr_suite
 
 
 def main(argv=None):
@@ -72,7 +72,7 @@ def main(argv=None):
                     + ",".join(f"{table[p.name, n][0]},{table[p.name, n][1]},{table[p.name, n][2]}" for n in names)
                     + "\n")
     if not args.no_plot:
-        from solver.figures import plot_cross_sections
+        from experiments.figures import plot_cross_sections
         res = plot_cross_sections(model, 1, (-60.0, 0.0, 60.0), out_dir=out / "figures", step=0.01,
                                   bounds=RPR_WORK_BOUNDS)
         for phd, (path, stats) in res.items():

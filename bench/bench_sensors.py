@@ -3,16 +3,16 @@
     python bench/bench_sensors.py [--suite all|default|hard] [--rate 1000] [--grades 16-bit 12-bit ...]
                                   [--methods default paper newton] [--out results]
 
-Paths: the suites of :mod:`solver.suite` (``default``: the paper circle and circles
+Paths: the suites of :mod:`experiments.suite` (``default``: the paper circle and circles
 passing 20, 5 and 1 mm from a type-1 singularity; ``hard``: all eight postures,
 circles, ellipses and Lissajous figures passing 0.5 to 20 mm from one or far from
 it), each sampled at ``--rate`` points per revolution (1000: a revolution a second
 at 1 kHz), plus the suites at their own coarse samplings with ``--coarse``.
-Sensors (:data:`solver.sensors.SENSOR_GRADES`): exact joints; 16-, 14- and 12-bit
+Sensors (:data:`experiments.sensors.SENSOR_GRADES`): exact joints; 16-, 14- and 12-bit
 encoders with 1e-3 rad of white noise; outliers (0.1 rad, one sample), a stuck
 joint (20 samples) and dropouts (NaN) on the 14-bit encoder, five per stream.
 
-Truth (:func:`solver.sensors.sensor_truth`): the real DK solution of the measured
+Truth (:func:`experiments.sensors.sensor_truth`): the real DK solution of the measured
 joints nearest to the noise-free pose, counted only where the second nearest is at
 least three times farther and the sample is not a glitch.  On counted steps:
 
@@ -36,10 +36,10 @@ from pathlib import Path
 import numpy as np
 
 from bench_tracker import VOUCHING, pose_errors
+from experiments.sensors import SENSOR_GRADES, sensor_truth
+from experiments.suite import default_suite, hard_suite
 from solver import DEFAULT_RULE, DEFAULT_STEP, Manipulator, SolverInputError, Tracker, cached_map, wrap_angle
 from solver.baselines import BASELINES
-from solver.sensors import SENSOR_GRADES, sensor_truth
-from solver.suite import default_suite, hard_suite
 from solver.tracker_state import STATUS
 
 REJECTED = [k for k, v in STATUS.items() if v == "rejected"][0]

@@ -3,7 +3,7 @@
     python bench/bench_tracker.py [--suite all|default|hard] [--rule aspect] [--step-mm 10 --step-deg 2]
                                   [--out results]
 
-Suites (:mod:`solver.suite`): ``default``, the paper circle and circles passing 20,
+Suites (:mod:`experiments.suite`): ``default``, the paper circle and circles passing 20,
 5 and 1 mm from a type-1 singularity in postures 1, 3, 5, sampled at 1000, 300,
 100 and 30 points; ``hard``, all eight postures, circles, ellipses and Lissajous
 figures passing 0.5 to 20 mm from a type-1 singularity or far from it, sampled at
@@ -29,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.suite import default_suite, hard_suite
 from solver import DEFAULT_RULE, DEFAULT_STEP, Manipulator, Tracker, cached_map, circle_path, ik, wrap_angle
 from solver.baselines import BASELINES
-from solver.suite import default_suite, hard_suite
 
 
 def pose_errors(X, truth):

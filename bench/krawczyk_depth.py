@@ -17,13 +17,13 @@ import argparse
 
 import numpy as np
 
+from experiments.sensors import SENSOR_GRADES, sensor_truth
+from experiments.suite import default_suite, hard_suite
 from solver import Manipulator, jacobians
 from solver._kernels.certify import prove_part
 from solver._kernels.kinematics import geometry
 from solver._kernels.krawczyk import W_SIZE
 from solver.direct_kinematics import kernel_constants
-from solver.sensors import SENSOR_GRADES, sensor_truth
-from solver.suite import default_suite, hard_suite
 
 DEFAULT_PATHS = ("p3-circle-far/1000", "p3-circle-20mm/1000", "p1-ellipse-20mm/1000", "p4-circle-5mm/1000",
                  "p2-lissajous-2mm/1000", "paper-circle/1000")

@@ -24,9 +24,9 @@ import numpy as np
 
 from bench_sensors import run_stream
 from bench_tracker import pose_errors
+from experiments.sensors import SENSOR_GRADES, sensor_truth
+from experiments.suite import default_suite, hard_suite
 from solver import DEFAULT_RULE, DEFAULT_STEP, Manipulator, Tracker, cached_map, constraints, jacobians
-from solver.sensors import SENSOR_GRADES, sensor_truth
-from solver.suite import default_suite, hard_suite
 
 
 def foldable(model, X_true, q_true, q_meas, eps, rng, n_random=24, substeps=16):

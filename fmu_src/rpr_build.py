@@ -7,7 +7,7 @@ the same manifest as the 3-RRR's (size and SHA-256, checked at instantiation).  
 ``<out>/maps/`` under a name keyed by geometry, resolution, rule and the labelling code.
 
 The reference run (:func:`run_rpr_loop`): the legs go once round the 2 cm loop about cusp 1 of the
-slice rho1 = 1.498 m (:func:`solver.rpr_suite.cusp_loop_path`, 100 steps, h = 10 ms, ``rho[k]``
+slice rho1 = 1.498 m (:func:`experiments.rpr_suite.cusp_loop_path`, 100 steps, h = 10 ms, ``rho[k]``
 applied at ``t = k*h``); the platform ends in another assembly mode, certain all the way.  Its CSV
 (:func:`write_rpr_reference`) is ``fmu_src/reference/RPRDirectKinematics.csv``.
 """
@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments.rpr_suite import cusp_loop_path
 from solver import DEFAULT_RULE, MapTensor
 from solver.mapcache import labelling_digest
 from solver.rpr import RPR_WORK_BOUNDS, RPRManipulator
-from solver.rpr_suite import cusp_loop_path
 
 from .builds import HERE, BuildResult, _stage_documentation, project_packages
 from .checks import validate
@@ -112,7 +112,7 @@ def write_rpr_reference(result, path=None) -> Path:
     path = Path(path) if path else HERE / "reference" / f"{RPR_NAME}.csv"
     names = ["time", "rho1", "rho2", "rho3", *RPR_OUTPUTS]
     header = [f"{RPR_NAME} reference run: the legs once round the 2 cm loop about cusp 1 of the slice",
-              f"rho1 = 1.498 m (solver.rpr_suite.cusp_loop_path(model, 1, {LOOP_N})), rho[k] at t = k*h, "
+              f"rho1 = 1.498 m (experiments.rpr_suite.cusp_loop_path(model, 1, {LOOP_N})), rho[k] at t = k*h, "
               f"h = {LOOP_H!r} s, fmpy.simulate_fmu; map {RPR_REFERENCE_RESOLUTION[0] * 1e3:g} mm "
               f"{np.rad2deg(RPR_REFERENCE_RESOLUTION[1]):g} deg, default mode.",
               "regenerate: python build_fmu.py --manipulator 3rpr --write-reference"]

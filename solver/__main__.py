@@ -101,13 +101,13 @@ def main(argv=None) -> int:
             print(f"  near a label border (procedure 2, default radius): {100 * mt.border_fraction():.1f} % "
                   f"of reachable nodes")
         elif args.cmd == "plot":
-            from .figures import plot_map_slice
+            from experiments.figures import plot_map_slice
             mt = MapTensor.load(args.file)
             for phd in args.phi:
                 print(plot_map_slice(mt, phd, args.out))
         elif args.cmd == "figures":
-            from .figures import plot_circle_experiment, plot_cross_sections
-            from .suite import NEAR_SINGULAR_SEEDS, make_path, near_singular_circle
+            from experiments.figures import plot_circle_experiment, plot_cross_sections
+            from experiments.suite import NEAR_SINGULAR_SEEDS, make_path, near_singular_circle
             from .trajectories import circle_path
             for phd, (path, st) in plot_cross_sections(model, args.posture, out_dir=args.out,
                                                        step=args.step_mm / 1e3, rule=args.rule).items():

@@ -3,13 +3,13 @@ import numpy as np
 import pytest
 
 from conftest import pose_distance
+from experiments.suite import hard_suite
 from solver import CERTIFICATES, MapTensor, SolverInputError, Tracker, TrackerState, default_bounds, ik
 from solver._kernels.certify import TINY, follow_branch
 from solver._kernels.kinematics import geometry
 from solver._kernels.krawczyk import W_SIZE, krawczyk, newton_on_path
 from solver.baselines import NewtonSeparationTracker
 from solver.direct_kinematics import kernel_constants
-from solver.suite import hard_suite
 from solver.tracker_state import STATE_FLOATS
 from solver.trajectories import circle_path
 

@@ -235,7 +235,7 @@ def test_a_noisy_stream_with_an_outlier_and_a_stuck_joint_matches_the_tracker(ma
     """Joints as a 12-bit encoder with 1e-3 rad of noise gives them, one outlier, one joint stuck for
     20 samples: with the sensor parameters the FMU outputs what the in-process tracker with the same
     options returns, step by step."""
-    from solver.sensors import Sensor
+    from experiments.sensors import Sensor
     sensor = Sensor("12-bit", bits=12, noise=1e-3)
     stream = sensor.measure(Q, seed=11).q
     stream[0] = Q[0]

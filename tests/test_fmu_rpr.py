@@ -10,9 +10,9 @@ from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
 from fmu_src.rpr_build import LOOP_H, LOOP_N, RPR_OUTPUTS, RPR_REFERENCE_RESOLUTION, build_rpr_dk, read_rpr_reference
+from experiments.rpr_suite import cusp_loop_path
 from solver import MapTensor, Tracker
 from solver.rpr import RPR_HOME_POSE, RPRManipulator
-from solver.rpr_suite import cusp_loop_path
 
 ROOT = Path(__file__).resolve().parents[1]
 

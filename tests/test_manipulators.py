@@ -2,12 +2,12 @@
 import numpy as np
 import pytest
 
+from experiments.rpr_scan import dk_all_scan
 from solver import MapTensor, Manipulator, SolverInputError, constraints, default_bounds, dk_all, ik, jacobians, \
     posture_of, singularity_measures
 from solver.maptensor import MATCH_TOL, label_poses
 from solver.manipulators import MANIPULATOR_TYPES, check_manipulator, manipulator_from_dict
 from solver.rpr import RPR_HOME_POSE, RPR_WORK_BOUNDS, RPRManipulator, det_j
-from solver.rpr_scan import dk_all_scan
 from solver.rpr import ik as rpr_ik
 from solver.rpr import jacobians as rpr_jacobians
 
@@ -127,7 +127,7 @@ def test_the_tracker_follows_a_nonsingular_assembly_mode_change_where_newton_jum
     Newton from the previous pose jumps branch and says nothing."""
     from solver import Tracker
     from solver.baselines import NewtonTracker
-    from solver.rpr_suite import cusp_loop_path
+    from experiments.rpr_suite import cusp_loop_path
     path = cusp_loop_path(rpr, 1, n)
     np.testing.assert_allclose(path.X[0], RPR_HOME_POSE, atol=1e-12)           # the FMU's start values
     assert np.array_equal(path.q[0], path.q[-1]) and np.abs(path.X[-1] - path.X[0]).max() > 0.3
@@ -149,7 +149,7 @@ def test_legs_outside_the_joint_limits_are_refused_by_name(rpr, loop_map):
     """The re-acquisition proof searches the tool space the joint limits bound: a leg beyond them is
     refused (SolverInputError naming q), and the state is kept."""
     from solver import SolverInputError, Tracker
-    from solver.rpr_suite import cusp_loop_path
+    from experiments.rpr_suite import cusp_loop_path
     path = cusp_loop_path(rpr, 1, 30)
     tr = Tracker(rpr, loop_map, joint_tolerance=1e-6)
     tr.reset(path.X[0], path.q[0])

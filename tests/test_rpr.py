@@ -3,10 +3,10 @@ non-singular assembly-mode change of the Zein-Wenger-Chablat geometry."""
 import numpy as np
 import pytest
 
+from experiments.rpr_cusps import assembly_mode_change_path, cusp_points
+from experiments.rpr_scan import dk_all_scan, follow
 from solver.checks import GeometryError, SolverInputError
 from solver.rpr import ZEIN_RHO1, RPRManipulator, constraints, det_j, ik, jacobians
-from solver.rpr_cusps import assembly_mode_change_path, cusp_points
-from solver.rpr_scan import dk_all_scan, follow
 from conftest import pose_distance
 
 

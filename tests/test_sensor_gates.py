@@ -4,14 +4,14 @@ import numpy as np
 import pytest
 
 from conftest import coarse_map, pose_distance, track_stream
+from experiments.sensors import Sensor, sensor_truth
+from experiments.suite import hard_suite
 from solver import STATUS, Tracker, jacobians
 from solver._kernels.exclusion import reacquire
 from solver._kernels.gates import GATE_PASS, GATE_REFUSE, GATE_SUSPECT, outlier_gate, pose_gains
 from solver._kernels.kinematics import geometry
 from solver.baselines import NewtonTracker
 from solver.direct_kinematics import kernel_constants
-from solver.sensors import Sensor, sensor_truth
-from solver.suite import hard_suite
 
 REJECTED = [k for k, v in STATUS.items() if v == "rejected"][0]
 SENSOR = Sensor("16-bit", bits=16, noise=1e-3)

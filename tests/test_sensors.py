@@ -3,13 +3,14 @@ import numpy as np
 import pytest
 
 from conftest import pose_distance, track_stream
+from experiments.sensors import SENSOR_GRADES, Sensor, sensor_truth
+from experiments.suite import default_suite, near_singular_circle, make_path
 from solver import STATUS, SolverInputError, Tracker
 from solver._kernels.certify import TINY
 from solver._kernels.krawczyk import W_SIZE, krawczyk, newton_on_path
 from solver._kernels.kinematics import geometry
 from solver.direct_kinematics import kernel_constants
-from solver.sensors import SENSOR_GRADES, Sensor, quantize, sensor_truth
-from solver.suite import default_suite, near_singular_circle, make_path
+from solver.sensors import quantize
 from solver.trajectories import circle_path
 
 REJECTED = [k for k, v in STATUS.items() if v == "rejected"][0]

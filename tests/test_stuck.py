@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
+from experiments.sensors import SENSOR_GRADES, Sensor
 from solver import STATUS, Tracker, ik
-from solver.sensors import SENSOR_GRADES, Sensor
 from solver.stuck import repeat_probability, stuck_samples
 from solver.tracker_state import TrackerError, TrackerState
 from solver.trajectories import circle_path

@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
+from experiments.suite import default_suite, make_path, near_singular_circle
 from solver import (STATUS, Manipulator, MapTensor, SolverInputError, Tracker, TrackerError, TrackerState,
                     circle_path, default_bounds, dk_all, ik, jacobians, wrap_angle)
 from solver.baselines import BASELINES, NewtonTracker
-from solver.suite import default_suite, make_path, near_singular_circle
 
 STEP = (0.02, 0.02, np.deg2rad(4.0))
 

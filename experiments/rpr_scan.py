@@ -5,13 +5,18 @@ leg 3's residual changes sign at a solution, refined by bisection and Newton on 
 :func:`solver.dk_all` (the sextic) is checked against it (``tests/test_manipulators.py``).
 :func:`follow` is Newton from the previous pose along a joint path (the baseline the cusp loops
 defeat when sampled coarsely).
+
+A test oracle that also serves the cusp experiments: :mod:`experiments.rpr_cusps` starts its loops
+from these solutions, and the 3-RPR FMU's reference path (:func:`experiments.rpr_suite.cusp_loop_path`)
+depends on them to the last bit, so the module lives here, where the tests, the benchmarks and the
+FMU build can all import it.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .checks import as_array
-from .rpr import RPRManipulator, _check_model, _E, _jac, _positive, _residual, _rho, _rot, _wrap
+from solver.checks import as_array
+from solver.rpr import RPRManipulator, _check_model, _E, _jac, _positive, _residual, _rho, _rot, _wrap
 
 __all__ = ["dk_all_scan", "follow"]
 

@@ -12,8 +12,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .checks import SolverInputError
-from .rpr import ZEIN_RHO1, RPRManipulator, _check_model, _E, _joints, _positive, _rot, _wrap, det_j, ik
+from solver.checks import SolverInputError
+from solver.rpr import ZEIN_RHO1, RPRManipulator, _check_model, _E, _joints, _positive, _rot, _wrap, det_j, ik
+
 from .rpr_scan import dk_all_scan, follow
 
 __all__ = ["cusp_points", "assembly_mode_change_path", "CuspPoints", "ModeChange"]

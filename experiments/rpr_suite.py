@@ -1,32 +1,33 @@
 """The trajectory benchmark of the 3-RPR: its near-singular circles and its cusp loops.
 
 * Circles that pass 20, 5 and 1 mm from a singular curve (det J = 0) without
-  crossing it, found as for the 3-RRR (:func:`solver.suite.near_singular_circle`)
+  crossing it, found as for the 3-RRR (:func:`experiments.suite.near_singular_circle`)
   about three seed poses of the cuspidal geometry.
-* Loops in joint space around cusp points (:func:`solver.rpr_cusps.assembly_mode_change_path`):
+* Loops in joint space around cusp points (:func:`experiments.rpr_cusps.assembly_mode_change_path`):
   the legs 2 and 3 go round a circle of 2 cm about a cusp of the slice
   ``rho1 = 1.498`` m and come back to where they started, while the platform comes
   back in *another* assembly mode without meeting a singularity.  Continuity
   along the path, not the joints, decides the pose; Newton from the previous pose
   follows it only while the samples are dense enough.
 
-Every path is a :class:`solver.suite.SuitePath` (posture 1, the only one), so the
+Every path is a :class:`experiments.suite.SuitePath` (posture 1, the only one), so the
 3-RRR's benchmark code runs it unchanged (``bench/bench_rpr.py``).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .rpr import ZEIN_RHO1, RPRManipulator
+from solver.rpr import ZEIN_RHO1, RPRManipulator
+from solver.trajectories import circle_path
+
 from .rpr_cusps import assembly_mode_change_path
 from .suite import CLEARANCES, SAMPLINGS, SuitePath, make_path, near_singular_circle
-from .trajectories import circle_path
 
 __all__ = ["rpr_suite", "cusp_loop_path", "RPR_SEEDS", "LOOP_CUSPS", "LOOP_SAMPLINGS"]
 
 #: (centre m, phi deg) seeds of the near-singular circles (regular poses of the cuspidal 3-RPR).
 RPR_SEEDS = (((0.8, 0.2), 0.0), ((1.0, 0.5), -60.0), ((1.2, 0.0), 90.0))
-#: Cusps of the slice rho1 = 1.498 m (:func:`solver.rpr_cusps.cusp_points` order) looped at 2 cm.
+#: Cusps of the slice rho1 = 1.498 m (:func:`experiments.rpr_cusps.cusp_points` order) looped at 2 cm.
 LOOP_CUSPS = (1, 2, 3, 4, 5)
 #: Samples per loop.
 LOOP_SAMPLINGS = (1000, 100, 30, 12, 9, 7, 6, 5)
@@ -38,8 +39,8 @@ def cusp_loop_path(model: RPRManipulator, cusp: int, n: int, radius: float = LOO
     """The loop about cusp ``cusp`` sampled at ``n + 1`` points (the last at the start joints).
 
     The poses are the branch followed from the start by fine continuation (1441 points per loop,
-    :func:`solver.rpr_cusps.assembly_mode_change_path`), taken at the samples.  The difficulty ratio is
-    that of :func:`solver.suite.make_path`, over the steps of the open path.  ``fine``: that
+    :func:`experiments.rpr_cusps.assembly_mode_change_path`), taken at the samples.  The difficulty ratio is
+    that of :func:`experiments.suite.make_path`, over the steps of the open path.  ``fine``: that
     loop, if already computed.
     """
     if fine is None:

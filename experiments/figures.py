@@ -8,14 +8,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .direct_kinematics import dk_all
-from .grid import default_bounds
-from .kinematics import ik, jacobians, wrap_angle
-from .manipulator import Manipulator
-from .maptensor import label_poses
-from .ordering import DEFAULT_RULE
-from .tracker import Tracker
-from .trajectories import PAPER_CIRCLE, circle_path
+from solver.direct_kinematics import dk_all
+from solver.grid import default_bounds
+from solver.kinematics import ik, jacobians, wrap_angle
+from solver.manipulator import Manipulator
+from solver.maptensor import label_poses
+from solver.ordering import DEFAULT_RULE
+from solver.tracker import Tracker
+from solver.trajectories import PAPER_CIRCLE, circle_path
 
 #: One colour per label 0..6 (0: outside the tool space).
 LABEL_COLOURS = ["#ffffff", "#4e79a7", "#f28e2b", "#59a14f", "#e15759", "#b07aa1", "#edc948"]
@@ -194,7 +194,7 @@ def plot_circle_experiment(model: Manipulator, map_tensor, out_dir="results/figu
     out_dir : path
     n : int
         Points on the circle (paper: 1000).
-    hard_path : solver.suite.SuitePath, optional
+    hard_path : experiments.suite.SuitePath, optional
         A second path for Fig. 18's right panel (near a singularity, where borders matter).
     hard_map : MapTensor, optional
         Map of ``hard_path``'s posture.

@@ -32,10 +32,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .direct_kinematics import dk_all
-from .kinematics import ik, jacobians, wrap_angle
-from .manipulator import Manipulator
-from .trajectories import PAPER_CIRCLE, circle_path
+from solver.direct_kinematics import dk_all
+from solver.kinematics import ik, jacobians, wrap_angle
+from solver.manipulator import Manipulator
+from solver.trajectories import PAPER_CIRCLE, circle_path
 
 __all__ = ["SuitePath", "paper_circle_path", "near_singular_circle", "default_suite", "SAMPLINGS", "shape_path",
            "hard_suite", "HARD_SAMPLINGS"]
@@ -217,7 +217,7 @@ def hard_suite(model: Manipulator | None = None, samplings=HARD_SAMPLINGS, seed:
     at every sampling in ``samplings``.
     """
     model = Manipulator.paper() if model is None else model
-    from .grid import default_bounds
+    from solver.grid import default_bounds
     bounds = default_bounds(model, (0.01, 0.01, 0.01))
     rng = np.random.default_rng(seed)
     paths = []
