@@ -6,9 +6,14 @@ dk Q1 Q2 Q3        all six direct-kinematics solutions of one joint vector (rad)
 ik X Y PHI         the motor angles in each of the 8 postures
 example            the paper's Fig. 11 experiment: a pose, its joints, all DK solutions back
 build              procedure 1: map tensors into the map cache (built, or reused if there)
-inspect FILE       what a map tensor file holds (regions, counts, size)
+inspect FILE...    what map tensor files hold (regions, counts, size)
 plot FILE          slices of a map tensor file as PNG
 figures            the paper's Figs 13-18 as PNG (cross-sections with singular curves, the circle)
+
+The map cache is ``$RRR_DK_CACHE/maps``, else ``~/.cache/rrr-dk/maps`` (``$XDG_CACHE_HOME``
+replaces ``~/.cache``); ``build --out`` puts maps elsewhere.  Long work reports its phases and
+a progress bar on stderr; ``RRR_DK_PROGRESS=0`` silences them.  ``plot`` and ``figures`` use
+the package ``experiments`` (in the source tree, beside ``solver``) and matplotlib.
 """
 from __future__ import annotations
 
@@ -18,9 +23,17 @@ from pathlib import Path
 
 import numpy as np
 
-from . import (DEFAULT_RULE, DEFAULT_STEP, ORDERING_RULES, Manipulator, MapTensor, cached_map, dk_all, ik,
-               posture_of, singularity_measures)
-from .mapcache import DEFAULT_CACHE_DIR
+from . import (DEFAULT_RULE, DEFAULT_STEP, ORDERING_RULES, Manipulator, MapTensor, MapTensorFileError, cached_map,
+               circle_path, dk_all, ik, posture_of, singularity_measures)
+from .mapcache import default_cache_dir
+
+DESCRIPTION = """\
+Direct kinematics of the planar 3-RRR with basic regions: the kinematics of one pose or
+joint vector, procedure 1's map tensors (build, inspect, plot) and the paper's figures."""
+EPILOG = """\
+maps are cached in $RRR_DK_CACHE/maps, else $XDG_CACHE_HOME/rrr-dk/maps, else ~/.cache/rrr-dk/maps
+(build --out puts them elsewhere); long work reports its phases and a progress bar on stderr
+(RRR_DK_PROGRESS=0 silences them).  Each command has its own --help."""
 
 #: A pose of posture 1 whose joint vector has six real DK solutions (Fig. 11 style example).
 EXAMPLE_POSE = (0.8, 0.0, float(np.deg2rad(15.0)))
@@ -48,93 +61,125 @@ def print_solutions(model: Manipulator, q, rule: str, out=sys.stdout) -> None:
         print(f"{k + 1:>2}  {kind:7} {_fmt(X[0]):>24} {_fmt(X[1]):>24} {_fmt(X[2]):>24}{extra}", file=out)
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m solver", description=__doc__,
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m solver", description=DESCRIPTION, epilog=EPILOG,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--rule", default=DEFAULT_RULE, choices=sorted(ORDERING_RULES),
-                        help="ordering rule that numbers the DK solutions")
-    sub = parser.add_subparsers(dest="cmd")
+                        help=f"ordering rule that numbers the DK solutions (default {DEFAULT_RULE})")
+    sub = parser.add_subparsers(dest="cmd", metavar="COMMAND")
     p = sub.add_parser("dk", help="all DK solutions of a joint vector")
-    p.add_argument("q", nargs=3, type=float, metavar="Q")
+    p.add_argument("q", nargs=3, type=float, metavar="Q", help="the motor angles q1 q2 q3, rad")
     p = sub.add_parser("ik", help="IK of a pose in all 8 postures")
-    p.add_argument("X", nargs=3, type=float, metavar="X")
-    p = sub.add_parser("build", help="procedure 1: map tensors into the map cache")
-    p.add_argument("--posture", type=int, nargs="+", default=[1], help="postures 1..8 (default 1)")
-    p.add_argument("--step-mm", type=float, default=DEFAULT_STEP[0] * 1e3, help="x/y node spacing, mm")
-    p.add_argument("--step-deg", type=float, default=float(np.rad2deg(DEFAULT_STEP[2])),
-                   help="phi node spacing, degrees")
-    p.add_argument("--out", default=str(DEFAULT_CACHE_DIR),
-                   help=f"the map cache folder (default {DEFAULT_CACHE_DIR}; file names: solver.mapcache)")
-    p = sub.add_parser("inspect", help="describe a map tensor file")
-    p.add_argument("file")
-    p = sub.add_parser("plot", help="plot slices of a map tensor file")
-    p.add_argument("file")
-    p.add_argument("--phi", type=float, nargs="+", default=[-60.0, 0.0, 60.0], help="degrees")
-    p.add_argument("--out", default="results/figures")
-    p = sub.add_parser("figures", help="the paper's Figs 13-18")
-    p.add_argument("--posture", type=int, default=1)
-    p.add_argument("--step-mm", type=float, default=4.0)
-    p.add_argument("--out", default="results/figures")
+    p.add_argument("X", nargs=3, type=float, metavar="X", help="the pose x y phi, m m rad")
     p = sub.add_parser("example", help="the paper's Fig. 11 experiment")
-    p.add_argument("--pose", nargs=3, type=float, default=EXAMPLE_POSE, metavar=("X", "Y", "PHI"))
-    p.add_argument("--posture", type=int, default=1)
-    args = parser.parse_args(argv)
-    model = Manipulator.paper()
+    p.add_argument("--pose", nargs=3, type=float, default=EXAMPLE_POSE, metavar=("X", "Y", "PHI"),
+                   help="the pose, m m rad (default 0.8 0 0.2618: phi 15 deg)")
+    p.add_argument("--posture", type=int, default=1, help="posture 1..8 of its joints (default 1)")
+    p = sub.add_parser("build", help="procedure 1: map tensors into the map cache")
+    p.add_argument("--posture", type=int, nargs="+", default=[1], metavar="J",
+                   help="postures 1..8, one map each (default 1)")
+    p.add_argument("--step-mm", type=float, default=DEFAULT_STEP[0] * 1e3,
+                   help="x/y node spacing, mm (default %(default)g)")
+    p.add_argument("--step-deg", type=float, default=float(np.rad2deg(DEFAULT_STEP[2])),
+                   help="phi node spacing, degrees (default %(default)g)")
+    p.add_argument("--out", default=None, help=f"the map cache folder (default {default_cache_dir()}; "
+                                               f"file names: see solver.mapcache)")
+    p = sub.add_parser("inspect", help="describe map tensor files")
+    p.add_argument("file", nargs="+", help="map tensor files (.npz); each is described in turn")
+    p = sub.add_parser("plot", help="plot slices of a map tensor file")
+    p.add_argument("file", help="a map tensor file (.npz)")
+    p.add_argument("--phi", type=float, nargs="+", default=[-60.0, 0.0, 60.0],
+                   help="orientations of the slices, degrees; the nearest stored slice is drawn "
+                        "(default -60 0 60)")
+    p.add_argument("--out", default="results/figures", help="folder of the PNG files (default %(default)s)")
+    p = sub.add_parser("figures", help="the paper's Figs 13-18")
+    p.add_argument("--posture", type=int, default=1, help="posture of Figs 13-15 (default 1)")
+    p.add_argument("--step-mm", type=float, default=4.0,
+                   help="node spacing of Figs 13-15's cross-sections, mm (default %(default)g)")
+    p.add_argument("--out", default="results/figures", help="folder of the PNG files (default %(default)s)")
+    return parser
+
+
+def _build(model, args) -> None:
+    step = (args.step_mm / 1e3, args.step_mm / 1e3, float(np.deg2rad(args.step_deg)))
+    for j in args.posture:
+        mt = cached_map(model, j, args.rule, step, args.out, log=print)
+        if mt.build_seconds is not None:
+            print(f"  {mt.stats['nodes']:,} nodes built in {mt.build_seconds:.1f} s "
+                  f"({mt.stats['nodes'] / mt.build_seconds:,.0f} nodes/s)")
+
+
+def _inspect(model, args) -> int:
+    failed = 0
+    for k, name in enumerate(args.file):
+        if k:
+            print()
+        try:
+            mt = MapTensor.load(name)
+        except MapTensorFileError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            failed += 1
+            continue
+        print(f"{name}:\n{mt.summary()}")
+        print(f"  file {Path(name).stat().st_size / 1e6:.3f} MB, labels sha256 {mt.checksum()[:16]}...")
+        print(f"  near a label border (procedure 2, default radius): {100 * mt.border_fraction():.1f} % "
+              f"of reachable nodes")
+    return 2 if failed else 0
+
+
+def _plot(model, args) -> None:
+    from experiments.figures import plot_map_slice
+    mt = MapTensor.load(args.file)
+    for phd in args.phi:
+        print(plot_map_slice(mt, phd, args.out))
+
+
+def _figures(model, args) -> None:
+    from experiments.figures import plot_circle_experiment, plot_cross_sections
+    from experiments.suite import NEAR_SINGULAR_SEEDS, make_path, near_singular_circle
+    for phd, (path, st) in plot_cross_sections(model, args.posture, out_dir=args.out,
+                                               step=args.step_mm / 1e3, rule=args.rule).items():
+        print(f"{path}: singular nodes within one cell of a border {100 * st['singular_near_border']:.1f} %, "
+              f"border nodes singular {100 * st['border_singular']:.1f} %")
+    mt = cached_map(model, 1, args.rule)
+    post, centre, phd = NEAR_SINGULAR_SEEDS[0]
+    radius, _ = near_singular_circle(model, post, centre, phd, 0.005)
+    hard = make_path(model, f"p{post}-near-sing-5mm", post, circle_path(300, centre, radius, float(np.deg2rad(phd))))
+    hard_map = mt if post == 1 else cached_map(model, post, args.rule)
+    for path in plot_circle_experiment(model, mt, args.out, hard_path=hard, hard_map=hard_map):
+        print(path)
+
+
+def _ik(model, args) -> None:
+    X = np.array(args.X)
+    for j in range(1, 9):
+        print(f"posture {j}: q = {np.array2string(ik(model, X, j), precision=9)} rad")
+
+
+def _example(model, args) -> int:
+    X = np.array(getattr(args, "pose", EXAMPLE_POSE))
+    j = getattr(args, "posture", 1)
+    q = ik(model, X, j)
+    print(f"{model.name}: pose X = {X.tolist()} (m, m, rad), posture {j}")
+    if np.isnan(q[0]):
+        print("the pose is outside the posture's tool space")
+        return 1
+    print_solutions(model, q, args.rule)
+    return 0
+
+
+COMMANDS = {"dk": lambda model, args: print_solutions(model, np.array(args.q), args.rule), "ik": _ik,
+            "build": _build, "inspect": _inspect, "plot": _plot, "figures": _figures, "example": _example}
+
+
+def main(argv=None) -> int:
+    """Run the command line; returns the exit status (0 ok, 1 pose outside the tool space, 2 an error)."""
+    args = _parser().parse_args(argv)
     try:
-        if args.cmd == "dk":
-            print_solutions(model, np.array(args.q), args.rule)
-        elif args.cmd == "ik":
-            X = np.array(args.X)
-            for j in range(1, 9):
-                q = ik(model, X, j)
-                print(f"posture {j}: q = {np.array2string(q, precision=9)} rad")
-        elif args.cmd == "build":
-            step = (args.step_mm / 1e3, args.step_mm / 1e3, float(np.deg2rad(args.step_deg)))
-            for j in args.posture:
-                mt = cached_map(model, j, args.rule, step, args.out, progress=sys.stderr.isatty(), log=print)
-                print(f"  {mt.stats['nodes']:,} nodes built in {mt.stats['build_seconds']:.1f} s "
-                      f"({mt.stats['nodes'] / mt.stats['build_seconds']:,.0f} nodes/s)")
-        elif args.cmd == "inspect":
-            mt = MapTensor.load(args.file)
-            print(mt.summary())
-            print(f"  file {Path(args.file).stat().st_size / 1e6:.3f} MB, labels sha256 {mt.checksum()[:16]}...")
-            print(f"  near a label border (procedure 2, default radius): {100 * mt.border_fraction():.1f} % "
-                  f"of reachable nodes")
-        elif args.cmd == "plot":
-            from experiments.figures import plot_map_slice
-            mt = MapTensor.load(args.file)
-            for phd in args.phi:
-                print(plot_map_slice(mt, phd, args.out))
-        elif args.cmd == "figures":
-            from experiments.figures import plot_circle_experiment, plot_cross_sections
-            from experiments.suite import NEAR_SINGULAR_SEEDS, make_path, near_singular_circle
-            from .trajectories import circle_path
-            for phd, (path, st) in plot_cross_sections(model, args.posture, out_dir=args.out,
-                                                       step=args.step_mm / 1e3, rule=args.rule).items():
-                print(f"{path}: singular nodes within one cell of a border "
-                      f"{100 * st['singular_near_border']:.1f} %, border nodes singular "
-                      f"{100 * st['border_singular']:.1f} %")
-            mt = cached_map(model, 1, args.rule, progress=sys.stderr.isatty())
-            post, centre, phd = NEAR_SINGULAR_SEEDS[0]
-            radius, _ = near_singular_circle(model, post, centre, phd, 0.005)
-            hard = make_path(model, f"p{post}-near-sing-5mm", post,
-                             circle_path(300, centre, radius, float(np.deg2rad(phd))))
-            hard_map = mt if post == 1 else cached_map(model, post, args.rule)
-            for path in plot_circle_experiment(model, mt, args.out, hard_path=hard, hard_map=hard_map):
-                print(path)
-        else:
-            X = np.array(getattr(args, "pose", EXAMPLE_POSE))
-            j = getattr(args, "posture", 1)
-            q = ik(model, X, j)
-            print(f"{model.name}: pose X = {X.tolist()} (m, m, rad), posture {j}")
-            if np.isnan(q[0]):
-                print("the pose is outside the posture's tool space")
-                return 1
-            print_solutions(model, q, args.rule)
+        return COMMANDS.get(args.cmd, _example)(Manipulator.paper(), args) or 0
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    return 0
 
 
 if __name__ == "__main__":

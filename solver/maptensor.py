@@ -16,7 +16,6 @@ cache shared by every command in :mod:`solver.mapcache`.
 """
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +31,7 @@ from .kinematics import ik, wrap_angle
 from .manipulators import check_manipulator
 from .manipulator import Manipulator
 from .ordering import DEFAULT_RULE, rule_code
+from .progress import bar
 
 __all__ = ["MapTensor", "label_poses", "MATCH_TOL"]
 
@@ -82,10 +82,56 @@ def label_poses(model: Manipulator, X, posture: int, rule: str = DEFAULT_RULE):
     return labels.reshape(lead), mismatch.reshape(lead)
 
 
-def _progress(enabled, text):
-    if enabled:
-        sys.stderr.write("\r" + text)
-        sys.stderr.flush()
+def _grid(bounds, shape):
+    """Node spacing and the coordinates of node (0, 0, 0), each (3,), of a grid; phi over the full
+    circle is periodic (its first node one step above the lower bound)."""
+    n = np.asarray(shape, dtype=float)
+    span = bounds[:, 1] - bounds[:, 0]
+    step = span / np.maximum(n - 1, 1)
+    origin = bounds[:, 0].copy()
+    if _periodic(bounds):
+        step[2] = span[2] / n[2]
+        origin[2] = bounds[2, 0] + step[2]
+    return step, origin
+
+
+def _periodic(bounds) -> bool:
+    return bool(abs((bounds[2, 1] - bounds[2, 0]) - 2 * np.pi) < 1e-9)
+
+
+def _check_build(model, posture, bounds, shape, rule):
+    """The arguments of :meth:`MapTensor.build`, checked and with their defaults."""
+    check_manipulator(model)
+    posture = int(check_posture(posture))
+    if posture > model.n_postures:
+        raise SolverInputError(f"posture: a {model.kind} has postures 1..{model.n_postures}, got {posture}")
+    rule = DEFAULT_RULE if rule is None else rule
+    rule_code(rule)
+    bounds = default_bounds(model) if bounds is None else as_array("bounds", bounds, (3, 2))
+    if bounds.shape != (3, 2) or np.any(bounds[:, 1] <= bounds[:, 0]):
+        raise SolverInputError(f"bounds: expected shape (3, 2) with min < max per axis, got {bounds.tolist()}")
+    shape = tuple(int(n) for n in (grid_shape(bounds, DEFAULT_STEP) if shape is None else shape))
+    if len(shape) != 3 or min(shape) < 2:
+        raise SolverInputError(f"shape: expected three node counts >= 2, got {shape}")
+    return posture, bounds, shape, rule
+
+
+def _label_grid(model, posture, rule, bounds, shape, progress):
+    """Procedure 1 over a grid, phi slice by phi slice: labels (int8, ``shape``) and the largest
+    node-solution distance."""
+    step, origin = _grid(bounds, shape)
+    xs, ys, phis = (origin[a] + np.arange(shape[a]) * step[a] for a in range(3))
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    labels = np.zeros(shape, dtype=np.int8)
+    worst = 0.0
+    with bar(total=shape[0] * shape[1] * shape[2], desc=f"map tensor posture {posture}", unit="node",
+             unit_scale=True, enabled=progress) as progress_bar:
+        for k, phi in enumerate(phis):
+            X = np.stack([gx, gy, np.full_like(gx, phi)], axis=-1)
+            labels[:, :, k], mm = label_poses(model, X, posture, rule)
+            worst = max(worst, float(mm.max()))
+            progress_bar.update(gx.size)
+    return labels, worst
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,7 +153,14 @@ class MapTensor:
     labels : ndarray of int8, shape ``shape``
         Solution number of each node, 0 outside the tool space (read-only).
     stats : dict
-        Build statistics (time, counts, largest node-solution distance).
+        Build statistics stored with the map (node counts, label counts, largest node-solution
+        distance); no wall times, so the same build gives the same file.
+    build_seconds : float or None
+        Wall time of :meth:`build`, s; None for a map read from a file (never stored).
+    step : ndarray, shape (3,)
+        Node spacing per axis, m, m, rad (derived from ``bounds`` and ``shape``).
+    origin : ndarray, shape (3,)
+        Coordinates of node (0, 0, 0), m, m, rad (derived from ``bounds`` and ``shape``).
     """
 
     model: Manipulator
@@ -117,38 +170,21 @@ class MapTensor:
     rule: str
     labels: np.ndarray
     stats: dict = field(default_factory=dict)
+    build_seconds: float | None = None
+    step: np.ndarray = field(init=False, repr=False)
+    origin: np.ndarray = field(init=False, repr=False)
+    _stencils: dict = field(init=False, repr=False, default_factory=dict)     # procedure-2 stencils by (r, w)
+
+    def __post_init__(self):
+        # the derived grid data, set once here (a frozen dataclass sets fields with object.__setattr__)
+        for name, value in zip(("step", "origin"), _grid(self.bounds, self.shape)):
+            object.__setattr__(self, name, value)
 
     # ------------------------------------------------------------------ grid
     @property
     def periodic(self) -> bool:
         """Whether the phi axis covers the full circle (index arithmetic modulo n_phi)."""
-        return bool(abs((self.bounds[2, 1] - self.bounds[2, 0]) - 2 * np.pi) < 1e-9)
-
-    @property
-    def step(self) -> np.ndarray:
-        """Node spacing per axis, shape (3,), m, m, rad."""
-        cached = self.__dict__.get("_step")
-        if cached is not None:
-            return cached
-        n = np.asarray(self.shape, dtype=float)
-        span = self.bounds[:, 1] - self.bounds[:, 0]
-        st = span / np.maximum(n - 1, 1)
-        if self.periodic:
-            st[2] = span[2] / n[2]
-        object.__setattr__(self, "_step", st)
-        return st
-
-    @property
-    def origin(self) -> np.ndarray:
-        """Coordinates of node (0, 0, 0), shape (3,), m, m, rad."""
-        cached = self.__dict__.get("_origin")
-        if cached is not None:
-            return cached
-        o = self.bounds[:, 0].copy()
-        if self.periodic:
-            o[2] = self.bounds[2, 0] + self.step[2]
-        object.__setattr__(self, "_origin", o)
-        return o
+        return _periodic(self.bounds)
 
     def axes(self) -> list[np.ndarray]:
         """Node coordinates per axis: [x (n_x,), y (n_y,), phi (n_phi,)]."""
@@ -172,7 +208,7 @@ class MapTensor:
     # ------------------------------------------------------------------ procedure 1
     @classmethod
     def build(cls, model: Manipulator, posture: int, bounds=None, shape=None, rule: str | None = None,
-              progress: bool = False) -> "MapTensor":
+              progress: bool | None = None) -> "MapTensor":
         """Procedure 1: label every node of a regular grid of the tool space.
 
         Parameters
@@ -187,55 +223,29 @@ class MapTensor:
             Nodes per axis; default from :data:`DEFAULT_STEP` over the bounds.
         rule : str, optional
             Ordering rule; default :data:`solver.DEFAULT_RULE`.
-        progress : bool
-            Print a progress line to stderr.
+        progress : bool, optional
+            A progress bar on stderr over the phi slices (:func:`solver.progress.bar`: shown once
+            the build has run 2 s); None: the process default (:mod:`solver.progress`).
 
         Returns
         -------
         MapTensor
+            Its ``build_seconds`` is the wall time of the labelling, s.
 
         Notes
         -----
         Runs phi slice by phi slice (memory bounded by one slice); the labels
         are deterministic: the same inputs give byte-identical labels.
         """
-        check_manipulator(model)
-        posture = int(check_posture(posture))
-        if posture > model.n_postures:
-            raise SolverInputError(f"posture: a {model.kind} has postures 1..{model.n_postures}, got {posture}")
-        rule = DEFAULT_RULE if rule is None else rule
-        rule_code(rule)
-        bounds = default_bounds(model) if bounds is None else as_array("bounds", bounds, (3, 2))
-        if bounds.shape != (3, 2) or np.any(bounds[:, 1] <= bounds[:, 0]):
-            raise SolverInputError(f"bounds: expected shape (3, 2) with min < max per axis, got {bounds.tolist()}")
-        shape = tuple(int(n) for n in (grid_shape(bounds, DEFAULT_STEP) if shape is None else shape))
-        if len(shape) != 3 or min(shape) < 2:
-            raise SolverInputError(f"shape: expected three node counts >= 2, got {shape}")
-        empty = cls(model, posture, bounds, shape, rule, np.zeros(shape, dtype=np.int8))
-        xs, ys, phis = empty.axes()
-        labels = np.zeros(shape, dtype=np.int8)
-        gx, gy = np.meshgrid(xs, ys, indexing="ij")
+        posture, bounds, shape, rule = _check_build(model, posture, bounds, shape, rule)
         t0 = time.perf_counter()
-        worst = 0.0
-        for k, phi in enumerate(phis):
-            X = np.stack([gx, gy, np.full_like(gx, phi)], axis=-1)
-            labels[:, :, k], mm = label_poses(model, X, posture, rule)
-            worst = max(worst, float(mm.max()))
-            if progress and (k % 4 == 0 or k == len(phis) - 1):
-                done = (k + 1) / len(phis)
-                rate = (k + 1) * gx.size / (time.perf_counter() - t0)
-                _progress(True, f"map tensor posture {posture}: {100 * done:5.1f}% "
-                                f"({(k + 1) * gx.size:,} nodes, {rate:,.0f} nodes/s)")
-        if progress:
-            sys.stderr.write("\n")
+        labels, worst = _label_grid(model, posture, rule, bounds, shape, progress)
         seconds = time.perf_counter() - t0
         counts = np.bincount(labels.ravel(), minlength=7)
-        stats = {"build_seconds": round(seconds, 3), "nodes": int(labels.size),
-                 "reachable_nodes": int(labels.size - counts[0]),
-                 "label_counts": [int(c) for c in counts],
-                 "max_node_solution_distance": worst}
+        stats = {"nodes": int(labels.size), "reachable_nodes": int(labels.size - counts[0]),
+                 "label_counts": [int(c) for c in counts], "max_node_solution_distance": worst}
         labels.setflags(write=False)
-        return cls(model, posture, bounds, shape, rule, labels, stats)
+        return cls(model, posture, bounds, shape, rule, labels, stats, build_seconds=seconds)
 
     # ------------------------------------------------------------------ procedure 2
     def label_at(self, X) -> np.ndarray:
@@ -260,7 +270,7 @@ class MapTensor:
 
     def _stencil(self, r, w):
         key = (float(r), tuple(float(v) for v in w))
-        cache = self.__dict__.setdefault("_stencils", {})
+        cache = self._stencils
         if key not in cache:
             # offsets o from the cell base floor(f) whose node can be within r of a pose in the
             # cell: the nearest point of [0, 1) to o_a is o_a - 1 (o_a >= 1), 0, or -o_a (o_a <= 0)
@@ -327,24 +337,14 @@ class MapTensor:
         return border & (lab != 0)
 
     def _shifted(self, lab, o):
-        """``out[i] = lab[i + o]`` with 0 beyond the x/y edges and wrap-around in phi."""
-        out = np.roll(lab, -int(o[2]), axis=2) if self.periodic else lab
-        res = np.zeros_like(lab)
-        sl_dst, sl_src = [], []
+        """``out[i] = lab[i + o]``: 0 beyond the x/y edges (and the phi edges unless periodic)."""
+        out = np.roll(lab, [-int(k) for k in o], axis=(0, 1, 2))
         for a in range(2 if self.periodic else 3):
-            k = int(o[a])
-            n = self.shape[a]
-            if k >= 0:
-                sl_dst.append(slice(0, n - k))
-                sl_src.append(slice(k, n))
-            else:
-                sl_dst.append(slice(-k, n))
-                sl_src.append(slice(0, n + k))
-        if self.periodic:
-            sl_dst.append(slice(None))
-            sl_src.append(slice(None))
-        res[tuple(sl_dst)] = out[tuple(sl_src)]
-        return res
+            k, edge = int(o[a]), [slice(None)] * 3
+            if k:
+                edge[a] = slice(self.shape[a] - k, None) if k > 0 else slice(0, -k)
+                out[tuple(edge)] = 0
+        return out
 
     def border_fraction(self, r: float | None = None, weights=None) -> float:
         """Share of reachable nodes that are near a label border (procedure 2 says 'near')."""
@@ -367,9 +367,8 @@ class MapTensor:
             if counts[lab]:
                 lines.append(f"  region {lab}: {counts[lab]:,} nodes "
                              f"({100 * counts[lab] / max(self.labels.size - counts[0], 1):.1f} % of reachable)")
-        for key in ("build_seconds", "max_node_solution_distance"):
-            if key in self.stats:
-                lines.append(f"  {key.replace('_', ' ')}: {self.stats[key]}")
+        if "max_node_solution_distance" in self.stats:
+            lines.append(f"  max node solution distance: {self.stats['max_node_solution_distance']}")
         return "\n".join(lines)
 
     # ------------------------------------------------------------------ file (solver.mapfile)

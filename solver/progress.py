@@ -1,0 +1,185 @@
+"""Progress of long work: a line per phase with its time, and a bar over long loops.
+
+Two helpers, for the library and for the packages above it (the FMU builds, the closed
+loop, the batch runs)::
+
+    from solver.progress import bar, phase
+
+    with phase("building RRRDirectKinematics.fmu", detail="about 20 s") as ph:
+        for item in bar(items, desc="maps", unit="map"):
+            ...
+        ph.summary = "3 maps, 12.1 MB"
+    # stderr: "building RRRDirectKinematics.fmu ... (about 20 s)"
+    #         "building RRRDirectKinematics.fmu: done in 17.3 s (3 maps, 12.1 MB)"
+
+* :func:`phase` writes a line when a phase starts and one with its wall time when it ends
+  (or fails); the time is also on the object it yields (``ph.seconds``).
+* :func:`bar` is a tqdm progress bar.  It appears only once its loop has run for
+  :data:`BAR_DELAY` seconds (short loops print nothing).  On a terminal it redraws in place;
+  when stderr is not a terminal (a log file, CI, ``pytest -s``) it writes a plain line at
+  most every :data:`LOG_INTERVAL` seconds, so a log shows progress without control characters.
+* :func:`note` writes one line (e.g. where a cache writes).
+
+Everything goes to ``sys.stderr`` as it is at the call (pytest's capture sees it).
+Silence it with ``RRR_DK_PROGRESS=0`` in the environment, :func:`set_enabled` or the
+:func:`silenced` context manager; an ``enabled=`` argument of True or False overrides them
+for one call, None follows them.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+import time
+from collections.abc import Iterable, Iterator
+
+from tqdm import tqdm
+
+__all__ = ["PROGRESS_ENV", "BAR_DELAY", "LOG_INTERVAL", "Phase", "phase", "bar", "note", "is_on", "set_enabled",
+           "silenced"]
+
+#: Environment variable: ``0``, ``off``, ``false`` or ``no`` silence progress output by default.
+PROGRESS_ENV = "RRR_DK_PROGRESS"
+#: A bar appears once its loop has run this long, s.
+BAR_DELAY = 2.0
+#: Seconds between two progress lines when stderr is not a terminal.
+LOG_INTERVAL = 10.0
+
+_default: bool | None = None          # None: from the environment
+
+
+def is_on(override: bool | None = None) -> bool:
+    """Whether progress output is on: ``override`` if it is True or False, else the default
+    (:func:`set_enabled`, else on unless ``$RRR_DK_PROGRESS`` is ``0``/``off``/``false``/``no``)."""
+    if override is not None:
+        return bool(override)
+    if _default is not None:
+        return _default
+    return os.environ.get(PROGRESS_ENV, "1").strip().lower() not in ("0", "off", "false", "no")
+
+
+def set_enabled(on: bool | None) -> None:
+    """Turn progress output on or off for the process; None: back to the environment's choice."""
+    global _default
+    _default = None if on is None else bool(on)
+
+
+@contextlib.contextmanager
+def silenced() -> Iterator[None]:
+    """No progress output inside the block (restores the previous default after it)."""
+    global _default
+    saved = _default
+    _default = False
+    try:
+        yield
+    finally:
+        _default = saved
+
+
+def note(text: str, enabled: bool | None = None) -> None:
+    """Write ``text`` as one line to stderr, if progress output is on (``enabled``: as in :func:`phase`)."""
+    if is_on(enabled):
+        sys.stderr.write(text + "\n")
+        sys.stderr.flush()
+
+
+class Phase:
+    """One timed phase (:func:`phase`).
+
+    Attributes
+    ----------
+    name : str
+    seconds : float or None
+        Wall time of the phase, s (None until it ends).
+    summary : str
+        Set inside the block: appended to the end line in parentheses.
+    """
+
+    def __init__(self, name: str):
+        self.name = name
+        self.seconds: float | None = None
+        self.summary = ""
+
+
+@contextlib.contextmanager
+def phase(name: str, detail: str = "", enabled: bool | None = None) -> Iterator[Phase]:
+    """Time a phase of long work and say so on stderr.
+
+    Parameters
+    ----------
+    name : str
+        What is being done ("building map tensor posture 1 at 10 mm, 2 deg").
+    detail : str
+        Appended to the start line in parentheses (an expected duration, a path).
+    enabled : bool, optional
+        True/False: write or not, whatever the default; None: the default (:func:`is_on`).
+
+    Yields
+    ------
+    Phase
+        Its ``seconds`` is set when the block ends, also when it raises.
+    """
+    on = is_on(enabled)
+    ph = Phase(name)
+    if on:
+        note(f"{name} ..." + (f" ({detail})" if detail else ""), True)
+    t0 = time.perf_counter()
+    try:
+        yield ph
+    except BaseException as exc:
+        ph.seconds = time.perf_counter() - t0
+        if on:
+            note(f"{name}: failed after {ph.seconds:.1f} s ({type(exc).__name__})", True)
+        raise
+    ph.seconds = time.perf_counter() - t0
+    if on:
+        note(f"{name}: done in {ph.seconds:.1f} s" + (f" ({ph.summary})" if ph.summary else ""), True)
+
+
+class _Lines:
+    """A file for tqdm that writes each refresh as its own line (for logs: no carriage returns)."""
+
+    def __init__(self, stream):
+        self.stream = stream
+
+    def write(self, text: str) -> None:
+        text = text.replace("\r", "").strip()
+        if text:
+            self.stream.write(text + "\n")
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
+def bar(iterable: Iterable | None = None, total: int | None = None, desc: str = "", unit: str = "it",
+        enabled: bool | None = None, **kwargs) -> tqdm:
+    """A tqdm progress bar on stderr, quiet for short loops and readable in logs.
+
+    Parameters
+    ----------
+    iterable : iterable, optional
+        What to loop over (else call ``update(n)`` on the bar and ``close()`` it, or use it in
+        a ``with`` block).
+    total : int, optional
+        Number of steps (default ``len(iterable)`` when it has one).
+    desc, unit : str
+        Label in front of the bar, and the name of a step.
+    enabled : bool, optional
+        True/False: show or not, whatever the default; None: the default (:func:`is_on`).
+    **kwargs
+        More tqdm options (``unit_scale``, ``postfix``, ...).
+
+    Returns
+    -------
+    tqdm
+        Disabled (prints nothing, still counts) when progress output is off.
+    """
+    stream = sys.stderr
+    tty = bool(getattr(stream, "isatty", lambda: False)())
+    # in a log: a line at most every LOG_INTERVAL s, checked at every update (miniters=1), so tqdm's
+    # monitor thread (which forces a refresh after maxinterval) has nothing to add
+    options = {"delay": BAR_DELAY, "mininterval": 0.1 if tty else LOG_INTERVAL, "dynamic_ncols": tty,
+               "ascii": not tty, **({} if tty else {"miniters": 1, "maxinterval": 6 * LOG_INTERVAL})}
+    options.update(kwargs)
+    return tqdm(iterable, total=total, desc=desc, unit=unit, file=stream if tty else _Lines(stream),
+                disable=not is_on(enabled), **options)

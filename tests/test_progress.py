@@ -1,0 +1,72 @@
+"""Progress of long work (solver.progress): phase lines with their times, bars readable in logs, silence."""
+import io
+import time
+
+import pytest
+
+from solver import progress
+
+
+@pytest.fixture(autouse=True)
+def default_on(monkeypatch):
+    monkeypatch.delenv(progress.PROGRESS_ENV, raising=False)
+    progress.set_enabled(None)
+    yield
+    progress.set_enabled(None)
+
+
+def test_a_phase_says_when_it_starts_and_how_long_it_took(capsys):
+    with progress.phase("compiling kernels", "about 1 s") as ph:
+        time.sleep(0.05)
+        ph.summary = "3 kernels"
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "compiling kernels ... (about 1 s)"
+    assert err[1].startswith("compiling kernels: done in ") and err[1].endswith(" s (3 kernels)")
+    assert ph.seconds >= 0.05
+
+
+def test_a_failing_phase_says_so_and_raises(capsys):
+    with pytest.raises(KeyError):
+        with progress.phase("loading") as ph:
+            raise KeyError("x")
+    assert "loading: failed after" in capsys.readouterr().err and ph.seconds is not None
+
+
+def test_a_bar_in_a_log_writes_whole_lines(capsys):
+    for _ in progress.bar(range(5), desc="slices", delay=0, mininterval=0):
+        pass
+    err = capsys.readouterr().err
+    assert "\r" not in err and "slices" in err and "5/5" in err.splitlines()[-1]
+
+
+def test_a_bar_on_a_terminal_redraws_in_place(monkeypatch):
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+    stream = Tty()
+    monkeypatch.setattr("sys.stderr", stream)
+    for _ in progress.bar(range(5), desc="slices", delay=0, mininterval=0):
+        pass
+    assert "\r" in stream.getvalue() and "5/5" in stream.getvalue()
+
+
+def test_short_loops_print_nothing(capsys):
+    for _ in progress.bar(range(100), desc="quick"):
+        pass
+    assert capsys.readouterr().err == ""
+
+
+def test_progress_can_be_silenced(capsys, monkeypatch):
+    with progress.silenced():
+        with progress.phase("quiet"):
+            list(progress.bar(range(3), delay=0, mininterval=0))
+        progress.note("nothing")
+    assert capsys.readouterr().err == ""
+    with progress.phase("loud", enabled=True):
+        pass
+    assert "loud: done in" in capsys.readouterr().err
+    monkeypatch.setenv(progress.PROGRESS_ENV, "0")
+    progress.note("nothing")
+    assert capsys.readouterr().err == "" and not progress.is_on() and progress.is_on(True)
+    progress.set_enabled(True)
+    assert progress.is_on()
