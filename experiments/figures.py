@@ -204,56 +204,67 @@ def plot_circle_experiment(model: Manipulator, map_tensor, out_dir="results/figu
     list of Path
         The three PNG files.
     """
-
-    plt, cmap, norm = _mpl()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     X = circle_path(n)
-    posture = PAPER_CIRCLE["posture"]
-    q = ik(model, X, posture)
-    paths = []
+    q = ik(model, X, PAPER_CIRCLE["posture"])
+    panels = [("paper circle", X, q, map_tensor)]
+    if hard_path is not None:
+        panels.append((hard_path.name, hard_path.X, hard_path.q, hard_map))
+    return [_fig16(model, X, map_tensor.rule, out / "fig16_circle.png"),
+            _fig17(model, q, map_tensor.rule, out / "fig17_all_branches.png"),
+            _fig18(model, panels, map_tensor, out / "fig18_tracked.png")]
 
-    # Fig. 16: the circle on the cross-section of the basic regions at its orientation
-    xs, ys, labels, det_j = cross_section(model, posture, PAPER_CIRCLE["phi"], 0.006, map_tensor.rule)
+
+def _fig16(model, X, rule, path):
+    """Fig. 16: the circle on the cross-section of the basic regions at its orientation."""
+    plt, cmap, norm = _mpl()
+    posture = PAPER_CIRCLE["posture"]
+    xs, ys, labels, det_j = cross_section(model, posture, PAPER_CIRCLE["phi"], 0.006, rule)
     fig, ax = plt.subplots(figsize=(6.0, 5.6), dpi=110)
     ax.pcolormesh(xs, ys, labels.T, cmap=cmap, norm=norm, shading="nearest", alpha=0.35)
     ax.contour(xs, ys, np.where(labels.T > 0, det_j.T, np.nan), levels=[0.0], colors="k", linewidths=0.8)
-    ax.plot(X[:, 0], X[:, 1], ".", ms=2.5, color="k", label=f"{n} points")
+    ax.plot(X[:, 0], X[:, 1], ".", ms=2.5, color="k", label=f"{len(X)} points")
     ax.plot(*model.motors.T, "k^", ms=8, label="motors")
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.legend(fontsize=8, loc="upper right")
     ax.set_title(f"Fig. 16: the discretised circle (posture {posture}, phi = "
-                 f"{np.rad2deg(PAPER_CIRCLE['phi']):g} deg)\nbackground: basic regions, rule "
-                 f"{map_tensor.rule!r}", fontsize=9)
-    paths.append(_save(plt, fig, out / "fig16_circle.png"))
+                 f"{np.rad2deg(PAPER_CIRCLE['phi']):g} deg)\nbackground: basic regions, rule {rule!r}", fontsize=9)
+    return _save(plt, fig, path)
 
-    # Fig. 17: every real DK solution of every joint vector, coloured by solution number
-    sol = dk_all(model, q, rule=map_tensor.rule)
+
+def _fig17(model, q, rule, path):
+    """Fig. 17: every real DK solution of every joint vector, coloured by solution number; the legend
+    lists the solutions that are real somewhere on the path (the ones drawn)."""
+    plt, _, _ = _mpl()
+    sol = dk_all(model, q, rule=rule)
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.8), dpi=110)
-    for k in range(6):
+    handles = []
+    for k in np.nonzero(np.any(sol.real, axis=0))[0]:
         m = sol.real[:, k]
         P = sol.poses[m, k].real
-        axes[0].plot(P[:, 0], P[:, 1], ".", ms=2, color=LABEL_COLOURS[k + 1], label=f"solution {k + 1}")
+        axes[0].plot(P[:, 0], P[:, 1], ".", ms=2, color=LABEL_COLOURS[k + 1])
         axes[1].plot(np.nonzero(m)[0], np.rad2deg(P[:, 2]), ".", ms=2, color=LABEL_COLOURS[k + 1])
-    axes[0].plot(*model.motors.T, "k^", ms=7)
+        handles.append(plt.Line2D([], [], ls="", marker="o", ms=5, color=LABEL_COLOURS[k + 1],
+                                  label=f"solution {k + 1}"))
+    handles.append(axes[0].plot(*model.motors.T, "k^", ms=7, label="motors")[0])
     axes[0].set_aspect("equal")
     axes[0].set_xlabel("x [m]")
     axes[0].set_ylabel("y [m]")
-    axes[0].legend(fontsize=7, markerscale=4, loc="best")
+    axes[0].legend(handles=handles, fontsize=7, loc="best")
     axes[1].set_xlabel("point index along the circle")
     axes[1].set_ylabel("phi [deg]")
     axes[1].axhline(np.rad2deg(PAPER_CIRCLE["phi"]), color="k", lw=0.6, ls="--")
     fig.suptitle(f"Fig. 17: all real DK solutions of the circle's joint path, coloured by solution number "
-                 f"(rule {map_tensor.rule!r}); the true path is phi = {np.rad2deg(PAPER_CIRCLE['phi']):g} deg",
-                 fontsize=9)
-    paths.append(_save(plt, fig, out / "fig17_all_branches.png"))
+                 f"(rule {rule!r}); the true path is phi = {np.rad2deg(PAPER_CIRCLE['phi']):g} deg", fontsize=9)
+    return _save(plt, fig, path)
 
-    # Fig. 18: the tracked result, near-border steps marked
-    panels = [("paper circle", X, q, map_tensor)]
-    if hard_path is not None:
-        panels.append((hard_path.name, hard_path.X, hard_path.q, hard_map))
+
+def _fig18(model, panels, map_tensor, path):
+    """Fig. 18: the tracked result of each panel's path (title, poses, joints, map), near-border steps marked."""
+    plt, _, _ = _mpl()
     fig, axes = plt.subplots(1, len(panels), figsize=(5.6 * len(panels), 5.2), dpi=110, squeeze=False)
     for ax, (title, Xt, qt, mt) in zip(axes[0], panels):
         for mode, colour, marker in (("default", "tab:blue", "o"), ("paper", "tab:red", "x")):
@@ -277,5 +288,4 @@ def plot_circle_experiment(model: Manipulator, map_tensor, out_dir="results/figu
     fig.suptitle("Fig. 18: procedures 2-3 at work (map rule "
                  f"{map_tensor.rule!r}, {map_tensor.step[0] * 1e3:g} mm / "
                  f"{np.rad2deg(map_tensor.step[2]):g} deg)", fontsize=10)
-    paths.append(_save(plt, fig, out / "fig18_tracked.png"))
-    return paths
+    return _save(plt, fig, path)

@@ -81,43 +81,56 @@ def cusp_points(model: RPRManipulator, rho1: float, n_grid: int = 600) -> CuspPo
     rho1, n_grid = _positive("rho1", rho1), _positive("n_grid", n_grid, int)
     g = -np.pi + 2 * np.pi * np.arange(n_grid) / n_grid
     g1, (ga, gb), _ = _cusp_eqs(model, rho1, *np.meshgrid(g, g, indexing="ij"))
-
-    def change(v):
-        c = np.stack([v, np.roll(v, -1, 0), np.roll(v, -1, 1), np.roll(v, (-1, -1), (0, 1))]) > 0
-        return c.any(0) & ~c.all(0)
-
     found = []
-    for i, j in np.argwhere(change(g1) & change(ga) & change(gb)):
-        z = np.array([g[i], g[j]]) + np.pi / n_grid
-        row = int(np.argmax(np.linalg.norm(_cusp_eqs(model, rho1, *z)[2], axis=-1)))
-
-        def fz(y):
-            a, (b,), _ = _cusp_eqs(model, rho1, y[0], y[1], (row,))
-            return np.array([a, b])
-        for _ in range(40):
-            Jz = np.column_stack([(fz(z + e) - fz(z - e)) / 2e-7 for e in 1e-7 * np.eye(2)])
-            dz = np.linalg.lstsq(Jz, -fz(z), rcond=None)[0]
-            z = z + dz
-            if np.max(np.abs(dz)) < 1e-13:
-                break
-        z = _wrap(z)
-        X, D = _slice(model, rho1, z[0], z[1])
-        if (np.max(np.abs(dz)) < 1e-9 and np.linalg.norm(D) > 1e-6
-                and all(np.max(np.abs(_wrap(z - y))) > 1e-6 for y, _ in found)):
+    for i, j in np.argwhere(_changes(g1) & _changes(ga) & _changes(gb)):
+        z, X, ok = _refine_cusp(model, rho1, np.array([g[i], g[j]]) + np.pi / n_grid)
+        if ok and all(np.max(np.abs(_wrap(z - y))) > 1e-6 for y, _ in found):
             found.append((z, X))
     poses = np.array([X for _, X in found]).reshape(-1, 3)
     joints = ik(model, poses)
-    tangent = np.zeros((len(found), 2))
-    for c, ((t, phi), _) in enumerate(found):                            # D has rank 1: its image is
+    tangent = _cusp_tangents(model, rho1, [z for z, _ in found], joints)
+    order = np.argsort(joints[:, 1])
+    return CuspPoints(joints[order], poses[order], tangent[order])
+
+
+def _changes(v):
+    """Grid cells (torus) whose four corners do not all have one sign of ``v``."""
+    c = np.stack([v, np.roll(v, -1, 0), np.roll(v, -1, 1), np.roll(v, (-1, -1), (0, 1))]) > 0
+    return c.any(0) & ~c.all(0)
+
+
+def _refine_cusp(model, rho1, z):
+    """Newton's method (finite differences) on the two cusp conditions from ``z = (t, phi)``:
+    the cusp (wrapped), its pose and whether it converged to a point where ``D`` is not zero."""
+    row = int(np.argmax(np.linalg.norm(_cusp_eqs(model, rho1, *z)[2], axis=-1)))
+
+    def fz(y):
+        a, (b,), _ = _cusp_eqs(model, rho1, y[0], y[1], (row,))
+        return np.array([a, b])
+    for _ in range(40):
+        Jz = np.column_stack([(fz(z + e) - fz(z - e)) / 2e-7 for e in 1e-7 * np.eye(2)])
+        dz = np.linalg.lstsq(Jz, -fz(z), rcond=None)[0]
+        z = z + dz
+        if np.max(np.abs(dz)) < 1e-13:
+            break
+    z = _wrap(z)
+    X, D = _slice(model, rho1, z[0], z[1])
+    return z, X, bool(np.max(np.abs(dz)) < 1e-9 and np.linalg.norm(D) > 1e-6)
+
+
+def _cusp_tangents(model, rho1, zs, joints):
+    """Unit tangents (k, 2) in (rho2, rho3) of the cusps at torus points ``zs``, pointing into each
+    wedge (the side with more real DK solutions 1e-4 m away, by the reference scan)."""
+    tangent = np.zeros((len(zs), 2))
+    for c, (t, phi) in enumerate(zs):                                   # D has rank 1: its image is
         D = _slice(model, rho1, t, phi)[1]                                  # the cusp's tangent line
         tangent[c] = D[:, np.argmax(np.linalg.norm(D, axis=0))] / (2.0 * joints[c, 1:])
     tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
-    ends = joints[:, None, :] + 1e-4 * np.concatenate([np.zeros((len(found), 2, 1)),
+    ends = joints[:, None, :] + 1e-4 * np.concatenate([np.zeros((len(zs), 2, 1)),
                                                        np.stack([tangent, -tangent], 1)], -1)
     k = dk_all_scan(model, np.maximum(ends, 1e-9))[1]
     tangent[k[:, 1] > k[:, 0]] *= -1.0
-    order = np.argsort(joints[:, 1])
-    return CuspPoints(joints[order], poses[order], tangent[order])
+    return tangent
 
 
 class ModeChange(NamedTuple):

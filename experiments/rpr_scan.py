@@ -83,17 +83,33 @@ def dk_all_scan(model: RPRManipulator, rho, n_phi: int = 3600, tol: float = 1e-9
     lead, r = rho.shape[:-1], rho.reshape(-1, 3)
     step = 2.0 * np.pi / n_phi
     phi = -np.pi + step * np.arange(-1, n_phi + 1)                       # one cell more at each end
-    cands = []                                                            # (item, branch, phi) arrays
+    found = _Candidates(model, r)
+    items = np.arange(len(r))
+    for s in (1.0, -1.0):
+        _, f, h2 = _branch(model, r[:, None, :], s, phi)                # (items, n_phi + 2), NaN off branch
+        found.scan(items, s, np.broadcast_to(phi, f.shape), f)
+    _scan_junctions(found, phi, h2 >= 0)
+    poses, count = _collect(model, r, found.cands, tol)
+    return poses.reshape(lead + (6, 3)), count.reshape(lead)
 
-    def add(i, s, ph):
-        cands.append((i, np.broadcast_to(s, i.shape), ph))
 
-    def g(i, s, x, rt=None):                                             # leg 3's residual, / (x - rt)
-        f = _branch(model, r[i], s, x)[1]
+class _Candidates:
+    """The roots found so far for items ``r`` (k, 3): (item indices, branches, phi) arrays, and the
+    searches that add to them."""
+
+    def __init__(self, model, r):
+        self.model, self.r, self.cands = model, r, []
+
+    def add(self, i, s, ph):
+        self.cands.append((i, np.broadcast_to(s, i.shape), ph))
+
+    def g(self, i, s, x, rt=None):                                        # leg 3's residual, / (x - rt)
+        f = _branch(self.model, self.r[i], s, x)[1]
         with np.errstate(divide="ignore", invalid="ignore"):
             return f if rt is None else f / (x - rt)
 
-    def pair(i, s, a, b, rt=None):                                        # a close pair hidden in [a, b]?
+    def pair(self, i, s, a, b, rt=None):                                  # a close pair hidden in [a, b]?
+        g = self.g
         sg, lo, hi = np.sign(g(i, s, a, rt)), a, b
         for _ in range(60):                                               # golden section: min of sg * g
             c, d = hi - 0.618034 * (hi - lo), lo + 0.618034 * (hi - lo)
@@ -105,37 +121,43 @@ def dk_all_scan(model: RPRManipulator, rho, n_phi: int = 3600, tol: float = 1e-9
         tiny = ~two & inner & (rt is None) & (np.abs(g(i, s, mid)) <= 1e-12)   # a tangency (1e-12 m^2)
         r2 = None if rt is None else rt[two]
         for u, v in ((a, mid), (mid, b)):
-            add(i[two], s, _bisect(lambda x: g(i[two], s, x, r2), u[two], v[two]))
-        add(i[tiny], s, mid[tiny])
+            self.add(i[two], s, _bisect(lambda x: g(i[two], s, x, r2), u[two], v[two]))
+        self.add(i[tiny], s, mid[tiny])
 
-    def scan(i, s, x, f):                                                 # samples f at x (rows: items i)
+    def scan(self, i, s, x, f):                                           # samples f at x (rows: items i)
         ok, a, b = np.isfinite(f), x[:, :-1], x[:, 1:]
         both, change = ok[:, :-1] & ok[:, 1:], (f[:, :-1] > 0) != (f[:, 1:] > 0)
         e, j = np.nonzero(both & change)                                  # a sign change: a root, and
-        ph = _bisect(lambda y: g(i[e], s, y), a[e, j], b[e, j])           # maybe two more in the cell
-        add(i[e], s, ph)
-        pair(i[e], s, a[e, j], b[e, j], ph)
+        ph = _bisect(lambda y: self.g(i[e], s, y), a[e, j], b[e, j])      # maybe two more in the cell
+        self.add(i[e], s, ph)
+        self.pair(i[e], s, a[e, j], b[e, j], ph)
         af = np.pad(np.where(ok, np.abs(f), np.inf), ((0, 0), (1, 1)), constant_values=np.inf)
         low = ok & (af[:, 1:-1] < af[:, :-2]) & (af[:, 1:-1] <= af[:, 2:])  # |f| at a local minimum:
         e, j = np.nonzero(both & ~change & (low[:, :-1] | low[:, 1:]))   # a pair in either cell?
-        pair(i[e], s, a[e, j], b[e, j])
+        self.pair(i[e], s, a[e, j], b[e, j])
 
-    items = np.arange(len(r))
-    for s in (1.0, -1.0):
-        _, f, h2 = _branch(model, r[:, None, :], s, phi)                # (items, n_phi + 2), NaN off branch
-        scan(items, s, np.broadcast_to(phi, f.shape), f)
-    ok = h2 >= 0                                                          # the branches join in a cell:
-    i, k = np.nonzero(ok[:, :-1] != ok[:, 1:])                            # find where, then scan both
-    start = np.where(ok[i, k], phi[k], phi[k + 1])                        # branches on a sub-grid
+
+def _scan_junctions(found, phi, ok):
+    """Cells of ``phi`` where the branches join (``ok``: h2 >= 0 per item and sample): find where by
+    bisection, then scan both branches on a sub-grid uniform in the circles' half-chord and halving
+    towards the junction; a root at the junction itself is added too."""
+    model, r = found.model, found.r
+    i, k = np.nonzero(ok[:, :-1] != ok[:, 1:])
+    start = np.where(ok[i, k], phi[k], phi[k + 1])
     edge = _bisect(lambda x: _leg12(model, r[i, 0], r[i, 1], x)[2] >= 0, start,
                    np.where(ok[i, k], phi[k + 1], phi[k]), keep_a=True)
     tau = np.r_[np.linspace(1.0, 0.0, 33)[:-1] ** 2, 2.0 ** -np.arange(11, 53), 0.0]   # uniform in sqrt(h2),
     sub = edge[:, None] + (start - edge)[:, None] * tau                   # then halving towards the junction
     fe = [_branch(model, r[i][:, None, :], t, sub)[1] for t in (1.0, -1.0)]
     for t, fs in zip((1.0, -1.0), fe):
-        scan(i, t, sub, fs)
+        found.scan(i, t, sub, fs)
     jn = (fe[0][:, -1] > 0) != (fe[1][:, -1] > 0)
-    add(i[jn], 1.0, edge[jn])                                             # a root at the junction itself
+    found.add(i[jn], 1.0, edge[jn])
+
+
+def _collect(model, r, cands, tol):
+    """Candidates polished, kept where the residual is at most ``tol``, deduplicated per item and
+    sorted by phi: poses (k, 6, 3) NaN-padded and counts (k,)."""
     ci, cs, cp = (np.concatenate(c) for c in zip(*cands))
     X = _polish(model, np.column_stack([_branch(model, r[ci], cs, cp)[0], cp]), r[ci])
     res = np.max(np.abs(_residual(model, X, r[ci])), axis=-1)
@@ -150,7 +172,7 @@ def dk_all_scan(model: RPRManipulator, rho, n_phi: int = 3600, tol: float = 1e-9
                 out.append(x)
         count[item] = min(len(out), 6)
         poses[item, :count[item]] = np.array(out[:6])
-    return poses.reshape(lead + (6, 3)), count.reshape(lead)
+    return poses, count
 
 
 def _polish(model, X, rho, steps=2):
