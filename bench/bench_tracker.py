@@ -18,7 +18,8 @@ and paper mode, the baselines) it counts, against the true poses of the path:
 It prints the paths with any error or alarm, the totals per method and suite,
 and the median step time of every method on the paper circle at 1000 points (all
 timed in the same run, interleaved).  It writes ``<out>/tracker_suite.csv`` and
-``<out>/figures/tracker_errors.png``.  Maps are cached in ``build/maps/``.
+``<out>/figures/tracker_errors.png``.  Maps come from the map cache (:func:`solver.cached_map`,
+in ``solver.cache_dir("maps")``).
 """
 from __future__ import annotations
 
