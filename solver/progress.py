@@ -20,7 +20,9 @@ loop, the batch runs)::
   most every :data:`LOG_INTERVAL` seconds, so a log shows progress without control characters.
 * :func:`note` writes one line (e.g. where a cache writes).
 
-Everything goes to ``sys.stderr`` as it is at the call (pytest's capture sees it).
+Everything goes to ``sys.stderr`` as it is at the call (pytest's capture sees it).  tqdm is
+imported when the first bar is made, not with :mod:`solver`: an FMU, which bundles ``solver``
+and never builds a map, does not need it on its host (without tqdm a bar counts silently).
 Silence it with ``RRR_DK_PROGRESS=0`` in the environment, :func:`set_enabled` or the
 :func:`silenced` context manager; an ``enabled=`` argument of True or False overrides them
 for one call, None follows them.
@@ -28,12 +30,11 @@ for one call, None follows them.
 from __future__ import annotations
 
 import contextlib
+import importlib
 import os
 import sys
 import time
 from collections.abc import Iterable, Iterator
-
-from tqdm import tqdm
 
 __all__ = ["PROGRESS_ENV", "BAR_DELAY", "LOG_INTERVAL", "Phase", "phase", "bar", "note", "is_on", "set_enabled",
            "silenced"]
@@ -151,8 +152,32 @@ class _Lines:
         self.stream.flush()
 
 
+class _Silent:
+    """What :func:`bar` gives without tqdm: it passes the items through and counts, silently."""
+
+    def __init__(self, iterable=None, total=None, **_):
+        self.iterable, self.total, self.n = iterable, total, 0
+
+    def __iter__(self):
+        for item in self.iterable:
+            self.n += 1
+            yield item
+
+    def update(self, n: int = 1) -> None:
+        self.n += n
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
 def bar(iterable: Iterable | None = None, total: int | None = None, desc: str = "", unit: str = "it",
-        enabled: bool | None = None, **kwargs) -> tqdm:
+        enabled: bool | None = None, **kwargs):
     """A tqdm progress bar on stderr, quiet for short loops and readable in logs.
 
     Parameters
@@ -167,13 +192,18 @@ def bar(iterable: Iterable | None = None, total: int | None = None, desc: str = 
     enabled : bool, optional
         True/False: show or not, whatever the default; None: the default (:func:`is_on`).
     **kwargs
-        More tqdm options (``unit_scale``, ``postfix``, ...).
+        More tqdm options (``unit_scale``, ``delay``, ``mininterval``, ...).
 
     Returns
     -------
-    tqdm
-        Disabled (prints nothing, still counts) when progress output is off.
+    tqdm.tqdm
+        Disabled (prints nothing, still counts) when progress output is off; a silent counter
+        with the same ``update``/``close``/iteration if tqdm is not installed.
     """
+    try:
+        tqdm = importlib.import_module("tqdm").tqdm          # at the call: see the module docstring
+    except ModuleNotFoundError:
+        return _Silent(iterable, total)
     stream = sys.stderr
     tty = bool(getattr(stream, "isatty", lambda: False)())
     # in a log: a line at most every LOG_INTERVAL s, checked at every update (miniters=1), so tqdm's

@@ -1,5 +1,7 @@
 """Progress of long work (solver.progress): phase lines with their times, bars readable in logs, silence."""
 import io
+import subprocess
+import sys
 import time
 
 import pytest
@@ -70,3 +72,19 @@ def test_progress_can_be_silenced(capsys, monkeypatch):
     assert capsys.readouterr().err == "" and not progress.is_on() and progress.is_on(True)
     progress.set_enabled(True)
     assert progress.is_on()
+
+
+def test_without_tqdm_a_bar_counts_silently(monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "tqdm", None)                      # "import tqdm" now fails
+    b = progress.bar(range(4), desc="x", delay=0, mininterval=0)
+    assert list(b) == [0, 1, 2, 3] and b.n == 4
+    with progress.bar(total=10) as counter:
+        counter.update(3)
+    assert counter.n == 3 and capsys.readouterr().err == ""
+
+
+def test_importing_solver_does_not_import_tqdm():
+    """An FMU bundles solver and runs on hosts without tqdm: only a bar imports it."""
+    code = "import sys, solver, solver.mapcache; assert 'tqdm' not in sys.modules, 'tqdm imported'"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
