@@ -3,22 +3,23 @@
 The package holds the paper's kinematics (inverse kinematics in 8 postures, all six
 direct-kinematics solutions, the Jacobians J and K, singularity measures), procedure 1
 (the map tensor, its file and its cache), procedures 2-3 (the tracker) and the baselines
-it must beat.  It may import numpy, scipy, numba and tqdm only: never fmpy, pythonfmu,
-dask, :mod:`dynamics` or :mod:`fmu_src`.  The experiments (suites, sensor streams,
-figures, reference oracles) live apart in the top-level package ``experiments``, which
-imports this one; only the command line (``python -m solver``) reaches into it, for its
-``figures`` and ``plot`` subcommands.  Compiled kernels live in the private
-:mod:`solver._kernels`; other packages use the names below.
+it must beat.  It may import numpy, scipy and numba (and tqdm, only when a progress bar
+is drawn): never fmpy, pythonfmu, dask, :mod:`dynamics` or :mod:`fmu_src`.  The
+experiments (suites, sensor streams, figures, reference oracles) live apart in the
+top-level package ``experiments``, which imports this one; only the command line
+(``python -m solver``) reaches into it, for its ``figures`` and ``plot`` subcommands.
+Compiled kernels live in the private :mod:`solver._kernels`; other packages use the
+names below.
 
 Modules, one concept each: ``checks`` (argument checking), ``manipulator`` (geometry),
 ``kinematics`` (IK, J and K, singularity measures), ``direct_kinematics`` (all six DK
 solutions), ``ordering`` (their numbering rules), ``grid`` (the map grid over the tool
 space), ``maptensor`` (procedures 1 and 2), ``mapfile`` (the map file format),
-``mapcache`` (the one map cache and :func:`cache_dir`, the root of every disk cache),
-``progress`` (phase lines and progress bars of long work), ``tracker`` (procedure 3),
-``baselines``, ``sensors`` (the encoder model: the tracker's joint tolerance and stuck
-threshold), ``trajectories`` (shared tool-space paths); ``manipulators``, ``rpr`` (the
-3-RPR) and ``stuck``, ``tracking``, ``tracker_state`` (the tracker's parts).
+``mapcache`` (the one map cache), ``cache`` (:func:`cache_dir`, the root of every disk
+cache), ``progress`` (phase lines and progress bars of long work), ``tracker``
+(procedure 3) with ``tracking``, ``tracker_state`` and ``stuck``, ``baselines``,
+``sensors`` (the encoder model: the tracker's joint tolerance and stuck threshold),
+``trajectories`` (shared tool-space paths), ``manipulators`` and ``rpr`` (the 3-RPR).
 """
 from .cache import CACHE_ENV, cache_dir
 from .checks import GeometryError, SolverInputError, as_array, check_posture

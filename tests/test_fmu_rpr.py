@@ -9,8 +9,8 @@ import pytest
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
-from fmu_src.rpr_build import LOOP_H, LOOP_N, RPR_OUTPUTS, RPR_REFERENCE_RESOLUTION, build_rpr_dk, read_rpr_reference
 from experiments.rpr_suite import cusp_loop_path
+from fmu_src.rpr_build import LOOP_H, LOOP_N, RPR_OUTPUTS, RPR_REFERENCE_RESOLUTION, build_rpr_dk, read_rpr_reference
 from solver import MapTensor, Tracker
 from solver.rpr import RPR_HOME_POSE, RPRManipulator
 
