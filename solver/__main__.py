@@ -25,7 +25,7 @@ import numpy as np
 
 from . import (DEFAULT_RULE, DEFAULT_STEP, ORDERING_RULES, Manipulator, MapTensor, MapTensorFileError, cached_map,
                circle_path, dk_all, ik, posture_of, singularity_measures)
-from .mapcache import default_cache_dir
+from .mapcache import default_cache_dir, warm_up
 
 DESCRIPTION = """\
 Direct kinematics of the planar 3-RRR with basic regions: the kinematics of one pose or
@@ -175,8 +175,11 @@ COMMANDS = {"dk": lambda model, args: print_solutions(model, np.array(args.q), a
 def main(argv=None) -> int:
     """Run the command line; returns the exit status (0 ok, 1 pose outside the tool space, 2 an error)."""
     args = _parser().parse_args(argv)
+    model = Manipulator.paper()
     try:
-        return COMMANDS.get(args.cmd, _example)(Manipulator.paper(), args) or 0
+        if args.cmd not in ("build", "inspect"):            # build: cached_map does it when it builds
+            warm_up(model, getattr(args, "posture", 1) if args.cmd in ("example", "figures") else 1, args.rule)
+        return COMMANDS.get(args.cmd, _example)(model, args) or 0
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -27,22 +27,44 @@ import numpy as np
 
 from . import progress as _progress
 from .cache import cache_dir as _cache_root
+from .direct_kinematics import dk_all
 from .grid import DEFAULT_STEP, default_grid
+from .kinematics import ik
 from .manipulator import Manipulator
 from .mapfile import MapTensorFileError
 from .maptensor import MapTensor
 from .ordering import DEFAULT_RULE
 
 __all__ = ["LABELLING_SOURCES", "NODES_PER_SECOND", "COMPILE_SECONDS", "default_cache_dir", "labelling_digest",
-           "map_name", "map_path", "cached_map"]
+           "map_name", "map_path", "cached_map", "warm_up"]
 
 #: Labelling rate of procedure 1 once its kernels are compiled, nodes/s: the build time a build announces.
 #: Measured with ``python -m solver build`` (posture 1 at 10 mm, 2 deg: 5.6 million nodes) on 2 cores shared
 #: with other jobs: 100,000 nodes/s at the start, 64,000 nodes/s over the whole build (88 s).
 NODES_PER_SECOND = 100_000
 #: Seconds to compile procedure 1's kernels the first time (numba caches them on disk after that);
-#: measured: 26 s for a 23,064-node build with an empty numba cache, on 2 shared cores.
-COMPILE_SECONDS = 30
+#: measured with an empty numba cache on 2 cores shared with other jobs: 26 s and 38 s.
+COMPILE_SECONDS = 40
+
+
+def warm_up(model: Manipulator, posture: int = 1, rule: str = DEFAULT_RULE, progress: bool | None = None) -> float:
+    """Load procedure 1's compiled kernels (IK and all DK solutions), compiling them on the first run.
+
+    numba compiles a kernel at its first call and keeps it in its disk cache; loading from there
+    takes a fraction of a second, compiling about :data:`COMPILE_SECONDS`.  A line on stderr says
+    so only when it takes longer than 2 s (:func:`solver.progress.phase` with ``after``).
+
+    Returns
+    -------
+    float
+        The wall time, s.
+    """
+    with _progress.phase("loading the compiled kernels", f"the first run compiles them: about {COMPILE_SECONDS} s, "
+                         f"once; numba keeps them in its disk cache", enabled=progress, after=2.0) as ph:
+        X = np.zeros((1, 3))
+        ik(model, X, posture)
+        dk_all(model, X, rule=rule)
+    return ph.seconds
 
 
 def default_cache_dir() -> Path:
@@ -116,8 +138,8 @@ def cached_map(model: Manipulator, posture: int, rule: str = DEFAULT_RULE, step=
         what = (f"building map tensor posture {int(posture)} at {step[0] * 1e3:g} mm, "
                 f"{float(np.rad2deg(step[2])):g} deg")
         eta = max(1, round(nodes / NODES_PER_SECOND))
-        detail = (f"{nodes:,} nodes into {path.parent}; about {eta} s, plus up to {COMPILE_SECONDS} s "
-                  f"the first time: the kernels compile once")
+        detail = f"{nodes:,} nodes into {path.parent}; about {eta} s"
+        warm_up(model, posture, rule, progress)
         with _progress.phase(what, detail, enabled=progress) as ph:
             mt = MapTensor.build(model, posture, bounds=bounds, shape=shape, rule=rule, progress=progress)
             mt.save(path)

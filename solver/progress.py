@@ -33,6 +33,7 @@ import contextlib
 import importlib
 import os
 import sys
+import threading
 import time
 from collections.abc import Iterable, Iterator
 
@@ -103,7 +104,7 @@ class Phase:
 
 
 @contextlib.contextmanager
-def phase(name: str, detail: str = "", enabled: bool | None = None) -> Iterator[Phase]:
+def phase(name: str, detail: str = "", enabled: bool | None = None, after: float = 0.0) -> Iterator[Phase]:
     """Time a phase of long work and say so on stderr.
 
     Parameters
@@ -114,27 +115,48 @@ def phase(name: str, detail: str = "", enabled: bool | None = None) -> Iterator[
         Appended to the start line in parentheses (an expected duration, a path).
     enabled : bool, optional
         True/False: write or not, whatever the default; None: the default (:func:`is_on`).
+    after : float
+        Say nothing unless the phase is still running after this many seconds (then the start
+        line, and the end line when it ends): for work that is slow only sometimes, such as
+        kernels that compile on the first run and load from numba's cache after.
 
     Yields
     ------
     Phase
         Its ``seconds`` is set when the block ends, also when it raises.
     """
-    on = is_on(enabled)
     ph = Phase(name)
-    if on:
-        note(f"{name} ..." + (f" ({detail})" if detail else ""), True)
+    lock, said, done = threading.Lock(), [False], [False]
+
+    def start():
+        with lock:
+            if not done[0]:
+                note(f"{name} ..." + (f" ({detail})" if detail else ""), True)
+                said[0] = True
+    timer = None
+    if is_on(enabled):
+        if after > 0:
+            timer = threading.Timer(after, start)
+            timer.daemon = True
+            timer.start()
+        else:
+            start()
     t0 = time.perf_counter()
+    outcome = "done in {:.1f} s"
     try:
         yield ph
     except BaseException as exc:
-        ph.seconds = time.perf_counter() - t0
-        if on:
-            note(f"{name}: failed after {ph.seconds:.1f} s ({type(exc).__name__})", True)
+        outcome = f"failed after {{:.1f}} s ({type(exc).__name__})"
         raise
-    ph.seconds = time.perf_counter() - t0
-    if on:
-        note(f"{name}: done in {ph.seconds:.1f} s" + (f" ({ph.summary})" if ph.summary else ""), True)
+    finally:
+        ph.seconds = time.perf_counter() - t0
+        if timer is not None:
+            timer.cancel()
+        with lock:
+            done[0] = True
+        if said[0]:
+            summary = f" ({ph.summary})" if ph.summary and outcome.startswith("done") else ""
+            note(f"{name}: {outcome.format(ph.seconds)}{summary}", True)
 
 
 class _Lines:

@@ -96,3 +96,10 @@ def test_cli_build_reports_where_and_how_fast(model, tmp_path, capsys):
     text = capsys.readouterr().out
     f = map_path(model, 2, step=STEP, cache_dir=out)
     assert f"built {f}" in text and "nodes/s" in text and Path(f).is_file()
+
+
+def test_loading_compiled_kernels_is_silent_once_they_are_compiled(model, capsys):
+    from solver.mapcache import warm_up
+    warm_up(model, 2, progress=False)                                     # compiled (or loaded) here
+    seconds = warm_up(model, 2, progress=True)
+    assert seconds < 2.0 and capsys.readouterr().err == ""

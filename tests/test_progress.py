@@ -88,3 +88,14 @@ def test_importing_solver_does_not_import_tqdm():
     code = "import sys, solver, solver.mapcache; assert 'tqdm' not in sys.modules, 'tqdm imported'"
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
+
+
+def test_a_phase_that_is_slow_only_sometimes_speaks_only_when_slow(capsys):
+    with progress.phase("loading kernels", after=0.5):
+        pass
+    assert capsys.readouterr().err == ""
+    with progress.phase("loading kernels", "compiling the first time", after=0.1) as ph:
+        time.sleep(0.4)
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "loading kernels ... (compiling the first time)"
+    assert err[1].startswith("loading kernels: done in ") and ph.seconds >= 0.4
