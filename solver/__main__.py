@@ -102,11 +102,8 @@ def _parser() -> argparse.ArgumentParser:
 
 def _build(model, args) -> None:
     step = (args.step_mm / 1e3, args.step_mm / 1e3, float(np.deg2rad(args.step_deg)))
-    for j in args.posture:
-        mt = cached_map(model, j, args.rule, step, args.out, log=print)
-        if mt.build_seconds is not None:
-            print(f"  {mt.stats['nodes']:,} nodes built in {mt.build_seconds:.1f} s "
-                  f"({mt.stats['nodes'] / mt.build_seconds:,.0f} nodes/s)")
+    for j in args.posture:            # the file on stdout; what is built, how fast, on stderr (solver.progress)
+        cached_map(model, j, args.rule, step, args.out, log=print)
 
 
 def _inspect(model, args) -> int:

@@ -45,7 +45,7 @@ PROGRESS_ENV = "RRR_DK_PROGRESS"
 #: A bar appears once its loop has run this long, s.
 BAR_DELAY = 2.0
 #: Seconds between two progress lines when stderr is not a terminal.
-LOG_INTERVAL = 10.0
+LOG_INTERVAL = 5.0
 
 _default: bool | None = None          # None: from the environment
 
