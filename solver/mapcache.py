@@ -45,6 +45,15 @@ NODES_PER_SECOND = 100_000
 #: Seconds to compile procedure 1's kernels the first time (numba caches them on disk after that);
 #: measured with an empty numba cache on 2 cores shared with other jobs: 26 s and 38 s.
 COMPILE_SECONDS = 40
+#: The solver sources that decide a map's labels (geometry, IK, DK and its numbering, procedure 1).
+LABELLING_SOURCES = ("checks.py", "manipulator.py", "kinematics.py", "direct_kinematics.py", "ordering.py",
+                     "grid.py", "maptensor.py", "_kernels/layout.py", "_kernels/linalg.py",
+                     "_kernels/kinematics.py", "_kernels/direct_kinematics.py", "_kernels/ordering.py")
+
+
+def default_cache_dir() -> Path:
+    """The map cache folder when none is given: ``solver.cache_dir("maps")`` (see the module docstring)."""
+    return _cache_root("maps")
 
 
 def warm_up(model: Manipulator, posture: int = 1, rule: str = DEFAULT_RULE, progress: bool | None = None) -> float:
@@ -53,6 +62,16 @@ def warm_up(model: Manipulator, posture: int = 1, rule: str = DEFAULT_RULE, prog
     numba compiles a kernel at its first call and keeps it in its disk cache; loading from there
     takes a fraction of a second, compiling about :data:`COMPILE_SECONDS`.  A line on stderr says
     so only when it takes longer than 2 s (:func:`solver.progress.phase` with ``after``).
+
+    Parameters
+    ----------
+    model : Manipulator
+    posture : int
+        A posture of ``model`` (the kernels are the same for all).
+    rule : str
+        An ordering rule.
+    progress : bool, optional
+        As in :func:`cached_map`.
 
     Returns
     -------
@@ -65,15 +84,6 @@ def warm_up(model: Manipulator, posture: int = 1, rule: str = DEFAULT_RULE, prog
         ik(model, X, posture)
         dk_all(model, X, rule=rule)
     return ph.seconds
-
-
-def default_cache_dir() -> Path:
-    """The map cache folder when none is given: ``solver.cache_dir("maps")`` (see the module docstring)."""
-    return _cache_root("maps")
-#: The solver sources that decide a map's labels (geometry, IK, DK and its numbering, procedure 1).
-LABELLING_SOURCES = ("checks.py", "manipulator.py", "kinematics.py", "direct_kinematics.py", "ordering.py",
-                     "grid.py", "maptensor.py", "_kernels/layout.py", "_kernels/linalg.py",
-                     "_kernels/kinematics.py", "_kernels/direct_kinematics.py", "_kernels/ordering.py")
 
 
 @functools.cache

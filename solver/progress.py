@@ -13,7 +13,9 @@ loop, the batch runs)::
     #         "building RRRDirectKinematics.fmu: done in 17.3 s (3 maps, 12.1 MB)"
 
 * :func:`phase` writes a line when a phase starts and one with its wall time when it ends
-  (or fails); the time is also on the object it yields (``ph.seconds``).
+  (or fails); the time is also on the object it yields (``ph.seconds``).  With ``after=2``
+  it speaks only if the phase is still running after 2 s (work that is slow only sometimes:
+  kernels compile on the first run, then load from numba's disk cache).
 * :func:`bar` is a tqdm progress bar.  It appears only once its loop has run for
   :data:`BAR_DELAY` seconds (short loops print nothing).  On a terminal it redraws in place;
   when stderr is not a terminal (a log file, CI, ``pytest -s``) it writes a plain line at
