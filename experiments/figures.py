@@ -1,6 +1,6 @@
 """The paper's figures: cross-sections of the basic regions (Figs 13-15) and the
 circle experiment (Figs 16-18).  matplotlib is imported inside the functions so
-that importing :mod:`solver` stays light.
+that importing this module (``python -m solver`` does) stays light.
 """
 from __future__ import annotations
 
