@@ -18,6 +18,7 @@ the package ``experiments`` (in the source tree, beside ``solver``) and matplotl
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -45,7 +46,9 @@ def _fmt(z: complex) -> str:
     return f"{z.real:+.6f}{z.imag:+.6f}j"
 
 
-def print_solutions(model: Manipulator, q, rule: str, out=sys.stdout) -> None:
+def print_solutions(model: Manipulator, q, rule: str, out=None) -> None:
+    """A table of the six DK solutions of joints ``q`` (3,), rad, numbered by ``rule``, to ``out`` (stdout)."""
+    out = sys.stdout if out is None else out
     sol = dk_all(model, q, rule=rule)
     print(f"q = ({q[0]:+.9f}, {q[1]:+.9f}, {q[2]:+.9f}) rad; rule {rule!r}: "
           f"{int(sol.n_real)} real, {6 - int(sol.n_real)} complex", file=out)
@@ -170,7 +173,8 @@ COMMANDS = {"dk": lambda model, args: print_solutions(model, np.array(args.q), a
 
 
 def main(argv=None) -> int:
-    """Run the command line; returns the exit status (0 ok, 1 pose outside the tool space, 2 an error)."""
+    """Run the command line; returns the exit status (0 ok, 1 pose outside the tool space or output cut
+    short, 2 an error)."""
     args = _parser().parse_args(argv)
     model = Manipulator.paper()
     try:
@@ -180,6 +184,9 @@ def main(argv=None) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:                      # stdout piped into a reader that stopped (``| head``)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())     # no second error at exit
+        return 1
 
 
 if __name__ == "__main__":
