@@ -16,8 +16,10 @@ The cache.  :func:`install` puts one more cache locator in front of numba's
 ``<root>/<key>/<folder inside resources>``, where ``key`` is the SHA-256 of every ``.py`` file of
 that ``resources/`` folder (names and bytes): the same FMU content finds its kernels wherever it
 is extracted, and any change to any bundled module (a kernel inlines its callees from other
-files) gets a new folder.  ``root`` is ``$NUMBA_CACHE_DIR`` if set, else
-``$XDG_CACHE_HOME/rrr-dk/fmu-kernels`` (default ``~/.cache/rrr-dk/fmu-kernels``); if it cannot be
+files) gets a new folder.  ``root`` is ``$NUMBA_CACHE_DIR`` if set, else ``fmu-kernels`` under the
+project's one cache root (the rule of :func:`solver.cache_dir`: ``$RRR_DK_CACHE``, else
+``$XDG_CACHE_HOME/rrr-dk``, else ``~/.cache/rrr-dk``; written out here because the runtime must not
+import :mod:`solver`, which imports numba, before numba is patched); if it cannot be
 written numba's own locators take over (compile per extraction, as before).  Source files outside
 FMUs are left to numba's locators.  Old keys are never deleted (a few MB each).
 
@@ -43,12 +45,16 @@ _BUNDLES: dict[str, str | None] = {}      # source folder -> its resources folde
 
 
 def cache_root() -> Path:
-    """Where the kernels of FMU bundles go: ``$NUMBA_CACHE_DIR``, else the user's cache folder."""
-    explicit = os.environ.get("NUMBA_CACHE_DIR")
+    """Where the kernels of FMU bundles go: ``$NUMBA_CACHE_DIR``, else ``<cache root>/fmu-kernels`` (the
+    module docstring; a test holds the root to :func:`solver.cache_dir`)."""
+    explicit = os.environ.get("NUMBA_CACHE_DIR", "").strip()
     if explicit:
         return Path(explicit)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "rrr-dk" / "fmu-kernels"
+    root = os.environ.get("RRR_DK_CACHE", "").strip()
+    if root:
+        return Path(root).expanduser().resolve() / "fmu-kernels"
+    base = os.environ.get("XDG_CACHE_HOME", "").strip() or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base).resolve() / "rrr-dk" / "fmu-kernels"
 
 
 def bundle_of(py_file: str) -> str | None:

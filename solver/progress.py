@@ -190,6 +190,9 @@ class _Silent:
     def update(self, n: int = 1) -> None:
         self.n += n
 
+    def set_postfix(self, *args, **kwargs) -> None:
+        pass
+
     def close(self) -> None:
         pass
 

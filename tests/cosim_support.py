@@ -13,7 +13,7 @@ from cosim.unit import import_hygiene
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory):
     out = tmp_path_factory.mktemp("fmus")
-    return build_fmus(out, resolution=(0.04, float(np.deg2rad(6.0))), log=lambda *a: None)
+    return build_fmus(out, resolution=(0.04, float(np.deg2rad(6.0))), progress=False)
 
 
 @pytest.fixture(scope="module")

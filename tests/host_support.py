@@ -23,7 +23,7 @@ REPO = Path(__file__).resolve().parent.parent
 
 def session_fmus(tmp_path_factory) -> dict:
     """{FMU name: path} of the three FMUs, built once per session (``<basetemp>/host-fmus``)."""
-    return build_fmus(tmp_path_factory.getbasetemp() / "host-fmus", resolution=RESOLUTION, log=lambda *a: None)
+    return build_fmus(tmp_path_factory.getbasetemp() / "host-fmus", resolution=RESOLUTION, progress=False)
 
 
 def run_python(code: str, *args, python: str | Path = sys.executable, cwd: Path | None = None,

@@ -42,7 +42,7 @@ def fmu_dir(tmp_path_factory):
     from cosim import build_fmus
 
     out = tmp_path_factory.mktemp("batch_fmus")
-    build_fmus(out, resolution=COARSE, log=lambda *a: None)
+    build_fmus(out, resolution=COARSE, progress=False)
     return out
 
 
@@ -135,8 +135,12 @@ def cluster(tmp_path_factory):
     from distributed import Client
 
     tmp = tmp_path_factory.mktemp("dask_cluster")
-    cache = tmp / "fmu-cache"
-    env = dict(os.environ, RRR_DK_FMU_CACHE=str(cache), PYTHONUNBUFFERED="1")
+    # the workers' own cache root (their FMU copies under fmus/); their kernels stay in this process's cache
+    from fmu_src import kernel_cache
+
+    env = dict(os.environ, RRR_DK_CACHE=str(tmp / "cache"), NUMBA_CACHE_DIR=str(kernel_cache.cache_root()),
+               PYTHONUNBUFFERED="1")
+    cache = tmp / "cache" / "fmus"
     procs = _Procs()
     client = None
     try:
@@ -319,15 +323,15 @@ def test_determinism_across_workers_and_failures(cluster, fmu_dir):
 def test_materialize_checks_hash_and_reuses(tmp_path, monkeypatch):
     import hashlib
 
-    monkeypatch.setenv("RRR_DK_FMU_CACHE", str(tmp_path))
+    monkeypatch.setenv("RRR_DK_CACHE", str(tmp_path))
     data = b"not really an FMU"
     sha = hashlib.sha256(data).hexdigest()
     path = batch.materialize("RRRPlant", sha, data)
-    assert path == tmp_path / sha / "RRRPlant.fmu" and path.read_bytes() == data
+    assert path == tmp_path / "fmus" / sha / "RRRPlant.fmu" and path.read_bytes() == data
     assert batch.materialize("RRRPlant", sha, data) == path               # already there
     with pytest.raises(RuntimeError, match="SHA-256"):
         batch.materialize("RRRPlant", "0" * 64, data)
-    assert sorted(p.name for p in tmp_path.rglob("*")) == sorted([sha, "RRRPlant.fmu"])   # no temp left
+    assert sorted(p.name for p in tmp_path.rglob("*")) == sorted(["fmus", sha, "RRRPlant.fmu"])   # no temp left
 
 
 def test_another_build_in_the_same_process_is_refused(monkeypatch, fmu_dir):

@@ -28,7 +28,7 @@ from cosim.fmus.cli import main as build_main
 from cosim.hosts.libcosim import LibcosimError, run_libcosim
 from cosim.simulation import input_table, simulate
 from cosim.unit import FMUUnit
-from solver import DEFAULT_RULE, HOME_POSE, MapTensor, dk_all, ik, singularity_measures
+from solver import CACHE_ENV, DEFAULT_RULE, HOME_POSE, MapTensor, cache_dir, dk_all, ik, singularity_measures
 
 from dk_fmu_support import (CERTAINTY, H, MODEL, N, OUTPUTS, PATH, RES, X0, Q, circle_start, result_rows,
                             tracker_rows)
@@ -101,11 +101,25 @@ def test_build_is_deterministic_and_reuses_the_map(built, tmp):
     assert again.fmu.read_bytes() == built.fmu.read_bytes()
 
 
-def test_command_line(built, tmp, capsys):
+def test_two_fresh_builds_are_byte_identical(built, tmp):
+    """A build from scratch (a map built anew, in another folder) gives the same bytes: no wall times,
+    paths or dates in the artifacts, so the GUID is a function of the inputs alone."""
+    logs = []
+    fresh = builds.build_dk(tmp / "fresh", postures=(1,), resolution=RES, cache_dir=tmp / "fresh_maps",
+                            log=logs.append)
+    assert any("built" in m for m in logs) and not any("reused" in m for m in logs)
+    assert fresh.maps[1].read_bytes() == built.maps[1].read_bytes()
+    assert fresh.fmu.read_bytes() == built.fmu.read_bytes()
+
+
+def test_command_line(built, tmp, capsys, monkeypatch):
     out = tmp / "cli"
-    (out / "maps").mkdir(parents=True)
+    monkeypatch.setenv(CACHE_ENV, str(tmp / "cli_cache"))              # the CLI uses the one map cache
     cached = builds.map_cache_path(tmp / "maps", 1, RES, DEFAULT_RULE, MODEL)
-    (out / "maps" / cached.name).write_bytes(cached.read_bytes())       # the CLI's cache: reused, not rebuilt
+    in_cache = builds.map_cache_path(None, 1, RES, DEFAULT_RULE, MODEL)
+    assert in_cache.parent == cache_dir("maps")
+    in_cache.parent.mkdir(parents=True)
+    in_cache.write_bytes(cached.read_bytes())                           # reused, not rebuilt
     assert build_main(["--out", str(out), "--resolution", "40mm,6deg"]) == 0
     text = capsys.readouterr().out
     assert "reused" in text and "validation: OK" in text and "MB" in text

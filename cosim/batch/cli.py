@@ -130,12 +130,12 @@ def main(argv=None) -> int:
             cols = scenario_columns(p)
             print(f"  {i:4d}  " + "  ".join(f"{k}={short(cols[k])}" for k in keys))
         return 0
+    progress = True if args.progress is None else args.progress
     try:
-        fmus = build_fmus(opts["fmu_dir"], resolution=_parse_resolution(opts["resolution"]))
+        fmus = build_fmus(opts["fmu_dir"], resolution=_parse_resolution(opts["resolution"]), progress=progress)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    progress = True if args.progress is None else args.progress
     n_local = opts["workers"] or default_workers()
     where = "this process" if args.serial else (opts["scheduler"] or f"a local cluster of {n_local} processes")
     print(f"{len(params)} runs on {where}")

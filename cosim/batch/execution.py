@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import hashlib
 import os
-import sys
 import time
 from pathlib import Path
 
-from cosim import FMU_NAMES
+from cosim.fmus.builds import FMU_NAMES
+from solver.progress import bar
 
 from .fmu_files import fmu_spec
 from .sweep import ConfigError
@@ -27,31 +27,20 @@ __all__ = ["run_batch", "local_cluster", "default_workers"]
 
 
 class _Progress:
+    """The batch's progress bar (:func:`solver.progress.bar`: on a terminal or as log lines), with the
+    number of failed runs beside it."""
+
     def __init__(self, total: int, enabled: bool):
-        self.bar = None
-        self.total, self.done, self.failed = total, 0, 0
-        self.enabled = enabled
-        self._last = 0.0
-        if enabled:
-            try:
-                from tqdm import tqdm
-                self.bar = tqdm(total=total, unit="run", file=sys.stderr, dynamic_ncols=True)
-            except ImportError:
-                pass
+        self.failed = 0
+        self.bar = bar(total=total, desc="batch", unit="run", enabled=enabled, delay=0.0)
 
     def update(self, row: dict):
-        self.done += 1
         self.failed += row["status"] != "ok"
-        if self.bar is not None:
-            self.bar.set_postfix(failed=self.failed, refresh=False)
-            self.bar.update(1)
-        elif self.enabled and (time.monotonic() - self._last > 2.0 or self.done == self.total):
-            self._last = time.monotonic()
-            print(f"  {self.done}/{self.total} runs done, {self.failed} failed", file=sys.stderr, flush=True)
+        self.bar.set_postfix(failed=self.failed, refresh=False)
+        self.bar.update(1)
 
     def close(self):
-        if self.bar is not None:
-            self.bar.close()
+        self.bar.close()
 
 
 def default_workers() -> int:

@@ -3,9 +3,9 @@
 ``path`` transfer: tasks carry the absolute paths and the SHA-256 of each file; a worker checks the
 hash of what it finds at that path (a stale copy on a node is an error, not a silently different
 result).  ``bytes`` transfer: the client scatters the three files once to every worker; the first
-task on a node writes them with :func:`materialize` to ``$RRR_DK_FMU_CACHE`` or
-``<tmp>/rrr-dk-fmus/<sha256>/<Name>.fmu`` (atomic rename, hash checked), shared by the worker
-processes of that node; no shared file system is needed.
+task on a node writes them with :func:`materialize` to ``<cache>/fmus/<sha256>/<Name>.fmu`` under the
+project's one cache root on that node (:func:`solver.cache_dir`, moved by ``$RRR_DK_CACHE``; atomic
+rename, hash checked), shared by the worker processes of that node; no shared file system is needed.
 """
 from __future__ import annotations
 
@@ -14,7 +14,8 @@ import os
 import tempfile
 from pathlib import Path
 
-from cosim import FMU_NAMES
+from cosim.fmus.builds import FMU_NAMES
+from solver import cache_dir
 
 from .sweep import ConfigError
 
@@ -44,8 +45,8 @@ def fmu_spec(fmus: dict) -> dict:
 
 
 def cache_root() -> Path:
-    """Where a node keeps FMU files received as bytes: ``$RRR_DK_FMU_CACHE`` or ``<tmp>/rrr-dk-fmus``."""
-    return Path(os.environ.get("RRR_DK_FMU_CACHE") or Path(tempfile.gettempdir()) / "rrr-dk-fmus")
+    """Where a node keeps FMU files received as bytes: ``cache_dir("fmus")`` (see :func:`solver.cache_dir`)."""
+    return cache_dir("fmus")
 
 
 def materialize(name: str, sha: str, data: bytes) -> Path:

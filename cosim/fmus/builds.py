@@ -5,7 +5,7 @@
   ``mode``), the ``solver`` modules it imports, the map tensor of each posture as
   ``resources/maps/posture<j>.npz`` with ``resources/maps/manifest.json`` (size and SHA-256 of each,
   checked at instantiation), and its readme as ``documentation/``.  Maps come from ``map_files`` or
-  from the map cache ``<out>/maps/`` (:func:`solver.cached_map`, the one cache of ``python -m solver
+  from the map cache ``solver.cache_dir("maps")`` (:func:`solver.cached_map`, the one cache of ``python -m solver
   build`` too, keyed by geometry, posture, rule, resolution and the code that labels); a missing or
   unusable cache entry is built and saved there, so a rebuild with the same options and code reuses
   it.  Same options and the same map files give a byte-identical FMU.
@@ -23,6 +23,7 @@ import hashlib
 import html
 import importlib.util
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -34,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from solver import progress as _progress
 from solver import DEFAULT_RULE, DEFAULT_STEP, ORDERING_RULES, Manipulator, MapTensor, cached_map, map_path
 
 from .checks import validate
@@ -90,7 +92,7 @@ def resolution_step(resolution) -> tuple[float, float, float]:
 
 
 def map_cache_path(cache_dir, posture: int, resolution, rule: str, model: Manipulator) -> Path:
-    """Cache file of a map in ``cache_dir`` (``solver.map_path``, the one naming scheme)."""
+    """Cache file of a map in ``cache_dir`` (None: the map cache; ``solver.map_path``, the one naming scheme)."""
     return map_path(model, posture, rule, resolution_step(resolution), cache_dir)
 
 
@@ -157,13 +159,15 @@ def _dk_maps(model, postures, resolution, map_files, rule, cache_dir, progress, 
 
 
 def build_dk(out_dir="build", postures=(1,), resolution=DEFAULT_RESOLUTION, map_files=(), mode: str = "default",
-             rule: str = DEFAULT_RULE, cache_dir=None, check: bool = True, progress: bool = False,
+             rule: str = DEFAULT_RULE, cache_dir=None, check: bool = True, progress: bool | None = None,
              log=print) -> BuildResult:
     """Build ``<out_dir>/RRRDirectKinematics.fmu`` (see the module docstring).
 
     ``postures``: postures to embed, the first one is the start value of the parameter ``posture``;
     ``map_files``: map files to embed (their postures are added; a posture given twice is an error);
-    postures without a given map use the cache ``cache_dir`` (default ``<out_dir>/maps``).
+    postures without a given map use the map cache ``cache_dir`` (default: the project's one map cache,
+    ``solver.cache_dir("maps")``, moved by ``$RRR_DK_CACHE``); ``progress``: a map build's progress
+    on stderr (None: the process default, :mod:`solver.progress`).
     """
     t0 = time.perf_counter()
     if mode not in MODES:
@@ -172,7 +176,7 @@ def build_dk(out_dir="build", postures=(1,), resolution=DEFAULT_RESOLUTION, map_
         raise ValueError(f"rule: expected one of {sorted(ORDERING_RULES)}, got {rule!r}")
     model = Manipulator.paper()
     out_dir = Path(out_dir)
-    cache_dir = out_dir / "maps" if cache_dir is None else Path(cache_dir)
+    cache_dir = None if cache_dir is None else Path(cache_dir)
     t_map = time.perf_counter()
     postures, maps = _dk_maps(model, postures, resolution, map_files, rule, cache_dir, progress, log)
     map_seconds = time.perf_counter() - t_map
@@ -217,25 +221,39 @@ def is_stale(name: str, fmu: Path) -> bool:
     return fmu.stat().st_mtime < max(p.stat().st_mtime for p in (script, *runtime, *native_sources))
 
 
-def build_fmus(out_dir="build", resolution=None, force: bool = False, log=print) -> dict:
+#: What a first build of each FMU does, and about how long it takes (2 cores, an empty map and kernel
+#: cache; measured with ``RRR_DK_CACHE=$(mktemp -d) python -m cosim``): said when the build starts.
+FIRST_BUILD = {
+    DK_NAME: "the first time it builds the map tensor (procedure 1) and compiles kernels: about 2 min; "
+             "later builds reuse both",
+    "ComputedTorqueController": "a few seconds",
+    "RRRPlant": "a few seconds",
+}
+
+
+def build_fmus(out_dir="build", resolution=None, force: bool = False, progress: bool | None = None) -> dict:
     """Build (or reuse) the three FMUs in ``out_dir``; returns {name: path}.
 
     The DK FMU embeds the map tensor of posture 1 at the default resolution, or at ``resolution`` =
-    (m, rad), cached in ``<out_dir>/maps``.  An FMU is rebuilt when ``force`` or :func:`is_stale`.
-    Each build runs in a child process, ``python -m cosim.fmus.cli`` (see the module docstring).
+    (m, rad), from the map cache.  An FMU is rebuilt when ``force`` or :func:`is_stale`.  Each build
+    runs in a child process, ``python -m cosim.fmus.cli`` (see the module docstring), and is a phase
+    on stderr (what it builds, about how long, then its time; the child's own progress, e.g. of a
+    map build, shows beneath); ``progress``: as in :func:`solver.progress.phase`.
     """
     out = Path(out_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
     paths = {name: out / f"{name}.fmu" for name in FMU_NAMES}
+    env = None if _progress.is_on(progress) else {**os.environ, _progress.PROGRESS_ENV: "0"}
     for name in FMU_NAMES:
         if not (force or is_stale(name, paths[name])):
             continue
         args = [sys.executable, "-m", "cosim.fmus.cli", "--out", str(out), "--only", name, "--no-reference"]
         if name == DK_NAME and resolution is not None:
             args += ["--resolution", "{!r}m,{!r}rad".format(*(float(v) for v in resolution))]
-        t0 = time.perf_counter()
-        proc = subprocess.run(args, cwd=str(SLAVE_DIR.parent), capture_output=True, text=True)
-        if proc.returncode != 0 or not paths[name].exists():
-            raise RuntimeError(f"building {paths[name].name} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
-        log(f"built {paths[name]} in {time.perf_counter() - t0:.1f} s")
+        with _progress.phase(f"building {paths[name]}", FIRST_BUILD[name], enabled=progress):
+            proc = subprocess.run(args, cwd=str(SLAVE_DIR.parent), stdout=subprocess.PIPE,
+                                  stderr=None if env is None else subprocess.PIPE, text=True, env=env)
+            if proc.returncode != 0 or not paths[name].exists():
+                raise RuntimeError(f"building {paths[name].name} failed (exit {proc.returncode}):\n"
+                                   f"{proc.stdout[-3000:]}\n{(proc.stderr or '(its stderr is above)')[-3000:]}")
     return paths

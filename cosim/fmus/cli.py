@@ -7,7 +7,8 @@
     python build_fmu.py --manipulator 3rpr [--resolution 25mm,3deg] [--no-reference | --write-reference]
 
 1. The FMUs (:mod:`cosim.fmus.builds`) are built into ``--out`` and validated: ``RRRDirectKinematics``
-   with the map tensor(s) of ``--posture`` at ``--resolution`` (cached in ``<out>/maps/``) or the
+   with the map tensor(s) of ``--posture`` at ``--resolution`` (cached in the project's map cache,
+   ``solver.cache_dir("maps")``, which ``$RRR_DK_CACHE`` moves) or the
    ``--map`` files, ``--mode`` and ``--posture`` as start values of its parameters;
    ``ComputedTorqueController`` and ``RRRPlant``.  ``--only`` builds some of them.
 2. The reference run of each FMU (:mod:`cosim.fmus.references`) is built into ``<out>/reference/`` and
@@ -92,7 +93,7 @@ def _rpr(args) -> int:
         print("validation: OK (fmpy.validation + cosim.fmus.checks.validate report nothing)")
         if args.no_reference:
             return 0
-    ref = build_rpr_dk(out / "reference", resolution=RPR_REFERENCE_RESOLUTION, cache_dir=out / "maps")
+    ref = build_rpr_dk(out / "reference", resolution=RPR_REFERENCE_RESOLUTION)
     if ref.problems:
         print("reference FMU validation: FAILED\n  " + "\n  ".join(ref.problems))
         return 1
@@ -112,7 +113,7 @@ def _build(args) -> int:
             resolution = DEFAULT_RESOLUTION if args.resolution is None else parse_resolution(args.resolution)
             postures = args.posture if args.posture is not None else ([] if args.map else [1])
             result = build_dk(args.out, postures=postures, resolution=resolution, map_files=args.map,
-                              mode=args.mode, rule=args.rule, progress=sys.stderr.isatty())
+                              mode=args.mode, rule=args.rule, progress=None)
             print(f"{result.fmu}: {result.size / 1e6:.3f} MB ({result.size:,} bytes), postures "
                   f"{sorted(result.maps)} (start {result.posture}), mode {result.mode}; built in "
                   f"{result.seconds:.1f} s (maps {result.map_seconds:.1f} s)")

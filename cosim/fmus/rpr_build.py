@@ -4,7 +4,8 @@
 (a subclass of the 3-RRR's slave), the ``solver`` modules it imports and the 3-RPR's map tensor of
 its one posture over :data:`solver.rpr.RPR_WORK_BOUNDS`, as ``resources/maps/posture1.npz`` with
 the same manifest as the 3-RRR's (size and SHA-256, checked at instantiation).  The map is cached in
-``<out>/maps/`` under a name keyed by geometry, resolution, rule and the labelling code.
+the project's map cache (``solver.cache_dir("maps")``) under a name keyed by geometry, resolution,
+rule and the labelling code.
 
 The reference run (:func:`run_rpr_loop`): the legs go once round the 2 cm loop about cusp 1 of the
 slice rho1 = 1.498 m (:func:`experiments.rpr_suite.cusp_loop_path`, 100 steps, h = 10 ms, ``rho[k]``
@@ -77,7 +78,7 @@ def build_rpr_dk(out_dir="build", resolution=RPR_RESOLUTION, rule: str = DEFAULT
     t0 = time.perf_counter()
     model = RPRManipulator.zein_wenger_chablat()
     out_dir = Path(out_dir)
-    cache_dir = out_dir / "maps" if cache_dir is None else Path(cache_dir)
+    cache_dir = None if cache_dir is None else Path(cache_dir)
     map_file = rpr_map(model, resolution, rule, cache_dir, log)
     map_seconds = time.perf_counter() - t0
     with tempfile.TemporaryDirectory(prefix="build_fmu_") as tmp:
