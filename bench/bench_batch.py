@@ -5,7 +5,7 @@
 The same ``--runs`` scenarios (a sweep of plant mass error x controller bandwidth x communication
 step x master order, ``--t-end`` simulated seconds each) are run
 
-1. serially, in this process, by :func:`dynamics.batch.run_batch` with ``serial=True``: one
+1. serially, in this process, by :func:`cosim.batch.run_batch` with ``serial=True``: one
    :class:`ClosedLoop` created by the first run and reused (``ClosedLoop.run`` resets it) by the others;
 2. on a ``LocalCluster`` of ``--workers`` processes (one thread each): the cluster is started first
    (timed apart), then the batch; each worker creates its ClosedLoop in its first task and reuses it.
@@ -32,9 +32,9 @@ from pathlib import Path
 import numpy as np
 
 import solver  # noqa: F401  (first: the FMUs then use this copy of the package)
-from dynamics import batch
-from dynamics.cosim import build_fmus
-from fmu_src.unit import exit_process
+from cosim import batch
+from cosim import build_fmus
+from cosim.unit import exit_process
 
 METRICS = ("rms_joint_error", "max_joint_error", "max_dk_vs_true", "dk_branch_errors", "dk_status_ok", "n_steps")
 
@@ -120,7 +120,7 @@ def main(argv=None) -> int:
           f"{t_serial / (t_serial / args.workers + (s1['load'] + s1['warmup']) * (1 - 1 / args.workers)):.2f}x")
     print(f"same metrics bit for bit, serial vs workers: {same}")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
-    # FMUs were loaded in this process: skip the pythonfmu libraries' exit code (see fmu_src.unit)
+    # FMUs were loaded in this process: skip the pythonfmu libraries' exit code (see cosim.unit)
     exit_process(0)
 
 

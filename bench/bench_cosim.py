@@ -1,14 +1,14 @@
-"""Speed of the closed loop (``python -m dynamics.cosim``): per-step wall time against the tracker.
+"""Speed of the closed loop (``python -m cosim``): per-step wall time against the tracker.
 
     python bench/bench_cosim.py [--build-dir build] [--rebuild] [--repeat 7] [--t-end 2.5]
 
-The FMUs are built once into ``--build-dir`` by :func:`dynamics.cosim.build_fmus` (reused when
+The FMUs are built once into ``--build-dir`` by :func:`cosim.build_fmus` (reused when
 present; ``--rebuild`` forces it).  Then, in one process (FMUs extracted and instantiated once):
 
 1. the default scenario (2.5 s at h = 1 ms, Gauss-Seidel, three FMUs) is run ``--repeat`` times by
-   the master itself (:meth:`dynamics.cosim.ClosedLoop.run`, timed as ``python -m dynamics.cosim``
+   the master itself (:meth:`cosim.ClosedLoop.run`, timed as ``python -m cosim``
    times it: the step loop and the result's columns, FMUs initialized), with the DK's flags
-   (status, region... as ``python -m dynamics.cosim`` records them) and without
+   (status, region... as ``python -m cosim`` records them) and without
    (``flags=False``: one set, doStep and get per FMU and step); each run alternates with an
    in-process pass of ``solver.Tracker.step(q, dt=h)`` over the joints of the same run (the
    closed loop's own DK path, same embedded map).  Prints the wall time per step of each
@@ -40,8 +40,8 @@ from pathlib import Path
 import numpy as np
 
 import dynamics  # noqa: F401  (before any FMU, as the master does)
-from dynamics.cosim import FMU_NAMES, INSTANCES, ClosedLoop, Scenario, build_fmus
-from fmu_src.packaging import bundled_files
+from cosim import FMU_NAMES, INSTANCES, ClosedLoop, Scenario, build_fmus
+from cosim.fmus.packaging import bundled_files
 from fmu_src.table_slave import TableSlave
 from solver import Manipulator, MapTensor, Tracker
 
@@ -192,7 +192,7 @@ def main(argv=None):
         print(f"warm-up (instantiate + first steps): {time.perf_counter() - t0:.2f} s")
         dk_dir = loop.units["RRRDirectKinematics"].unzip_dir
         tracker = Tracker(Manipulator.paper(), MapTensor.load(Path(dk_dir) / "resources" / "maps" / "posture1.npz"))
-        print(f"\n1. the master's loop (ClosedLoop.run, as `python -m dynamics.cosim`), {args.repeat} runs each, "
+        print(f"\n1. the master's loop (ClosedLoop.run, as `python -m cosim`), {args.repeat} runs each, "
               f"alternating with the in-process tracker on each run's joints:")
         per = {(key, clock): [] for key in ("flags", "no flags", "tracker") for clock in ("wall", "cpu")}
         for r in range(args.repeat):

@@ -2,7 +2,7 @@
 
     python bench/bench_fmu.py [--build-dir build] [--n 1000] [--passes 7]
 
-The three FMUs are built into ``--build-dir`` first if missing (:func:`fmu_src.builds.build_fmus`).
+The three FMUs are built into ``--build-dir`` first if missing (:func:`cosim.fmus.builds.build_fmus`).
 The host imports ``solver`` and ``dynamics`` before loading the FMUs (as any host that runs them
 repeatedly should), so the FMUs run this process's compiled kernels.  The machine is shared: every
 figure is a median, and each FMU pass alternates with an in-process pass over the same inputs, so
@@ -16,7 +16,7 @@ that a ratio compares times measured in the same minutes of the same run.  Print
   reads all 11 outputs (three more calls), the same cycle through fmpy's convenience
   ``setReal``/``getReal`` (which build ctypes arrays at every call), and whether the poses are
   identical;
-- **plant** and **controller**: the inputs of a closed-loop run (``dynamics.cosim.ClosedLoop``,
+- **plant** and **controller**: the inputs of a closed-loop run (``cosim.ClosedLoop``,
   default scenario) replayed into each FMU alone: the ``fmi2DoStep`` call against the in-process
   computation it wraps (``PlantStepper.step`` / ``ControllerStepper.step`` with the same inputs),
   target <= 1.5x or <= 10 us more, whichever is larger; and the whole set + doStep + get cycle.
@@ -33,8 +33,8 @@ import numpy as np
 
 import dynamics  # noqa: F401  (first: the FMUs then use the host's packages)
 import solver
-from fmu_src.builds import build_fmus
-from fmu_src.unit import FMUUnit, exit_process
+from cosim.fmus.builds import build_fmus
+from cosim.unit import FMUUnit, exit_process
 from solver import Manipulator, MapTensor, Tracker, circle_path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -123,7 +123,7 @@ def bench_dk(unit: FMUUnit, n: int, passes: int) -> dict:
 
 def _closed_loop_inputs(paths) -> dict:
     """The default scenario's time series (the plant's and the controller's inputs at every step)."""
-    from dynamics.cosim import ClosedLoop, Scenario
+    from cosim import ClosedLoop, Scenario
 
     with ClosedLoop(paths) as loop:
         try:
@@ -282,7 +282,7 @@ def main(argv=None):
     print(f"  FMU poses identical to the in-process tracker's: {dk['identical']}")
 
     cols = _closed_loop_inputs(paths)
-    from dynamics.cosim import Scenario
+    from cosim import Scenario
     sc = Scenario()
     params = {"center": sc.center, "radius": sc.radius, "phi": sc.phi, "period": sc.period,
               "ramp_time": sc.ramp_time, "bandwidth": sc.bandwidth, "damping": sc.damping}

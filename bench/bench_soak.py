@@ -3,7 +3,7 @@
     python bench/bench_soak.py [--build-dir build] [--steps 1000000] [--budget 1200] [--cycles 100]
                                [--fmi2-reset N]
 
-Part 1, the loop.  :class:`dynamics.cosim.ClosedLoop` builds and initializes the three FMUs (default
+Part 1, the loop.  :class:`cosim.ClosedLoop` builds and initializes the three FMUs (default
 scenario, Gauss-Seidel, h = 1 ms); the loop makes the same FMI calls per step as
 ``ClosedLoop.run`` (its ``step_function``: set, doStep, get per instance) but keeps no rows, so that the process's memory
 is the FMUs' own.  It runs ``--steps`` steps (the circle repeats every 2 s) or until ``--budget``
@@ -16,7 +16,7 @@ master does between runs) each of the three FMUs and run 10 steps; RSS before an
 separately, ``--fmi2-reset`` calls of fmi2Reset on one DK instance, each followed by a legal run
 (default 0; the README's known issues: three or more in a process have aborted it at exit).
 
-The process exits through :func:`fmu_src.unit.exit_process` (os._exit once FMUs were loaded).
+The process exits through :func:`cosim.unit.exit_process` (os._exit once FMUs were loaded).
 """
 from __future__ import annotations
 
@@ -48,8 +48,8 @@ def peak_rss_mb() -> float:
 
 def soak(fmus: dict, steps: int, budget: float) -> dict:
     """Part 1 (module docstring); returns the figures."""
-    from dynamics.cosim import ClosedLoop, Scenario
-    from dynamics.cosim.master import INSTANCES
+    from cosim import ClosedLoop, Scenario
+    from cosim.loop.master import INSTANCES
 
     loop = ClosedLoop(fmus)
     sc = Scenario()
@@ -94,7 +94,7 @@ def soak(fmus: dict, steps: int, budget: float) -> dict:
 
 def instances(fmus: dict, cycles: int, fmi2_reset: int) -> dict:
     """Part 2 (module docstring)."""
-    from fmu_src.unit import FMUUnit
+    from cosim.unit import FMUUnit
 
     units = {name: FMUUnit(path, f"cycle-{name}") for name, path in fmus.items()}
     out = {"rss_before": rss_mb()}
@@ -128,7 +128,7 @@ def main(argv=None) -> int:
     ap.add_argument("--fmi2-reset", type=int, default=0, help="fmi2Reset calls on one DK instance (part 2)")
     args = ap.parse_args(argv)
 
-    from fmu_src.builds import build_fmus
+    from cosim.fmus.builds import build_fmus
 
     print(f"machine: {os.uname().machine}, {os.cpu_count()} cores, python {sys.version.split()[0]}, "
           f"load average {os.getloadavg()[0]:.2f}")
@@ -152,7 +152,7 @@ def main(argv=None) -> int:
         print(f"{args.fmi2_reset} x fmi2Reset of one DK instance (+ initialize + 10 steps): done; RSS "
               f"{i['rss_after_reset']:.1f} MB")
     sys.stdout.flush()
-    from fmu_src.unit import exit_process
+    from cosim.unit import exit_process
     exit_process(0)
     return 0
 

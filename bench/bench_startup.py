@@ -1,4 +1,4 @@
-"""Cold start: ``python -m dynamics.cosim`` from process start to exit, where its time goes, the
+"""Cold start: ``python -m cosim`` from process start to exit, where its time goes, the
 first run of a batch worker, and the FMUs' own compiled kernels in a host without our packages.
 
     python bench/bench_startup.py [--build-dir build] [--repeat 5] [--skip-compile]
@@ -7,7 +7,7 @@ The FMUs are built into ``--build-dir`` first if missing.  Every measurement run
 processes (``sys.executable``, the environment of this one, so ``PYTHONPATH=<another tree>``
 measures that tree); each figure is the median over ``--repeat`` processes.  Prints:
 
-1. the whole command, ``python -m dynamics.cosim --build-dir ... --out <tmp>`` (the default 2.5 s
+1. the whole command, ``python -m cosim --build-dir ... --out <tmp>`` (the default 2.5 s
    scenario, CSV and plots; and with ``--no-plots``): wall time from process start to exit and its
    ratio to the 2.5 s it simulates (target: faster than real time, ratio < 1);
 2. the cold-start split of that command, measured inside one such process: interpreter start,
@@ -16,8 +16,8 @@ measures that tree); each figure is the median over ``--repeat`` processes.  Pri
    loaded at the first call of each kernel: numba's ``Cache.load_overload``, wherever it
    happens), kernel compilation (0 when every cache is warm), the simulation loop, the CSV and the
    plots;
-3. a batch worker's warm-up: a fresh process imports :mod:`dynamics.batch.worker` and runs two
-   short tasks (:func:`dynamics.batch.run_task`, 0.05 s simulated): imports, FMU load (the first
+3. a batch worker's warm-up: a fresh process imports :mod:`cosim.batch.worker` and runs two
+   short tasks (:func:`cosim.batch.run_task`, 0.05 s simulated): imports, FMU load (the first
    task's ``load_seconds``), the first-run warm-up (its ``init_seconds`` minus the second task's,
    as ``bench/bench_batch.py`` counts it; target: a few tenths of a second) and the whole
    start-up;
@@ -28,7 +28,7 @@ measures that tree); each figure is the median over ``--repeat`` processes.  Pri
 5. (unless ``--skip-hosts``) each FMU's instantiate + initialize (setup, enter/exit initialization),
    timed inside fresh host processes that have not imported ``solver``: fmpy (``FMU2Slave``, Python
    in the process) and the C host of ``tests/test_c_host.py`` (no Python in the process: the FMU's
-   loader starts it, :mod:`fmu_src.native`), first with an empty kernel cache (``NUMBA_CACHE_DIR`` = a
+   loader starts it, :mod:`cosim.fmus.native`), first with an empty kernel cache (``NUMBA_CACHE_DIR`` = a
    new folder: the first process ever), then in a second process.  ``--only-hosts`` runs just this.
 
 Numbers, no assertions.  The machine is shared: the load average is printed.
@@ -54,7 +54,7 @@ SIMULATED = 2.5          # s, the default scenario
 #: before PYTHONPATH), so the packages come from PYTHONPATH or the installed project
 _NEUTRAL = tempfile.gettempdir()
 
-#: the cold-start probe: the steps of ``python -m dynamics.cosim`` with clocks (argv: build dir, out dir)
+#: the cold-start probe: the steps of ``python -m cosim`` with clocks (argv: build dir, out dir)
 PROBE = r"""
 import sys, time
 T = {"start": time.perf_counter()}
@@ -80,9 +80,9 @@ _dispatcher.Dispatcher.compile = compile
 def mark(name):
     T[name] = time.perf_counter()
     K[name] = (K["load"], K["compile"])
-from dynamics.cosim.__main__ import main          # the command's imports
-from dynamics.cosim import ClosedLoop, Scenario, build_fmus
-from dynamics.cosim.results import plot_closed_loop, write_csv
+from cosim.__main__ import main          # the command's imports
+from cosim import ClosedLoop, Scenario, build_fmus
+from cosim.loop.results import plot_closed_loop, write_csv
 mark("imports")
 paths = build_fmus(sys.argv[1], log=lambda m: None)
 loop = ClosedLoop(paths)                           # extract and instantiate
@@ -105,7 +105,7 @@ out["loop"] = res.wall_seconds
 out["fmu"] += out["run"] - res.wall_seconds        # the run's initialization is FMU load
 out["run"] = res.wall_seconds
 print("PROBE " + json.dumps(out))
-from fmu_src.unit import exit_process
+from cosim.unit import exit_process
 exit_process(0)
 """
 
@@ -113,16 +113,16 @@ exit_process(0)
 WORKER = r"""
 import sys, time, json
 t0 = time.perf_counter()
-from dynamics.batch.worker import run_task
-from dynamics.batch.fmu_files import fmu_spec
-from dynamics.cosim import build_fmus
+from cosim.batch.worker import run_task
+from cosim.batch.fmu_files import fmu_spec
+from cosim import build_fmus
 t_import = time.perf_counter() - t0
 spec = fmu_spec(build_fmus(sys.argv[1], log=lambda m: None))
 rows = [run_task(i, {"t_end": 0.05}, spec) for i in range(2)]
 assert all(r["status"] == "ok" for r in rows), rows
 print("WORKER " + json.dumps({"imports": t_import, "load": rows[0]["load_seconds"], "init1": rows[0]["init_seconds"],
                               "init2": rows[1]["init_seconds"], "sim": rows[1]["sim_seconds"]}))
-from fmu_src.unit import exit_process
+from cosim.unit import exit_process
 exit_process(0)
 """
 
@@ -211,7 +211,7 @@ def _python(code: str, *args, env=None, marker: str) -> tuple[dict, float]:
 
 
 def _command(build_dir, out_dir, plots: bool) -> float:
-    args = [sys.executable, "-m", "dynamics.cosim", "--build-dir", str(build_dir), "--out", str(out_dir)]
+    args = [sys.executable, "-m", "cosim", "--build-dir", str(build_dir), "--out", str(out_dir)]
     if not plots:
         args.append("--no-plots")
     t0 = time.perf_counter()
@@ -231,8 +231,8 @@ def main(argv=None) -> int:
     ap.add_argument("--only-hosts", action="store_true", help="only the fmpy and C host start-up (5.)")
     args = ap.parse_args(argv)
     build = Path(args.build_dir).resolve()
-    proc = subprocess.run([sys.executable, "-c", "import sys; from dynamics.cosim import build_fmus; "
-                           "build_fmus(sys.argv[1]); from fmu_src.unit import exit_process; exit_process(0)",
+    proc = subprocess.run([sys.executable, "-c", "import sys; from cosim import build_fmus; "
+                           "build_fmus(sys.argv[1]); from cosim.unit import exit_process; exit_process(0)",
                            str(build)], cwd=_NEUTRAL)
     if proc.returncode:
         return proc.returncode
@@ -248,7 +248,7 @@ def main(argv=None) -> int:
     for _ in range(args.repeat):
         walls["with plots"].append(_command(build, tmp / "a", True))
         walls["--no-plots"].append(_command(build, tmp / "b", False))
-    print(f"\n1. `python -m dynamics.cosim` ({SIMULATED:g} s simulated), process start to exit:")
+    print(f"\n1. `python -m cosim` ({SIMULATED:g} s simulated), process start to exit:")
     for key, v in walls.items():
         med = float(np.median(v))
         print(f"   {key:10s}: {med:5.2f} s wall = {med / SIMULATED:.2f}x the simulated time "

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import argparse
 
-from dynamics.cosim import ClosedLoop, Scenario, build_fmus
-from fmu_src.unit import exit_process
+from cosim import ClosedLoop, Scenario, build_fmus
+from cosim.unit import exit_process
 
 
 def main(argv=None):

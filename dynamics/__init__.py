@@ -7,8 +7,8 @@ the reference circle (:mod:`.trajectory`), computed-torque control (:mod:`.contr
 slaves' per-step entry points (:mod:`.steppers`) and the one exception of a refused evaluation
 (:mod:`.errors`); the compiled kernels are private (:mod:`._kernels`).  It may import numpy,
 scipy, numba, python-control and :mod:`solver`'s public top-level names -- never fmpy,
-pythonfmu, dask or ``fmu_src``.  The co-simulation master (:mod:`dynamics.cosim`) and the batch
-runner (:mod:`dynamics.batch`) live here too but are not imported by this file.
+pythonfmu, dask, :mod:`fmu_src` or :mod:`cosim` (the host side, where the co-simulation master
+and the batch runner live).
 
 >>> from dynamics import DynamicParameters, forward_dynamics_task
 >>> from solver import Manipulator

@@ -6,7 +6,7 @@ it in their own process; a C host starts one from its libpython).  The FMU bundl
 own modules (``fmu_src``'s runtime, ``solver``, ``dynamics``), not the third-party packages they
 import (numpy, numba, scipy, python-control).  The build writes those, with the
 version ranges of the project's ``pyproject.toml``, to ``resources/requirements.txt``
-(:func:`format_requirements`; :func:`fmu_src.packaging.build_fmu` finds them by reading every
+(:func:`format_requirements`; :func:`cosim.fmus.packaging.build_fmu` finds them by reading every
 import statement of the bundled code), so that ``pythonfmu deploy -f <Model>.fmu`` or
 ``python -m pip install -r requirements.txt`` installs them.  pythonfmu is not among them: its
 builder bundles the package into every FMU.

@@ -70,7 +70,7 @@ def pose_distance(a, b):
 # A process that ran pythonfmu 0.7 FMUs may abort at exit, in the C runtime's finalizers, on a heap
 # corrupted earlier (tests/test_exit.py reproduces it with a plain fmpy script; README, known issues).
 # The session's outcome is known and printed by then: a session that loaded FMUs ends with that
-# status through fmu_src.unit.exit_process (no finalizers); one that loaded none exits normally.
+# status through cosim.unit.exit_process (no finalizers); one that loaded none exits normally.
 _SESSION = {}
 
 
@@ -80,7 +80,7 @@ def pytest_sessionfinish(session, exitstatus):
 
 def pytest_unconfigure(config):
     if "status" in _SESSION:
-        from fmu_src.unit import exit_process, fmus_loaded
+        from cosim.unit import exit_process, fmus_loaded
 
         if fmus_loaded():
             exit_process(_SESSION["status"])

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dynamics.cosim import ClosedLoop, build_fmus
-from fmu_src.unit import import_hygiene
+from cosim import ClosedLoop, build_fmus
+from cosim.unit import import_hygiene
 
 
 @pytest.fixture(scope="module")

@@ -1,7 +1,7 @@
 """Shared by the tests of the direct-kinematics FMU (test_fmu_dk.py, test_fmu_dk_stepping.py).
 
 The FMU is built per test module into a temporary folder with a coarse map (40 mm / 6 deg, the
-reference configuration of ``fmu_src.references.REFERENCE``); a test module imports the fixtures
+reference configuration of ``cosim.fmus.references.REFERENCE``); a test module imports the fixtures
 below by name.
 """
 from __future__ import annotations
@@ -10,8 +10,8 @@ import pytest
 from fmpy import extract, read_model_description
 
 import solver  # noqa: F401  (before any FMU: the FMUs then use this copy, no numba recompilation)
-from fmu_src import builds, references
-from fmu_src.unit import FMUUnit, import_hygiene
+from cosim.fmus import builds, references
+from cosim.unit import FMUUnit, import_hygiene
 from solver import Manipulator, MapTensor, Tracker, circle_path, ik
 
 H = references.REFERENCE["h"]
@@ -29,7 +29,7 @@ X0 = PATH[0]
 # ---------------------------------------------------------------------- fixtures
 @pytest.fixture(autouse=True)
 def hygiene():
-    """Undo what pythonfmu's C wrapper does to sys.path / sys.modules (see fmu_src.unit)."""
+    """Undo what pythonfmu's C wrapper does to sys.path / sys.modules (see cosim.unit)."""
     with import_hygiene():
         yield
 

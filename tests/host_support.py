@@ -1,7 +1,7 @@
 """Shared by the tests of the FMUs in other hosts (test_ssp.py, test_hosts.py, test_exit.py).
 
 * :func:`session_fmus`: the three FMUs (DK map 40 mm / 6 deg), built once per test session into the
-  session's temporary folder (:func:`fmu_src.builds.build_fmus` reuses what is there).
+  session's temporary folder (:func:`cosim.fmus.builds.build_fmus` reuses what is there).
 * :func:`run_python`: a script in a child process (an FMU host of its own: the child loads the
   FMUs, not this process), with its exit status, stdout and stderr.
 """
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fmu_src.builds import build_fmus
+from cosim.fmus.builds import build_fmus
 
 #: the coarse map of the tests (fast to build; the tracker's answers do not depend on it)
 RESOLUTION = (0.04, float(np.deg2rad(6.0)))

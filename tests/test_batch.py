@@ -1,8 +1,8 @@
-"""dynamics.batch: sweeps of closed-loop co-simulations on dask (local process pool and a separate cluster).
+"""cosim.batch: sweeps of closed-loop co-simulations on dask (local process pool and a separate cluster).
 
 The FMUs are built once per session into a temporary folder with a coarse DK map (40 mm, 6 deg);
 runs are short (t_end = 0.6 s).  No FMU is loaded into the pytest process itself: the runs happen in
-dask worker processes, and the serial mode runs in a subprocess (``python -m dynamics.batch --serial``).
+dask worker processes, and the serial mode runs in a subprocess (``python -m cosim.batch --serial``).
 The external cluster is a ``dask scheduler`` and two ``dask worker`` processes on 127.0.0.1, started
 here and always killed at the end.
 """
@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dynamics import batch
-from dynamics.batch import ConfigError, expand, parse_sweep_arg, parse_value
+from cosim import batch
+from cosim.batch import ConfigError, expand, parse_sweep_arg, parse_value
 
 ROOT = Path(__file__).resolve().parents[1]
 T_END = 0.6
@@ -39,7 +39,7 @@ METRICS = ("rms_joint_error", "max_joint_error", "max_dk_vs_true", "dk_branch_er
 # ---------------------------------------------------------------------- fixtures
 @pytest.fixture(scope="session")
 def fmu_dir(tmp_path_factory):
-    from dynamics.cosim import build_fmus
+    from cosim import build_fmus
 
     out = tmp_path_factory.mktemp("batch_fmus")
     build_fmus(out, resolution=COARSE, log=lambda *a: None)
@@ -245,7 +245,7 @@ def test_local_cluster_sweep(local_batch):
 def test_serial_subprocess_matches_workers(local_batch, tmp_path):
     """The same config run serially in one process (one ClosedLoop reused) gives the same numbers bit for bit."""
     out = tmp_path / "serial"
-    p = subprocess.run([sys.executable, "-m", "dynamics.batch", "--config", str(local_batch["cfg"]), "--serial",
+    p = subprocess.run([sys.executable, "-m", "cosim.batch", "--config", str(local_batch["cfg"]), "--serial",
                         "--out", str(out), "--no-plot", "--no-progress"], capture_output=True, text=True,
                        timeout=300, cwd=str(tmp_path))
     assert p.returncode == 0, p.stdout + p.stderr

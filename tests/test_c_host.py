@@ -4,7 +4,7 @@
 and libdl only) dlopens ``binaries/linux64/<modelIdentifier>.so`` of an extracted FMU and runs
 fmi2Instantiate, the start values, fmi2SetupExperiment, enter/exit initialization, 100 fmi2DoStep
 with inputs, fmi2GetReal after each, fmi2Terminate and fmi2FreeInstance.  The FMU's binary is the
-loader of :mod:`fmu_src.native`: it opens libpython and starts the interpreter recorded at build
+loader of :mod:`cosim.fmus.native`: it opens libpython and starts the interpreter recorded at build
 time.  The same call sequence runs in fmpy (``FMU2Slave``, a child Python process: a host that has
 Python in-process, where the loader must not start a second interpreter), and the outputs must agree
 to 1e-12; the C host must exit with status 0 (the exit crash of pythonfmu's wrapper, fixed in the

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from dynamics.cosim import Scenario, simulate_fig3, write_osp_system
+from cosim import Scenario, simulate_fig3, write_osp_system
 from dynamics import (DynamicParameters, joint_velocity_jacobian, pose_velocity_jacobian, rk4, task_space_rhs,
                       total_energy)
 from solver import Manipulator, ik, wrap_angle
@@ -64,7 +64,7 @@ def test_runs_are_reproducible_after_reset(loop):
 
 def test_libcosim_runs_the_same_loop(fmus, loop, tmp_path):
     """The OSP system structure run by DNV libcosim equals our master's Jacobi scheme."""
-    from fmu_src.libcosim import run_osp_system
+    from cosim.hosts.libcosim import run_osp_system
 
     sc = Scenario(t_end=0.4)
     osp = write_osp_system(fmus, tmp_path, sc)

@@ -1,5 +1,5 @@
 """pythonfmu 0.7's exit crash, its cause and its fix: plain fmpy scripts and ``fmpy simulate`` runs
-of the FMUs exit with status 0 (issue 18); :func:`fmu_src.unit.exit_process` still ends the project's
+of the FMUs exit with status 0 (issue 18); :func:`cosim.unit.exit_process` still ends the project's
 own processes without the finalizers.
 
 The cause (found with valgrind on the C host of ``tests/test_c_host.py``, where it aborted every
@@ -138,7 +138,7 @@ def test_plain_fmpy_simulate_exits_cleanly(fmus, name, tmp_path):
 EXIT = """
     import atexit, sys
     import solver, dynamics  # noqa: F401
-    from fmu_src.unit import FMUUnit, exit_process
+    from cosim.unit import FMUUnit, exit_process
 
     atexit.register(lambda: print("atexit ran", flush=True))
     if len(sys.argv) > 1:
@@ -169,7 +169,7 @@ def main(argv=None) -> int:
     ap.add_argument("--import-first", action="store_true")
     ap.add_argument("--only", nargs="+", default=None, metavar="NAME", help="these FMUs (default: all three)")
     args = ap.parse_args(argv)
-    from fmu_src.builds import FMU_NAMES
+    from cosim.fmus.builds import FMU_NAMES
 
     paths = [Path(args.fmu_dir) / f"{n}.fmu" for n in (args.only or FMU_NAMES)]
     statuses = reproduce(paths, args.runs, args.import_first)

@@ -1,7 +1,7 @@
 """Random FMI call sequences on the three built FMUs, every status checked against the state table.
 
 A seeded generator drives fresh instances of ``RRRDirectKinematics``, ``RRRPlant`` and
-``ComputedTorqueController`` through fmpy's ``FMU2Slave`` (:class:`fmu_src.unit.FMUUnit`, loggingOn)
+``ComputedTorqueController`` through fmpy's ``FMU2Slave`` (:class:`cosim.unit.FMUUnit`, loggingOn)
 with calls a careless master makes: setupExperiment, enter/exitInitializationMode, setReal of the
 inputs (valid, NaN, huge), a parameter set to a valid or an invalid value, doStep with a positive,
 zero and negative step, getReal, get/setFMUstate, terminate, and a new instance.  An oracle
@@ -28,7 +28,7 @@ from fmpy.fmi2 import fmi2Discard, fmi2Error, fmi2OK
 
 from fmu_src.fmi_states import (ALLOWED, ERROR, INITIALIZATION_MODE, INSTANTIATED, STEP_COMPLETE, STEP_FAILED,
                                 TERMINATED)
-from fmu_src.unit import FMUUnit
+from cosim.unit import FMUUnit
 
 from host_support import session_fmus
 

@@ -2,7 +2,7 @@
 description, the paper's circle (fmpy.simulate_fmu, libcosim), build options, damaged map resources.
 
 Built once per module into a temporary folder with a coarse map (40 mm / 6 deg, the reference
-configuration of ``fmu_src.references.REFERENCE``) and run for real in this process, compared with the
+configuration of ``cosim.fmus.references.REFERENCE``) and run for real in this process, compared with the
 in-process ``solver.Tracker``.  Stepping it through FMU2Slave: test_fmu_dk_stepping.py.
 """
 from __future__ import annotations
@@ -22,12 +22,12 @@ from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import fmi2Discard
 
-from fmu_src import builds, references
-from fmu_src.checks import smoke_check, validate
-from fmu_src.cli import main as build_main
-from fmu_src.libcosim import LibcosimError, run_libcosim
-from fmu_src.simulation import input_table, simulate
-from fmu_src.unit import FMUUnit
+from cosim.fmus import builds, references
+from cosim.fmus.checks import smoke_check, validate
+from cosim.fmus.cli import main as build_main
+from cosim.hosts.libcosim import LibcosimError, run_libcosim
+from cosim.simulation import input_table, simulate
+from cosim.unit import FMUUnit
 from solver import DEFAULT_RULE, HOME_POSE, MapTensor, dk_all, ik, singularity_measures
 
 from dk_fmu_support import (CERTAINTY, H, MODEL, N, OUTPUTS, PATH, RES, X0, Q, circle_start, result_rows,
@@ -281,5 +281,5 @@ def test_the_fmu_bundles_only_what_its_slave_imports(fmu):
         packages = {n.split("/")[1] for n in z.namelist() if n.startswith("resources/") and n.count("/") > 1}
         names = set(z.namelist())
     assert packages == {"fmu_src", "maps", "pythonfmu", "solver"}    # no dynamics
-    assert "resources/fmu_src/table_slave.py" in names and "resources/fmu_src/packaging.py" not in names
+    assert "resources/fmu_src/table_slave.py" in names and "resources/cosim/fmus/packaging.py" not in names
     assert not {"resources/solver/suite.py", "resources/solver/figures.py", "resources/solver/__main__.py"} & names

@@ -1,4 +1,4 @@
-"""The direct-kinematics FMU stepped through fmpy's FMU2Slave (the shared driver fmu_src.unit.FMUUnit):
+"""The direct-kinematics FMU stepped through fmpy's FMU2Slave (the shared driver cosim.unit.FMUUnit):
 independent instances, FMU state, reset, direct feedthrough, initialization, bad input, certainty.
 
 Built once per module like test_fmu_dk.py (tests/dk_fmu_support.py) and compared with the in-process
@@ -15,7 +15,7 @@ import pytest
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import fmi2Discard, fmi2Fatal, fmi2LastSuccessfulTime, fmi2Terminated
 
-from fmu_src.simulation import StepRefusedError, input_table, simulate
+from cosim.simulation import StepRefusedError, input_table, simulate
 from solver import STATUS, Tracker, ik
 
 from dk_fmu_support import CERTAINTY, H, MODEL, OUTPUTS, PATH, X0, Q, circle_start, tracker_rows
@@ -267,7 +267,7 @@ def test_sensor_parameters_are_checked_at_initialization(make):
 
 
 def test_outputs_hold_the_initial_pose_in_initialization_mode(fmu, unzipdir):
-    from fmu_src.unit import FMUUnit
+    from cosim.unit import FMUUnit
     unit = FMUUnit(fmu, "dk-init", unzip_dir=unzipdir)
     try:
         unit.fmu.setupExperiment(startTime=0.0)

@@ -24,12 +24,12 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import fmi2Discard, fmi2LastSuccessfulTime, fmi2Terminated
 from fmpy.validation import validate_fmu
 
-from fmu_src.checks import smoke_check, validate, value_references
-from fmu_src.libcosim import LibcosimError, run_libcosim, run_osp_system, write_osp_system_structure
-from fmu_src.packaging import BuildError, build_fmu
-from fmu_src.simulation import StepRefusedError, input_table, simulate
+from cosim.fmus.checks import smoke_check, validate, value_references
+from cosim.hosts.libcosim import LibcosimError, run_libcosim, run_osp_system, write_osp_system_structure
+from cosim.fmus.packaging import BuildError, build_fmu
+from cosim.simulation import StepRefusedError, input_table, simulate
 from fmu_src.table_slave import TableError, TableSlave, Var, check_table
-from fmu_src.unit import FMUUnit
+from cosim.unit import FMUUnit
 
 FIXTURE = ROOT / "tests" / "fmu_fixtures" / "FmuInfraProbe.py"
 DT = 0.01

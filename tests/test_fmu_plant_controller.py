@@ -7,10 +7,10 @@ import pytest
 
 import dynamics  # noqa: F401  (host packages first: the FMUs use them)
 import solver
-from fmu_src import references
-from fmu_src.builds import build_slave
-from fmu_src.checks import validate
-from fmu_src.simulation import StepRefusedError, input_table, simulate
+from cosim.fmus import references
+from cosim.fmus.builds import build_slave
+from cosim.fmus.checks import validate
+from cosim.simulation import StepRefusedError, input_table, simulate
 
 ROOT = Path(__file__).resolve().parent.parent
 NAMES = ("RRRPlant", "ComputedTorqueController")
@@ -95,14 +95,14 @@ def test_bundles_only_what_the_slave_imports(fmus, name):
     with zipfile.ZipFile(fmus[name]) as z:
         names = set(z.namelist())
     assert "resources/dynamics/steppers.py" in names and "resources/solver/tracker.py" in names
-    assert not [n for n in names if n.startswith(("resources/dynamics/cosim/", "resources/dynamics/batch/"))]
-    assert "resources/fmu_src/checks.py" not in names
+    assert not [n for n in names if n.startswith(("resources/cosim/", "resources/cosim/batch/"))]
+    assert "resources/cosim/fmus/checks.py" not in names
 
 
 def test_plant_outputs_hold_the_initial_state_in_initialization_mode(fmus):
     """A host reads the plant's outputs before fmi2ExitInitializationMode to hand q to the DK FMU: they
     are the initial state's, as soon as Initialization Mode is entered, and follow a parameter set there."""
-    from fmu_src.unit import FMUUnit
+    from cosim.unit import FMUUnit
     model = solver.Manipulator.paper()
     unit = FMUUnit(fmus["RRRPlant"], "plant")
     try:

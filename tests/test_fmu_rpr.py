@@ -9,7 +9,7 @@ import pytest
 from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 
-from fmu_src.rpr_build import LOOP_H, LOOP_N, RPR_OUTPUTS, RPR_REFERENCE_RESOLUTION, build_rpr_dk, read_rpr_reference
+from cosim.fmus.rpr_build import LOOP_H, LOOP_N, RPR_OUTPUTS, RPR_REFERENCE_RESOLUTION, build_rpr_dk, read_rpr_reference
 from solver import MapTensor, Tracker
 from solver.rpr import RPR_HOME_POSE, RPRManipulator
 from solver.rpr_suite import cusp_loop_path
@@ -28,7 +28,7 @@ def loop_run(built, tmp_path_factory):
     """The reference run, simulated in a child process (an FMU loaded into this long pytest process
     would share its heap with every FMU the other test files loaded)."""
     out = tmp_path_factory.mktemp("rpr-run") / "run.npy"
-    code = ("import sys, numpy as np; from fmu_src.rpr_build import run_rpr_loop; from fmu_src.unit import "
+    code = ("import sys, numpy as np; from cosim.fmus.rpr_build import run_rpr_loop; from cosim.unit import "
             "exit_process; np.save(sys.argv[2], run_rpr_loop(sys.argv[1])); exit_process(0)")
     proc = subprocess.run([sys.executable, "-c", code, str(built.fmu), str(out)], cwd=ROOT, capture_output=True,
                           text=True, timeout=300)

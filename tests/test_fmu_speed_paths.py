@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 import dynamics  # noqa: F401  (before any FMU: the FMUs then use the host's packages)
-from dynamics.cosim import Scenario
-from dynamics.cosim.results import COLUMNS, FLAG_COLUMNS
+from cosim import Scenario
+from cosim.loop.results import COLUMNS, FLAG_COLUMNS
 from fmu_src import kernel_cache, slave_state
 from fmu_src.fmi_states import STEP_COMPLETE, STEP_FAILED
 from fmu_src.table_slave import StepRefused, TableSlave, Var

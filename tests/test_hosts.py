@@ -1,5 +1,5 @@
 """The FMUs in hosts other than the project's: declared requirements, and the reason a host without
-them gets (fmu_src.requirements, fmu_src.packaging).
+them gets (fmu_src.requirements, cosim.fmus.packaging).
 
 The bare host is a virtual environment with fmpy only, made once under ``build/bare-host-venv``
 (reused while its fmpy version matches this one's); it runs ``fmpy.simulate_fmu`` with default
@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from fmu_src import requirements as req
-from fmu_src.packaging import BuildError, declared_requirements, project_dependencies
+from cosim.fmus.packaging import BuildError, declared_requirements, project_dependencies
 from host_support import REPO, run_python, session_fmus
 
 BARE = REPO / "build" / "bare-host-venv"
@@ -152,7 +152,7 @@ def test_a_host_without_the_packages_is_told_which_and_how(bare_host, fmus):
 LIBCOSIM_RUN = """
     import sys
     import fmpy
-    from fmu_src.libcosim import LibcosimError, run_libcosim
+    from cosim.hosts.libcosim import LibcosimError, run_libcosim
 
     try:
         fmpy.simulate_fmu(sys.argv[1], stop_time=0.01, step_size=1e-3)

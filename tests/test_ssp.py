@@ -1,4 +1,4 @@
-"""The closed loop as an SSP 1.0 package (fmu_src.ssp, dynamics.cosim.system_files), run by Ecos and libcosim.
+"""The closed loop as an SSP 1.0 package (cosim.hosts.ssp, cosim.hosts.system_files), run by Ecos and libcosim.
 
 Ecos (ecospy) and libcosim each run in a child process from ``RRRClosedLoop.ssp`` alone: the
 FMUs, connections and start values come from the package.  Both masters are Jacobi: every FMU
@@ -12,9 +12,9 @@ import zipfile
 import numpy as np
 import pytest
 
-from dynamics.cosim import CONNECTIONS, INSTANCES, ClosedLoop, Scenario, start_values
-from dynamics.cosim.system_files import SSP_NAME, write_closed_loop_ssp
-from fmu_src import ssp
+from cosim import CONNECTIONS, INSTANCES, ClosedLoop, Scenario, start_values
+from cosim.hosts.system_files import SSP_NAME, write_closed_loop_ssp
+from cosim.hosts import ssp
 from host_support import run_python, session_fmus
 from solver import wrap_angle
 
@@ -200,7 +200,7 @@ LIBCOSIM_RUN = """
     import json, sys
     import numpy as np
     import solver, dynamics  # noqa: F401
-    from fmu_src.libcosim import run_osp_system
+    from cosim.hosts.libcosim import run_osp_system
 
     ssp_path, n, names, out = sys.argv[1], int(sys.argv[2]), json.loads(sys.argv[3]), sys.argv[4]
     res = run_osp_system(ssp_path, n_steps=n, observe=names, log_level="warning")   # step: the SSD's

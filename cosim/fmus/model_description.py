@@ -14,8 +14,8 @@ from __future__ import annotations
 import math
 import xml.etree.ElementTree as ET
 
-from .table_slave import TableSlave
-from .variables import Var
+from fmu_src.table_slave import TableSlave
+from fmu_src.variables import Var
 
 __all__ = ["UNIT_DEFINITIONS", "model_description_xml", "cross_check", "ModelDescriptionError"]
 
@@ -68,19 +68,24 @@ def _fmt(v: Var, value) -> str:
 
 
 def model_description_xml(cls: type[TableSlave], *, guid: str, can_serialize_state: bool = True) -> bytes:
-    """modelDescription.xml of a TableSlave class, generated from its table (deterministic)."""
-    from pythonfmu import __version__ as pythonfmu_version
+    """modelDescription.xml of a TableSlave class, generated from its table (deterministic).
 
-    table = cls._table
-    index = {v.name: i + 1 for i, v in enumerate(table)}   # ScalarVariable indices are 1-based
-    attrib = {"fmiVersion": "2.0", "modelName": cls.__name__, "guid": guid}
-    for key in ("description", "author", "version", "copyright", "license"):
-        value = getattr(cls, key, None)
-        if isinstance(value, str) and value:
-            attrib[key] = value
-    attrib.update(generationTool=f"PythonFMU {pythonfmu_version} + fmu_src.packaging",
-                  variableNamingConvention="structured", numberOfEventIndicators="0")
-    root = ET.Element("fmiModelDescription", attrib)
+    Parameters
+    ----------
+    cls : TableSlave subclass
+        The slave; its ``_table`` (the variable rows), ``UNITS``, ``log_categories`` and
+        ``default_experiment`` are written.
+    guid : str
+        The FMU's GUID (the packaging derives it from the FMU's content).
+    can_serialize_state : bool
+        The CoSimulation capability ``canSerializeFMUstate``.
+
+    Returns
+    -------
+    bytes
+        The XML document, UTF-8, indented, LF line ends.
+    """
+    root = ET.Element("fmiModelDescription", _header(cls, guid))
     ET.SubElement(root, "CoSimulation", {
         "modelIdentifier": cls.__name__,
         "needsExecutionTool": "true",
@@ -92,15 +97,8 @@ def model_description_xml(cls: type[TableSlave], *, guid: str, can_serialize_sta
         "canSerializeFMUstate": "true" if can_serialize_state else "false",
         "providesDirectionalDerivative": "false",
     })
-    units = {**UNIT_DEFINITIONS, **cls.UNITS}
-    used = sorted({v.unit for v in table if v.unit is not None})
-    if used:
-        unit_defs = ET.SubElement(root, "UnitDefinitions")
-        for name in used:
-            unit = ET.SubElement(unit_defs, "Unit", {"name": name})
-            base = units[name]
-            ET.SubElement(unit, "BaseUnit", {k: repr(base[k]) if k in ("factor", "offset") else str(int(base[k]))
-                                             for k in BASE_UNIT_ORDER if k in base})
+    table = cls._table
+    _unit_definitions(root, {**UNIT_DEFINITIONS, **cls.UNITS}, sorted({v.unit for v in table if v.unit is not None}))
     categories = getattr(cls, "log_categories", {})
     if categories:
         cats = ET.SubElement(root, "LogCategories")
@@ -117,24 +115,61 @@ def model_description_xml(cls: type[TableSlave], *, guid: str, can_serialize_sta
         ET.SubElement(root, "DefaultExperiment", ex)
     variables = ET.SubElement(root, "ModelVariables")
     for i, v in enumerate(table):
-        sv = {"name": v.name, "valueReference": str(i)}
-        if v.description:
-            sv["description"] = v.description
-        sv["causality"] = v.causality
-        sv["variability"] = v.variability
-        if v.initial is not None:
-            sv["initial"] = v.initial
-        node = ET.SubElement(variables, "ScalarVariable", sv)
-        typed = {}
-        if v.unit is not None:
-            typed["unit"] = v.unit
-        if v.min is not None:
-            typed["min"] = _fmt(v, v.min)
-        if v.max is not None:
-            typed["max"] = _fmt(v, v.max)
-        if v.start is not None:
-            typed["start"] = _fmt(v, v.start)
-        ET.SubElement(node, v.type, typed)
+        _scalar_variable(variables, i, v)
+    _model_structure(root, table)
+    ET.indent(root, space="  ")
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode").encode() + b"\n"
+
+
+def _header(cls, guid: str) -> dict[str, str]:
+    """The attributes of ``fmiModelDescription``."""
+    from pythonfmu import __version__ as pythonfmu_version
+
+    attrib = {"fmiVersion": "2.0", "modelName": cls.__name__, "guid": guid}
+    for key in ("description", "author", "version", "copyright", "license"):
+        value = getattr(cls, key, None)
+        if isinstance(value, str) and value:
+            attrib[key] = value
+    attrib.update(generationTool=f"PythonFMU {pythonfmu_version} + cosim.fmus.packaging",
+                  variableNamingConvention="structured", numberOfEventIndicators="0")
+    return attrib
+
+
+def _unit_definitions(root, units: dict, used: list[str]) -> None:
+    """``UnitDefinitions``: each unit in ``used`` with its SI base-unit exponents, factor, offset."""
+    if not used:
+        return
+    unit_defs = ET.SubElement(root, "UnitDefinitions")
+    for name in used:
+        unit = ET.SubElement(unit_defs, "Unit", {"name": name})
+        base = units[name]
+        ET.SubElement(unit, "BaseUnit", {k: repr(base[k]) if k in ("factor", "offset") else str(int(base[k]))
+                                         for k in BASE_UNIT_ORDER if k in base})
+
+
+def _scalar_variable(variables, i: int, v: Var) -> None:
+    """The ``ScalarVariable`` of table row ``v`` with value reference ``i``."""
+    sv = {"name": v.name, "valueReference": str(i)}
+    if v.description:
+        sv["description"] = v.description
+    sv["causality"] = v.causality
+    sv["variability"] = v.variability
+    if v.initial is not None:
+        sv["initial"] = v.initial
+    node = ET.SubElement(variables, "ScalarVariable", sv)
+    typed = {}
+    if v.unit is not None:
+        typed["unit"] = v.unit
+    for key in ("min", "max", "start"):
+        value = getattr(v, key)
+        if value is not None:
+            typed[key] = _fmt(v, value)
+    ET.SubElement(node, v.type, typed)
+
+
+def _model_structure(root, table) -> None:
+    """``ModelStructure``: the outputs with their dependencies, and the initial unknowns."""
+    index = {v.name: i + 1 for i, v in enumerate(table)}   # ScalarVariable indices are 1-based
     structure = ET.SubElement(root, "ModelStructure")
     outputs = [v for v in table if v.is_output]
     if outputs:
@@ -152,8 +187,6 @@ def model_description_xml(cls: type[TableSlave], *, guid: str, can_serialize_sta
             # listing them all is the safe over-approximation (parameters are never in a loop)
             deps = sorted(set(index[d] for d in (v.depends_on or ())) | set(params))
             ET.SubElement(node, "Unknown", _unknown(index[v.name], deps))
-    ET.indent(root, space="  ")
-    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode").encode() + b"\n"
 
 
 def _unknown(idx: int, deps: list[int]) -> dict[str, str]:

@@ -130,50 +130,65 @@ def varying_columns(rows) -> list[str]:
     return out
 
 
+#: The summary plot's panels: (metric column, title, y label).
+_PANELS = (("rms_joint_error", "RMS joint error after {rms_from:g} s", "RMS joint error [rad]"),
+           ("max_dk_vs_true", "max |DK pose - true pose|", "max error [m] or [rad]"))
+
+
+def _plot_group(axes, grows, x, label, plotted, failed_labelled) -> None:
+    """One line per panel for the runs ``grows`` of one combination; failed runs as red crosses."""
+    ok = [r for r in grows if r["status"] == "ok"]
+    xs = [r[x] if x else r["run"] for r in ok]
+    order = np.argsort(np.asarray(xs, float), kind="stable") if xs else []
+    for k, (ax, (metric, _, _)) in enumerate(zip(axes, _PANELS)):
+        ys = np.array([as_float(ok[j][metric]) for j in order])
+        xv = np.array([as_float(xs[j]) for j in order])
+        plotted[k] |= bool(np.isfinite(ys).any())
+        if len(ys):
+            ax.plot(xv, np.maximum(ys, 1e-18), "o-", ms=4, lw=1, label=label)
+    bad = [as_float(r[x] if x else r["run"]) for r in grows if r["status"] != "ok"]
+    if bad:
+        for ax in axes:
+            ax.plot(bad, [0.03] * len(bad), "x", color="tab:red", ms=7, transform=ax.get_xaxis_transform(),
+                    label=None if failed_labelled[0] else "failed run")
+        failed_labelled[0] = True
+
+
+def _summary_axis(x: str | None, varying: list) -> str | None:
+    """The swept parameter on the x axis: ``x`` (a field name or ``center``) or the first numeric one."""
+    if x is not None:
+        return "center_x" if x == "center" else field_name(x) if x not in ("center_x", "center_y") else x
+    numeric = [k for k in varying if k not in STR_FIELDS]
+    return numeric[0] if numeric else None
+
+
 def plot_summary(result: BatchResult, path, x: str | None = None, max_lines: int = 16) -> Path | None:
-    """PNG: RMS joint error and max |DK - true| vs one swept parameter, a line per other combination."""
+    """PNG: RMS joint error and max |DK - true| vs one swept parameter, a line per other combination.
+
+    ``x``: the swept parameter on the x axis (default the first numeric one that varies; none: the
+    run number); ``max_lines``: combinations named in the legend at most.  Returns ``path``.
+    """
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     rows = result.rows
     varying = varying_columns(rows)
-    if x is not None:
-        x = "center_x" if x == "center" else field_name(x) if x not in ("center_x", "center_y") else x
-    numeric = [k for k in varying if k not in STR_FIELDS]
-    if x is None:
-        x = numeric[0] if numeric else None
+    x = _summary_axis(x, varying)
     others = [k for k in varying if k != x]
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), dpi=110)
     groups: dict[tuple, list] = {}
     for r in rows:
         groups.setdefault(tuple(r.get(k) for k in others), []).append(r)
     n_failed = sum(r["status"] != "ok" for r in rows)
-    plotted = [False, False]
-    failed_labelled = [False]
+    plotted, failed_labelled = [False, False], [False]
     for gi, (gkey, grows) in enumerate(sorted(groups.items(), key=lambda kv: repr(kv[0]))):
         label = ", ".join(f"{k}={short(v)}" for k, v in zip(others, gkey)) or "all runs"
-        ok = [r for r in grows if r["status"] == "ok"]
-        xs = [r[x] if x else r["run"] for r in ok]
-        order = np.argsort(np.asarray(xs, float), kind="stable") if xs else []
-        for k, (ax, metric) in enumerate(zip(axes, ("rms_joint_error", "max_dk_vs_true"))):
-            ys = np.array([as_float(ok[j][metric]) for j in order])
-            xv = np.array([as_float(xs[j]) for j in order])
-            plotted[k] |= bool(np.isfinite(ys).any())
-            if len(ys):
-                ax.plot(xv, np.maximum(ys, 1e-18), "o-", ms=4, lw=1, label=label if gi < max_lines else None)
-        bad = [as_float(r[x] if x else r["run"]) for r in grows if r["status"] != "ok"]
-        if bad:
-            for ax in axes:
-                ax.plot(bad, [0.03] * len(bad), "x", color="tab:red", ms=7, transform=ax.get_xaxis_transform(),
-                        label=None if failed_labelled[0] else "failed run")
-            failed_labelled[0] = True
-    xl = x or "run"
-    axes[0].set_title(f"RMS joint error after {result.meta.get('rms_from', 0.5):g} s", fontsize=10)
-    axes[0].set_ylabel("rad")
-    axes[1].set_title("max |DK pose - true pose| (m or rad)", fontsize=10)
-    for ax, any_data in zip(axes, plotted):
-        ax.set_xlabel(xl)
+        _plot_group(axes, grows, x, label if gi < max_lines else None, plotted, failed_labelled)
+    for ax, any_data, (_, title, ylabel) in zip(axes, plotted, _PANELS):
+        ax.set_title(title.format(rms_from=result.meta.get("rms_from", 0.5)), fontsize=10)
+        ax.set_xlabel(x or "run")
+        ax.set_ylabel(ylabel)
         if any_data:
             ax.set_yscale("log")
         ax.grid(True, which="both", alpha=0.3)
@@ -181,8 +196,7 @@ def plot_summary(result: BatchResult, path, x: str | None = None, max_lines: int
     handles, labels = axes[0].get_legend_handles_labels()
     if len(groups) > 1 or n_failed:
         ncol = 2 if len(labels) > 3 else max(len(labels), 1)
-        nrows = math.ceil(len(labels) / ncol)
-        extra = 0.2 * nrows + 0.3
+        extra = 0.2 * math.ceil(len(labels) / ncol) + 0.3
         fig.set_size_inches(12, 4.8 + extra)
         fig.legend(handles, labels, loc="lower center", ncol=ncol, fontsize=7, frameon=False)
         fig.tight_layout(rect=(0, extra / (4.8 + extra), 1, 1))

@@ -14,7 +14,7 @@ import os
 import tempfile
 from pathlib import Path
 
-from dynamics.cosim import FMU_NAMES
+from cosim import FMU_NAMES
 
 from .sweep import ConfigError
 

@@ -1,7 +1,7 @@
 """The worker side of a batch: one closed-loop run per task (:func:`run_task`), FMUs loaded once per process.
 
 *Worker FMU reuse.*  pythonfmu FMUs must be extracted once per process and their libraries never
-unloaded (:mod:`fmu_src.unit`), and extraction plus the first instantiation are the expensive part
+unloaded (:mod:`cosim.unit`), and extraction plus the first instantiation are the expensive part
 of a short run.  Each process keeps one :class:`ClosedLoop` per FMU set in :data:`STATE`, keyed by
 the SHA-256 of the three files, created by the first run that needs it; later runs reuse it
 (``ClosedLoop.run`` re-instantiates its FMUs from the libraries already loaded: no extraction, no
@@ -38,8 +38,8 @@ import numpy as np
 # before any FMU is instantiated: every process then runs the FMUs on the installed fmu_src runtime
 # (as the serial CLI, whose build step imports it), not on the bundled copy of the first FMU loaded
 import fmu_src.table_slave  # noqa: F401
-from dynamics.cosim import FMU_NAMES, ClosedLoop, Scenario
-from fmu_src.unit import captured_slave_log, exit_process
+from cosim import FMU_NAMES, ClosedLoop, Scenario
+from cosim.unit import captured_slave_log, exit_process
 from solver import STATUS, wrap_angle
 
 from .fmu_files import materialize, sha256_file

@@ -1,9 +1,9 @@
 """One FMU instance driven through fmpy's ``FMU2Slave``: the driver of every host-side user.
 
 :class:`FMUUnit` is the one FMU2Slave driver of the project: the co-simulation master
-(:mod:`dynamics.cosim`), the checks (:func:`fmu_src.checks.smoke_check`), the tests and the
+(:mod:`cosim`), the checks (:func:`cosim.fmus.checks.smoke_check`), the tests and the
 benchmarks all run FMUs through it (or through fmpy's ``simulate_fmu`` / libcosim, see
-:mod:`fmu_src.simulation` and :mod:`fmu_src.libcosim`).
+:mod:`cosim.simulation` and :mod:`cosim.hosts.libcosim`).
 
 Process rules for pythonfmu FMUs, which this module keeps:
 
@@ -71,7 +71,7 @@ def fmus_loaded() -> bool:
     """Whether this process has loaded a pythonfmu FMU (see :func:`exit_process`): one of the
     project's FMUs was instantiated here (:func:`fmu_src.requirements.instantiated`; also counts
     FMUs whose library fmpy has unloaded since), or a pythonfmu library is mapped now."""
-    from .requirements import instantiated
+    from fmu_src.requirements import instantiated
 
     if instantiated() or _EXTRACTED:
         return True

@@ -1,8 +1,8 @@
-"""Batches of closed-loop co-simulations (Fig. 2) on dask: ``python -m dynamics.batch``.
+"""Batches of closed-loop co-simulations (Fig. 2) on dask: ``python -m cosim.batch``.
 
-Sweeps over the fields of :class:`dynamics.cosim.Scenario` (trajectory, gains, communication step,
+Sweeps over the fields of :class:`cosim.Scenario` (trajectory, gains, communication step,
 plant parameter errors, tracker mode, master algorithm, ...); every run is one
-:meth:`dynamics.cosim.ClosedLoop.run` of the three FMUs through fmpy.  The operational manual (the
+:meth:`cosim.ClosedLoop.run` of the three FMUs through fmpy.  The operational manual (the
 command line, the config file, the table, a multi-node dask cluster) is the README's section
 "Batch runs on dask".
 
@@ -12,11 +12,11 @@ node), ``worker`` (one run per task, FMUs loaded once per process), ``execution`
 go: this process, a local pool, a dask cluster), ``table`` (the result table, its files and plot),
 ``cli`` (the command).
 
-Import direction: this package may import :mod:`dynamics.cosim`, the host side of :mod:`fmu_src`,
+Import direction: this package may import :mod:`cosim`, the host side of :mod:`fmu_src`,
 :mod:`solver`, dask/distributed, pyarrow and matplotlib; nothing else in the project imports it
 (the FMUs never bundle it).
 """
-from dynamics.cosim import FMU_NAMES
+from cosim import FMU_NAMES
 
 from .cli import main, main_and_exit
 from .execution import default_workers, local_cluster, run_batch

@@ -1,7 +1,7 @@
-"""Batches of closed-loop co-simulations (Fig. 2) on dask: ``python -m dynamics.batch``.
+"""Batches of closed-loop co-simulations (Fig. 2) on dask: ``python -m cosim.batch``.
 
-Sweeps over the fields of :class:`dynamics.cosim.Scenario`; every run is one
-:meth:`dynamics.cosim.ClosedLoop.run` of the three FMUs through fmpy.  Results land in one table
+Sweeps over the fields of :class:`cosim.Scenario`; every run is one
+:meth:`cosim.ClosedLoop.run` of the three FMUs through fmpy.  Results land in one table
 (``batch.csv``, ``batch.parquet``), with ``batch_meta.json`` (FMU hashes, cluster, timing) and a
 summary plot ``batch_summary.png``.  The command line, the config file, the table and running on a
 multi-node dask cluster are described in the README's section "Batch runs on dask".
@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fmu_src.builds import build_fmus, parse_resolution
-from fmu_src.unit import exit_process
+from cosim.fmus.builds import build_fmus, parse_resolution
+from cosim.unit import exit_process
 
 from .execution import default_workers, run_batch
 from .sweep import BATCH_OPTIONS, ConfigError, expand, field_name, load_config, parse_sweep_arg, parse_value
@@ -25,10 +25,10 @@ from .worker import STATE
 __all__ = ["main", "main_and_exit"]
 
 _EPILOG = """examples:
-  python -m dynamics.batch --sweep h=0.001,0.002 --sweep plant_mass_scale=0.8,1.0,1.2 --t-end 1.0
-  python -m dynamics.batch --config bench/sweep_example.toml [--out results/batch]
-  python -m dynamics.batch --config sweep.toml --scheduler tcp://10.0.0.5:8786
-  python -m dynamics.batch --sweep bandwidth=20:80:4 --set order=jacobi --dry-run
+  python -m cosim.batch --sweep h=0.001,0.002 --sweep plant_mass_scale=0.8,1.0,1.2 --t-end 1.0
+  python -m cosim.batch --config bench/sweep_example.toml [--out results/batch]
+  python -m cosim.batch --config sweep.toml --scheduler tcp://10.0.0.5:8786
+  python -m cosim.batch --sweep bandwidth=20:80:4 --set order=jacobi --dry-run
 
 --sweep KEY=V1,V2,... is one dimension of the cartesian product (lo:hi:n gives n values from lo to
 hi; center=[0.45,0.3],[0.5,0.3] for the centre); all --zip keys vary together.  Names are the
@@ -36,7 +36,7 @@ Scenario fields ('-' may replace '_')."""
 
 
 def _build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m dynamics.batch", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m cosim.batch", description=__doc__,
                                  epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--config", help="TOML sweep file")
     ap.add_argument("--sweep", action="append", default=[], metavar="KEY=V1,V2", help="a product dimension")
@@ -50,13 +50,15 @@ def _build_parser() -> argparse.ArgumentParser:
     where.add_argument("--scheduler", help="address of an existing dask scheduler (tcp://host:port)")
     where.add_argument("--serial", action="store_true", help="run in this process, no dask")
     ap.add_argument("--workers", type=int, help="local cluster size (default: the cores)")
-    ap.add_argument("--fmu-transfer", choices=("auto", "path", "bytes"))
+    ap.add_argument("--fmu-transfer", choices=("auto", "path", "bytes"),
+                    help="how workers get the FMUs: path (a shared file system), bytes (sent with the "
+                         "tasks, cached per node) or auto (bytes on a given --scheduler, else path; default)")
     ap.add_argument("--restart-workers", action="store_true", help="Client.restart() before the runs")
     ap.add_argument("--rms-from", type=float, help="start of the RMS window, s (default 0.5)")
     ap.add_argument("--plot-x", help="x axis of the summary plot (a swept field)")
-    ap.add_argument("--no-plot", action="store_true")
+    ap.add_argument("--no-plot", action="store_true", help="no batch_summary.png")
     ap.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                    help="progress bar (default: when stderr is a terminal)")
+                    help="a progress bar on stderr, also when it is not a terminal (default: on)")
     ap.add_argument("--dry-run", action="store_true", help="list the runs and stop")
     ap.add_argument("--strict", action="store_true", help="exit status 1 if a run failed")
     return ap
@@ -133,7 +135,7 @@ def main(argv=None) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    progress = sys.stderr.isatty() if args.progress is None else args.progress
+    progress = True if args.progress is None else args.progress
     n_local = opts["workers"] or default_workers()
     where = "this process" if args.serial else (opts["scheduler"] or f"a local cluster of {n_local} processes")
     print(f"{len(params)} runs on {where}")
@@ -167,7 +169,7 @@ def main(argv=None) -> int:
 
 
 def main_and_exit():
-    """``python -m dynamics.batch``: :func:`main`, then exit (without the FMU libraries' finalizers
+    """``python -m cosim.batch``: :func:`main`, then exit (without the FMU libraries' finalizers
     when this process loaded FMUs, ``--serial``: a known issue of pythonfmu 0.7)."""
     code = main()
     if STATE["created"]:

@@ -13,7 +13,7 @@ that simulate the built FMU and compare:
 * ``ComputedTorqueController``: fed its own reference (q = q_d, dq = dq_d, pose = X_d along the
   circle), so its torque is the inverse dynamics of the reference motion; 0.5 s at h = 1 ms.
 
-The runs go through ``fmpy.simulate_fmu`` (:func:`fmu_src.simulation.simulate`).
+The runs go through ``fmpy.simulate_fmu`` (:func:`cosim.simulation.simulate`).
 """
 from __future__ import annotations
 
@@ -25,15 +25,14 @@ import numpy as np
 from dynamics import CircleTrajectory
 from solver import DEFAULT_RULE, PAPER_CIRCLE, Manipulator, MapTensor, circle_path, ik
 
+from .sources import REFERENCE_DIR
 from .builds import DK_NAME, BuildResult, build_dk, build_slave
-from .simulation import input_table, simulate
+from ..simulation import input_table, simulate
 
 __all__ = ["REFERENCE_DIR", "REFERENCE", "OUTPUTS", "H", "N", "RUNS", "circle_joints", "run_circle", "run",
            "start_values", "read_csv", "write_csv", "read", "write", "read_reference_csv", "variable_table",
            "write_references"]
 
-HERE = Path(__file__).resolve().parent
-REFERENCE_DIR = HERE / "reference"
 #: The configuration of the DK reference run (coarse map: quick to build in the tests).
 REFERENCE = {"posture": 1, "mode": "default", "resolution": (0.04, float(np.deg2rad(6.0))),
              "rule": DEFAULT_RULE, "n": 1000, "h": 1e-3}
@@ -56,7 +55,7 @@ def circle_joints(n: int = 1000, posture: int = 1) -> np.ndarray:
 
 
 def run_circle(fmu, n: int = REFERENCE["n"], h: float = REFERENCE["h"], posture: int = 1):
-    """The circle through ``fmu`` with :func:`fmu_src.simulation.simulate` (fmpy.simulate_fmu).
+    """The circle through ``fmu`` with :func:`cosim.simulation.simulate` (fmpy.simulate_fmu).
 
     q[k] is the input on [k*h, (k+1)*h]; result row 0 (t = 0) is the initial pose, row k + 1 the pose
     for q[k].  The initial pose is the first point of the circle.  Returns fmpy's structured array.

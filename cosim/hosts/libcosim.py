@@ -11,7 +11,7 @@ imported).  The ``cosim`` command-line tool (a C++ process without Python) canno
 FMUs: the binary leaves its 45 ``Py*`` symbols undefined (it would need libpython preloaded and
 PYTHONHOME/PYTHONPATH pointing at this environment).  Both runners restore ``sys.path`` and forget
 the modules imported from the FMU's temporary folder when they return
-(:func:`fmu_src.unit.import_hygiene`).
+(:func:`cosim.unit.import_hygiene`).
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .unit import captured_slave_log, import_hygiene, with_slave_log
+from ..unit import captured_slave_log, import_hygiene, with_slave_log
 
 __all__ = ["LibcosimError", "CosimResult", "run_libcosim", "write_osp_system_structure", "run_osp_system"]
 

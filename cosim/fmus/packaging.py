@@ -18,10 +18,10 @@
 3. runs ``pythonfmu.FmuBuilder.build_FMU``;
 4. post-processes the archive: cross-checks pythonfmu's ModelVariables against the table, then
    replaces ``modelDescription.xml`` by one generated from the table
-   (:mod:`fmu_src.model_description`; a GUID derived from the content), makes the Linux binary the
-   loader that starts Python in hosts without it (:mod:`fmu_src.native`) and rewrites the zip
+   (:mod:`cosim.fmus.model_description`; a GUID derived from the content), makes the Linux binary the
+   loader that starts Python in hosts without it (:mod:`cosim.fmus.native`) and rewrites the zip
    deterministically (sorted entries, fixed timestamps and permissions);
-5. validates the result (:func:`fmu_src.checks.validate`) and raises :class:`BuildError` on any
+5. validates the result (:func:`cosim.fmus.checks.validate`) and raises :class:`BuildError` on any
    problem.
 """
 from __future__ import annotations
@@ -43,11 +43,13 @@ import zipfile
 from pathlib import Path
 from typing import Mapping, Sequence
 
-from . import requirements
+from fmu_src import requirements
 from .checks import validate
 from .native import loader_entries
 from .model_description import UNIT_DEFINITIONS, ModelDescriptionError, cross_check, model_description_xml
-from .table_slave import TableSlave
+from fmu_src.table_slave import TableSlave
+
+from .sources import SLAVE_DIR
 
 __all__ = ["BuildError", "build_fmu", "bundled_files", "third_party_modules", "declared_requirements",
            "project_dependencies"]
@@ -55,7 +57,6 @@ __all__ = ["BuildError", "build_fmu", "bundled_files", "third_party_modules", "d
 _ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
 _PROJECT = "rrr-dk"
 _GUID_NAMESPACE = uuid.UUID("6f1c54d2-5b8e-4d67-9a4c-0d1f3e2a7b90")
-_HERE = Path(__file__).resolve().parent
 
 
 class BuildError(RuntimeError):
@@ -141,7 +142,7 @@ def project_dependencies() -> dict[str, requirements.Requirement]:
     import importlib.metadata
     import tomllib
 
-    pyproject = _HERE.parent / "pyproject.toml"
+    pyproject = SLAVE_DIR.parent / "pyproject.toml"
     specs = None
     if pyproject.is_file():
         project = tomllib.loads(pyproject.read_text()).get("project", {})
@@ -206,35 +207,12 @@ def build_fmu(script: str | os.PathLike, dest_dir: str | os.PathLike = ".", *,
     dest_dir = Path(dest_dir)
     dest_dir.mkdir(parents=True, exist_ok=True)
 
-    with tempfile.TemporaryDirectory(prefix="fmu_src_build_") as tmp:
+    with tempfile.TemporaryDirectory(prefix="fmu_build_") as tmp:
         staging = Path(tmp) / "resources"
         staging.mkdir()
         shutil.copyfile(script, staging / script.name)
-        packages = {_HERE.name: _HERE}
-        for pkg in project_packages:
-            pkg = Path(pkg).resolve()
-            if not pkg.is_dir():
-                raise BuildError(f"project package {pkg} is not a directory")
-            if pkg.name in packages:
-                raise BuildError(f"two resources entries named {pkg.name!r}")
-            packages[pkg.name] = pkg
-        bundled = bundled_files(script, packages)
-        for rel, src in bundled.items():
-            (staging / rel).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(src, staging / rel)
-        # pythonfmu's builder bundles the pythonfmu package itself into resources/: not a requirement
-        needs = declared_requirements(third_party_modules([script, *bundled.values()], {*packages, "pythonfmu"}))
-        (staging / requirements.FILE).write_text(requirements.format_requirements(module, needs))
-        for rel, src in sorted((data_files or {}).items()):
-            rel_path = Path(rel)
-            if rel_path.is_absolute() or ".." in rel_path.parts or "\\" in rel:
-                raise BuildError(f"data file name {rel!r} must be a relative path with forward slashes")
-            target = staging / rel_path
-            if target.exists():
-                raise BuildError(f"data file {rel!r} collides with another resources entry")
-            target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(src, target)
-
+        _stage_packages(staging, script, module, project_packages)
+        _stage_data_files(staging, data_files or {})
         with _isolated_module(module):
             cls = _load_slave_class(staging / script.name, module)
             if check:
@@ -250,6 +228,40 @@ def build_fmu(script: str | os.PathLike, dest_dir: str | os.PathLike = ".", *,
         if problems:
             raise BuildError(f"{final} is not valid:\n- " + "\n- ".join(problems))
     return final
+
+
+def _stage_packages(staging: Path, script: Path, module: str, project_packages) -> None:
+    """Copy what the slave imports of the project packages (and of :mod:`fmu_src`) to ``staging``, and
+    write the requirements file of the third-party packages it needs from its host."""
+    packages = {SLAVE_DIR.name: SLAVE_DIR}
+    for pkg in project_packages:
+        pkg = Path(pkg).resolve()
+        if not pkg.is_dir():
+            raise BuildError(f"project package {pkg} is not a directory")
+        if pkg.name in packages:
+            raise BuildError(f"two resources entries named {pkg.name!r}")
+        packages[pkg.name] = pkg
+    bundled = bundled_files(script, packages)
+    for rel, src in bundled.items():
+        (staging / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src, staging / rel)
+    # pythonfmu's builder bundles the pythonfmu package itself into resources/: not a requirement
+    needs = declared_requirements(third_party_modules([script, *bundled.values()], {*packages, "pythonfmu"}))
+    (staging / requirements.FILE).write_text(requirements.format_requirements(module, needs))
+
+
+def _stage_data_files(staging: Path, data_files: Mapping[str, str | os.PathLike]) -> None:
+    """Copy ``{relative path: source file}`` under ``staging``; names must be relative, forward-slashed
+    and new."""
+    for rel, src in sorted(data_files.items()):
+        rel_path = Path(rel)
+        if rel_path.is_absolute() or ".." in rel_path.parts or "\\" in rel:
+            raise BuildError(f"data file name {rel!r} must be a relative path with forward slashes")
+        target = staging / rel_path
+        if target.exists():
+            raise BuildError(f"data file {rel!r} collides with another resources entry")
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src, target)
 
 
 def _check_module_name_is_free(module: str, script: Path) -> None:
@@ -343,7 +355,7 @@ def _postprocess(raw: Path, final: Path, cls: type[TableSlave], can_serialize_st
     if entries.get("resources/slavemodule.txt", b"").decode().strip() != cls.__name__:
         raise BuildError("resources/slavemodule.txt does not name the slave module")
     del entries["modelDescription.xml"]
-    entries = loader_entries(entries, cls.__name__)         # hosts without Python (fmu_src.native)
+    entries = loader_entries(entries, cls.__name__)         # hosts without Python (cosim.fmus.native)
     digest = hashlib.sha256()
     digest.update(model_description_xml(cls, guid="", can_serialize_state=can_serialize_state))
     for name in sorted(entries):

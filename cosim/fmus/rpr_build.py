@@ -26,11 +26,12 @@ from solver.mapcache import labelling_digest
 from solver.rpr import RPR_WORK_BOUNDS, RPRManipulator
 from solver.rpr_suite import cusp_loop_path
 
-from .builds import HERE, BuildResult, _stage_documentation, project_packages
+from .builds import BuildResult, _stage_documentation, project_packages
 from .checks import validate
 from .packaging import build_fmu
 from .references import read_csv, write_csv
-from .simulation import input_table, simulate
+from .sources import REFERENCE_DIR, slave_script
+from ..simulation import input_table, simulate
 
 __all__ = ["RPR_NAME", "RPR_RESOLUTION", "RPR_REFERENCE_RESOLUTION", "RPR_OUTPUTS", "build_rpr_dk", "rpr_map",
            "run_rpr_loop", "write_rpr_reference", "read_rpr_reference", "LOOP_N", "LOOP_H"]
@@ -86,7 +87,7 @@ def build_rpr_dk(out_dir="build", resolution=RPR_RESOLUTION, rule: str = DEFAULT
         manifest.write_text(json.dumps({"model": RPR_NAME, "maps": [
             {"posture": 1, "file": "maps/posture1.npz", "bytes": len(data),
              "sha256": hashlib.sha256(data).hexdigest()}]}, indent=1, sort_keys=True) + "\n")
-        fmu = build_fmu(HERE / f"{RPR_NAME}.py", out_dir, project_packages=project_packages(),
+        fmu = build_fmu(slave_script(RPR_NAME), out_dir, project_packages=project_packages(),
                         data_files={"maps/posture1.npz": map_file, "maps/manifest.json": manifest},
                         documentation_dir=_stage_documentation(tmp, RPR_NAME), check=check)
     problems = validate(fmu) if check else []
@@ -109,7 +110,7 @@ def run_rpr_loop(fmu, n: int = LOOP_N, h: float = LOOP_H, cusp: int = 1):
 
 def write_rpr_reference(result, path=None) -> Path:
     """Write a :func:`run_rpr_loop` result as the reference CSV (default ``fmu_src/reference/``)."""
-    path = Path(path) if path else HERE / "reference" / f"{RPR_NAME}.csv"
+    path = Path(path) if path else REFERENCE_DIR / f"{RPR_NAME}.csv"
     names = ["time", "rho1", "rho2", "rho3", *RPR_OUTPUTS]
     header = [f"{RPR_NAME} reference run: the legs once round the 2 cm loop about cusp 1 of the slice",
               f"rho1 = 1.498 m (solver.rpr_suite.cusp_loop_path(model, 1, {LOOP_N})), rho[k] at t = k*h, "
@@ -121,5 +122,5 @@ def write_rpr_reference(result, path=None) -> Path:
 
 def read_rpr_reference(path=None) -> np.ndarray:
     """The reference CSV as a structured array (the columns of :func:`write_rpr_reference`)."""
-    path = Path(path) if path else HERE / "reference" / f"{RPR_NAME}.csv"
+    path = Path(path) if path else REFERENCE_DIR / f"{RPR_NAME}.csv"
     return read_csv(path, RPR_INTS)[1]

@@ -1,9 +1,9 @@
-"""``python -m dynamics.cosim``: build the FMUs (if needed), run the closed loop, write results/.
+"""``python -m cosim``: build the FMUs (if needed), run the closed loop, write results/.
 
 Runs the default scenario (the robot starts at rest on the circle and follows it for 2.5 s at a
 1 ms step, Gauss-Seidel master; options below change it), writes ``<out>/closed_loop.csv`` and the
 plots in ``<out>/figures/``, and prints the tracking metrics.  The FMUs are built into
-``--build-dir`` by :func:`fmu_src.builds.build_fmus` when missing or stale, and packed with the
+``--build-dir`` by :func:`cosim.fmus.builds.build_fmus` when missing or stale, and packed with the
 closed loop's system structure into ``<build-dir>/RRRClosedLoop.ssp``.
 """
 from __future__ import annotations
@@ -12,26 +12,33 @@ import argparse
 from dataclasses import asdict
 from pathlib import Path
 
-from fmu_src.builds import build_fmus
-from fmu_src.unit import exit_process
+from cosim.fmus.builds import build_fmus
+from cosim.unit import exit_process
 
-from .master import ClosedLoop
-from .results import plot_closed_loop, write_csv
-from .scenario import Scenario
-from .system_files import write_closed_loop_ssp
+from .loop.master import ClosedLoop
+from .loop.results import plot_closed_loop, write_csv
+from .loop.scenario import Scenario
+from .hosts.system_files import write_closed_loop_ssp
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m dynamics.cosim", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m cosim", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--build-dir", default="build")
-    ap.add_argument("--out", default="results")
+    ap.add_argument("--build-dir", default="build", metavar="DIR",
+                    help="folder of the FMUs, built there when missing or stale (default: build)")
+    ap.add_argument("--out", default="results", metavar="DIR",
+                    help="folder of closed_loop.csv and figures/ (default: results)")
     ap.add_argument("--rebuild", action="store_true", help="rebuild the FMUs even if present")
-    ap.add_argument("--h", type=float, default=Scenario.h)
-    ap.add_argument("--t-end", type=float, default=Scenario.t_end)
-    ap.add_argument("--order", default=Scenario.order, choices=("gauss-seidel", "jacobi"))
-    ap.add_argument("--plant-mass-scale", type=float, default=1.0)
-    ap.add_argument("--no-plots", action="store_true")
+    ap.add_argument("--h", type=float, default=Scenario.h, metavar="SECONDS",
+                    help=f"communication step of the master, s (default {Scenario.h:g})")
+    ap.add_argument("--t-end", type=float, default=Scenario.t_end, metavar="SECONDS",
+                    help=f"simulated time, s (default {Scenario.t_end:g})")
+    ap.add_argument("--order", default=Scenario.order, choices=("gauss-seidel", "jacobi"),
+                    help="master algorithm: gauss-seidel (DK, controller, plant in turn; default) or jacobi")
+    ap.add_argument("--plant-mass-scale", type=float, default=1.0, metavar="FACTOR",
+                    help="factor on the plant's (the real robot's) default masses; the controller's model "
+                         "keeps its own: a model error (default 1)")
+    ap.add_argument("--no-plots", action="store_true", help="write the CSV only, no PNG plots")
     args = ap.parse_args(argv)
     paths = build_fmus(args.build_dir, force=args.rebuild)
     print(f"wrote {write_closed_loop_ssp(args.build_dir)} (the closed loop as SSP 1.0, for Ecos and SSP tools)")

@@ -2,7 +2,7 @@
 
 :func:`validate` is fmpy's ``validate_fmu`` plus this project's rules (explicit output
 dependencies, units on every Real interface variable, the pythonfmu layout, no compiled Python).
-:func:`smoke_check` runs the FMU through the shared driver (:class:`fmu_src.unit.FMUUnit`) and
+:func:`smoke_check` runs the FMU through the shared driver (:class:`cosim.unit.FMUUnit`) and
 lists what a master would trip over: refused steps, non-finite outputs, an FMU state that misses
 part of the internal state, fmi2Reset that does not return to the start, logged warnings.
 """
@@ -16,7 +16,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from .unit import FMUUnit, import_hygiene
+from ..unit import FMUUnit, import_hygiene
 
 __all__ = ["validate", "value_references", "smoke_check"]
 

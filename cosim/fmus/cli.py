@@ -1,4 +1,4 @@
-"""``python build_fmu.py`` (also ``python -m fmu_src.cli``): build the three FMUs and their reference CSVs.
+"""``python build_fmu.py`` (also ``python -m cosim.fmus.cli``): build the three FMUs and their reference CSVs.
 
     python build_fmu.py [--out build] [--posture 1 [2 ...]] [--resolution 10mm,2deg]
                         [--map FILE [FILE ...]] [--mode default|paper] [--rule real-phi]
@@ -6,23 +6,21 @@
     python build_fmu.py --write-reference      # regenerate fmu_src/reference/<FMU>.csv
     python build_fmu.py --manipulator 3rpr [--resolution 25mm,3deg] [--no-reference | --write-reference]
 
-1. The FMUs (:mod:`fmu_src.builds`) are built into ``--out`` and validated: ``RRRDirectKinematics``
+1. The FMUs (:mod:`cosim.fmus.builds`) are built into ``--out`` and validated: ``RRRDirectKinematics``
    with the map tensor(s) of ``--posture`` at ``--resolution`` (cached in ``<out>/maps/``) or the
    ``--map`` files, ``--mode`` and ``--posture`` as start values of its parameters;
    ``ComputedTorqueController`` and ``RRRPlant``.  ``--only`` builds some of them.
-2. The reference run of each FMU (:mod:`fmu_src.references`) is built into ``<out>/reference/`` and
+2. The reference run of each FMU (:mod:`cosim.fmus.references`) is built into ``<out>/reference/`` and
    written as ``<out>/reference/<FMU>.csv``; each is compared with the kept
    ``fmu_src/reference/<FMU>.csv`` (the tests compare with those).  ``--no-reference`` skips it.
 
 3. ``--ssp``: the closed loop of the three FMUs in ``--out`` as the SSP 1.0 package
    ``<out>/RRRClosedLoop.ssp`` (the FMUs inside, the connections and the default scenario's start
-   values; :func:`dynamics.cosim.system_files.write_ssp_system`), checked against the SSP 1.0
-   schemas when ``pyssp-standard`` is installed (:func:`fmu_src.ssp.schema_problems`).  Only
-   through ``build_fmu.py``: the closed loop is defined on the co-simulation side, which
-   :mod:`fmu_src` never imports (``main(write_ssp=...)``).
+   values; :func:`cosim.hosts.system_files.write_ssp_system`), checked against the SSP 1.0
+   schemas when ``pyssp-standard`` is installed (:func:`cosim.hosts.ssp.schema_problems`).
 
 ``--manipulator 3rpr`` builds the cuspidal 3-RPR's DK FMU instead, ``RPRDirectKinematics``
-(:mod:`fmu_src.rpr_build`; leg lengths in, pose out; map at ``--resolution``, default 25 mm, 3 deg),
+(:mod:`cosim.fmus.rpr_build`; leg lengths in, pose out; map at ``--resolution``, default 25 mm, 3 deg),
 and its reference run (the loop around a cusp) against ``fmu_src/reference/RPRDirectKinematics.csv``.
 
 ``--write-reference`` does step 2 only and rewrites the kept CSVs.  Same options and the same map
@@ -38,12 +36,13 @@ from pathlib import Path
 
 from solver import DEFAULT_RULE, ORDERING_RULES, MapTensorFileError
 
+from .sources import REFERENCE_DIR
 from .builds import DEFAULT_RESOLUTION, DK_NAME, FMU_NAMES, MODES, build_dk, build_slave, parse_resolution
-from .unit import exit_process
+from ..unit import exit_process
 
 __all__ = ["main"]
 
-_KEPT = Path(__file__).resolve().parent / "reference"
+_KEPT = REFERENCE_DIR
 
 
 def _parser(default_out) -> argparse.ArgumentParser:
@@ -90,7 +89,7 @@ def _rpr(args) -> int:
         if result.problems:
             print("validation: FAILED\n  " + "\n  ".join(result.problems))
             return 1
-        print("validation: OK (fmpy.validation + fmu_src.checks.validate report nothing)")
+        print("validation: OK (fmpy.validation + cosim.fmus.checks.validate report nothing)")
         if args.no_reference:
             return 0
     ref = build_rpr_dk(out / "reference", resolution=RPR_REFERENCE_RESOLUTION, cache_dir=out / "maps")
@@ -127,7 +126,7 @@ def _build(args) -> int:
             print("validation: FAILED\n  " + "\n  ".join(problems))
             status = 1
         else:
-            print("validation: OK (fmpy.validation + fmu_src.checks.validate report nothing)")
+            print("validation: OK (fmpy.validation + cosim.fmus.checks.validate report nothing)")
     return status
 
 
@@ -149,14 +148,12 @@ def _references(out, csv_dir) -> None:
     print(f"reference runs in {time.perf_counter() - t0:.1f} s")
 
 
-def _ssp(out, write_ssp) -> int:
+def _ssp(out) -> int:
     """Step 3 (see the module docstring); the exit status."""
-    from .ssp import SchemaUnavailable, schema_problems
+    from ..hosts.ssp import SchemaUnavailable, schema_problems
+    from ..hosts.system_files import write_closed_loop_ssp
 
-    if write_ssp is None:
-        raise ValueError("--ssp: the closed loop is written by `python build_fmu.py --ssp` "
-                         "(dynamics.cosim.system_files), not by python -m fmu_src.cli")
-    path = Path(write_ssp(Path(out)))
+    path = Path(write_closed_loop_ssp(Path(out)))
     print(f"{path}: {path.stat().st_size / 1e6:.3f} MB")
     try:
         problems = schema_problems(path)
@@ -170,11 +167,8 @@ def _ssp(out, write_ssp) -> int:
     return 0
 
 
-def main(argv=None, default_out="build", write_ssp=None) -> int:
-    """The command line (see the module docstring); returns the exit status.
-
-    ``write_ssp``: ``write_ssp(out_dir) -> path`` writes the closed loop's SSP package (``--ssp``).
-    """
+def main(argv=None, default_out="build") -> int:
+    """The command line (see the module docstring); returns the exit status."""
     args = _parser(default_out).parse_args(argv)
     try:
         if args.manipulator == "3rpr":
@@ -186,7 +180,7 @@ def main(argv=None, default_out="build", write_ssp=None) -> int:
         if status == 0 and not args.no_reference:
             _references(args.out, Path(args.out) / "reference")
         if status == 0 and args.ssp:
-            status = _ssp(args.out, write_ssp)
+            status = _ssp(args.out)
     except (ValueError, MapTensorFileError, RuntimeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -12,9 +12,9 @@
 * ``RRRPlant`` and ``ComputedTorqueController`` (:func:`build_slave`): the slave and the ``solver``
   and ``dynamics`` modules it imports (the math only: never the master, the batch or dask).
 
-Every FMU bundles only what its slave imports (:func:`fmu_src.packaging.bundled_files`).
+Every FMU bundles only what its slave imports (:func:`cosim.fmus.packaging.bundled_files`).
 :func:`build_fmus` builds the stale ones of the three in child processes (``python -m
-fmu_src.cli``): a process that later runs FMUs must load each FMU only once, and a build imports
+cosim.fmus.cli``): a process that later runs FMUs must load each FMU only once, and a build imports
 the slave and builds maps.
 """
 from __future__ import annotations
@@ -37,14 +37,13 @@ import numpy as np
 from solver import DEFAULT_RULE, DEFAULT_STEP, ORDERING_RULES, Manipulator, MapTensor, cached_map, map_path
 
 from .checks import validate
-from .native import LOADER_SOURCE
+from .sources import LOADER_SOURCE, SLAVE_DIR, slave_readme, slave_script
 from .packaging import bundled_files, build_fmu
 
 __all__ = ["FMU_NAMES", "DK_NAME", "MODES", "DEFAULT_RESOLUTION", "BuildResult", "parse_resolution",
            "resolution_step", "map_cache_path", "build_dk", "build_slave", "build_fmus", "slave_script",
            "project_packages", "is_stale"]
 
-HERE = Path(__file__).resolve().parent
 #: The three FMUs, in the order of the closed loop's data flow (DK -> controller -> plant).
 FMU_NAMES = ("RRRDirectKinematics", "ComputedTorqueController", "RRRPlant")
 DK_NAME = "RRRDirectKinematics"
@@ -54,11 +53,6 @@ DEFAULT_RESOLUTION = (DEFAULT_STEP[0], DEFAULT_STEP[2])
 
 _LEN_UNITS = {"m": 1.0, "cm": 1e-2, "mm": 1e-3}
 _ANG_UNITS = {"rad": 1.0, "deg": float(np.pi / 180.0)}
-
-
-def slave_script(name: str) -> Path:
-    """The slave script of FMU ``name`` (``fmu_src/<name>.py``)."""
-    return HERE / f"{name}.py"
 
 
 def project_packages() -> list[Path]:
@@ -130,7 +124,7 @@ def _stage_script(dest: Path, posture: int, mode: str) -> Path:
 
 
 def _stage_documentation(dest: Path, name: str = DK_NAME) -> Path:
-    readme = HERE / f"{name}.md"
+    readme = slave_readme(name)
     doc = dest / "documentation"
     doc.mkdir()
     text = readme.read_text()
@@ -213,12 +207,13 @@ def build_slave(name: str, out_dir="build", check: bool = True) -> Path:
 # ---------------------------------------------------------------------- all three, as needed
 def is_stale(name: str, fmu: Path) -> bool:
     """Whether ``fmu`` is missing or older than its slave script, the ``fmu_src`` runtime it bundles or
-    the sources of its native binary (:mod:`fmu_src.native`, the loader's C source, the packaging)."""
+    the sources of its native binary (:mod:`cosim.fmus.native`, the loader's C source, the packaging)."""
     if not fmu.exists():
         return True
     script = slave_script(name)
-    runtime = bundled_files(script, {HERE.name: HERE}).values()
-    native_sources = (LOADER_SOURCE, HERE / "native.py", HERE / "packaging.py")
+    runtime = bundled_files(script, {SLAVE_DIR.name: SLAVE_DIR}).values()
+    here = Path(__file__).resolve().parent
+    native_sources = (LOADER_SOURCE, here / "native.py", here / "packaging.py")
     return fmu.stat().st_mtime < max(p.stat().st_mtime for p in (script, *runtime, *native_sources))
 
 
@@ -227,7 +222,7 @@ def build_fmus(out_dir="build", resolution=None, force: bool = False, log=print)
 
     The DK FMU embeds the map tensor of posture 1 at the default resolution, or at ``resolution`` =
     (m, rad), cached in ``<out_dir>/maps``.  An FMU is rebuilt when ``force`` or :func:`is_stale`.
-    Each build runs in a child process, ``python -m fmu_src.cli`` (see the module docstring).
+    Each build runs in a child process, ``python -m cosim.fmus.cli`` (see the module docstring).
     """
     out = Path(out_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
@@ -235,11 +230,11 @@ def build_fmus(out_dir="build", resolution=None, force: bool = False, log=print)
     for name in FMU_NAMES:
         if not (force or is_stale(name, paths[name])):
             continue
-        args = [sys.executable, "-m", "fmu_src.cli", "--out", str(out), "--only", name, "--no-reference"]
+        args = [sys.executable, "-m", "cosim.fmus.cli", "--out", str(out), "--only", name, "--no-reference"]
         if name == DK_NAME and resolution is not None:
             args += ["--resolution", "{!r}m,{!r}rad".format(*(float(v) for v in resolution))]
         t0 = time.perf_counter()
-        proc = subprocess.run(args, cwd=str(HERE.parent), capture_output=True, text=True)
+        proc = subprocess.run(args, cwd=str(SLAVE_DIR.parent), capture_output=True, text=True)
         if proc.returncode != 0 or not paths[name].exists():
             raise RuntimeError(f"building {paths[name].name} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
         log(f"built {paths[name]} in {time.perf_counter() - t0:.1f} s")

@@ -23,7 +23,7 @@ class Scenario:
     h : float
         Communication (and control) step, s.
     order : {"gauss-seidel", "jacobi"}
-        Master algorithm (see :mod:`dynamics.cosim.master`).
+        Master algorithm (see :mod:`cosim.loop.master`).
     posture : int
         Posture of the robot, its DK map and its reference.
     bandwidth, damping : float

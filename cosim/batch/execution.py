@@ -1,12 +1,12 @@
 """The client side of a batch: where the runs go (this process, a local pool, a dask cluster) and the rows back.
 
-:func:`run_batch` submits one :func:`dynamics.batch.worker.run_task` per parameter dict, longest
+:func:`run_batch` submits one :func:`cosim.batch.worker.run_task` per parameter dict, longest
 first, and collects the rows in run order; a worker that dies is retried by dask and, after its
 ``allowed-failures``, reported as a failed row (``KilledWorker``); the other runs go on.  The local
 pool (:func:`local_cluster`) runs its workers without dask's sampling profiler and without dask's
 aggressive ``MALLOC_TRIM_THRESHOLD_`` (both cost the GIL-bound runs a few per cent).  With
 ``fmu_transfer="bytes"`` the client scatters the three FMU files once to every worker
-(``Client.scatter(..., broadcast=True)``, ~0.5 MB; :mod:`dynamics.batch.fmu_files`).
+(``Client.scatter(..., broadcast=True)``, ~0.5 MB; :mod:`cosim.batch.fmu_files`).
 """
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from dynamics.cosim import FMU_NAMES
+from cosim import FMU_NAMES
 
 from .fmu_files import fmu_spec
 from .sweep import ConfigError

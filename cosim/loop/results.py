@@ -30,11 +30,13 @@ COLUMN_SOURCES = {
     **{f"q{i}_ref": f"controller.q{i}_ref" for i in (1, 2, 3)},
     "dk_status": "dk.status", "region": "dk.region", "n_real": "dk.n_real",
     "near_border": "dk.near_border", "ambiguous": "dk.ambiguous",
+    "certain": "dk.certain", "uncertain_since": "dk.uncertain_since",
 }
-#: Columns of :meth:`dynamics.cosim.ClosedLoop.run`'s result, in order.
+#: Columns of :meth:`cosim.ClosedLoop.run`'s result, in order.
 COLUMNS = tuple(COLUMN_SOURCES)
-#: The columns of the DK's Integer and Boolean outputs (``ClosedLoop.run(..., flags=False)`` omits them).
-FLAG_COLUMNS = ("dk_status", "region", "n_real", "near_border", "ambiguous")
+#: The columns of the DK's status outputs: its Integer and Boolean outputs and ``uncertain_since``
+#: (``ClosedLoop.run(..., flags=False)`` omits them).
+FLAG_COLUMNS = ("dk_status", "region", "n_real", "near_border", "ambiguous", "certain", "uncertain_since")
 
 
 @dataclass
@@ -86,29 +88,53 @@ class ClosedLoopResult:
                 "wall_seconds": self.wall_seconds, "realtime_factor": self.realtime_factor}
 
 
+def _cell(value) -> str:
+    """A CSV cell: the shortest text that reads back as the same float64 (``repr``), integers as such."""
+    v = float(value)
+    return str(int(v)) if v.is_integer() and abs(v) < 2**53 else repr(v)
+
+
 def write_csv(result: ClosedLoopResult, path) -> Path:
+    """Write the result's columns to ``path`` (CSV, LF line ends, a header row).
+
+    Every value is written as the shortest decimal that reads back as the same float64 (``time``
+    is ``t0 + k h`` exactly as the master stepped); integer-valued cells (the DK's status, region,
+    flags as 0/1, whole times) without a decimal point.  Returns the path.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     names = list(result.columns)
     with open(path, "w", newline="") as f:
-        w = csv.writer(f)
+        w = csv.writer(f, lineterminator="\n")
         w.writerow(names)
         for row in zip(*(result.columns[n] for n in names)):
-            w.writerow([f"{v:.17g}" if isinstance(v, float) else v for v in row])
+            w.writerow([_cell(v) for v in row])
     return path
 
 
 def plot_closed_loop(result: ClosedLoopResult, out_dir) -> list[Path]:
-    """PNG plots: pose vs reference, joint errors, torques, DK status."""
+    """PNG plots of a run in ``out_dir``: pose vs reference (``closed_loop_pose.png``), joint errors and
+    torques (``closed_loop_joints_torques.png``), the DK's status (``closed_loop_dk_status.png``).
+    Returns their paths."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    c, t = result.columns, result.t
-    sc = result.scenario
     paths = []
+    for name, draw in (("closed_loop_pose.png", _plot_pose), ("closed_loop_joints_torques.png", _plot_joints),
+                       ("closed_loop_dk_status.png", _plot_status)):
+        fig = draw(plt, result)
+        fig.tight_layout()
+        paths.append(out / name)
+        fig.savefig(paths[-1])
+        plt.close(fig)
+    return paths
+
+
+def _plot_pose(plt, result: ClosedLoopResult):
+    c, t, sc = result.columns, result.t, result.scenario
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), dpi=110)
     axes[0].plot(c["x_ref"], c["y_ref"], "k:", lw=1.5, label="reference")
     axes[0].plot(c["x"], c["y"], "-", color="tab:blue", lw=1.0, label="DK FMU pose")
@@ -121,15 +147,16 @@ def plot_closed_loop(result: ClosedLoopResult, out_dir) -> list[Path]:
         ref = c["phi_ref"] if key == "phi" else c[f"{key}_ref"]
         axes[1].plot(t, c[key] - ref, color=col, label=f"{key} - {key}_ref [{'rad' if key == 'phi' else 'm'}]")
     axes[1].set_xlabel("t [s]")
+    axes[1].set_ylabel("pose error [m] or [rad]")
     axes[1].legend(fontsize=8)
     axes[1].set_title("pose error (DK pose - reference)", fontsize=9)
     fig.suptitle(f"Closed loop (Fig. 2): computed torque on the circle, h = {sc.h * 1e3:g} ms, {sc.order}",
                  fontsize=10)
-    fig.tight_layout()
-    paths.append(out / "closed_loop_pose.png")
-    fig.savefig(paths[-1])
-    plt.close(fig)
+    return fig
 
+
+def _plot_joints(plt, result: ClosedLoopResult):
+    c, t = result.columns, result.t
     e = result.joint_error()
     fig, axes = plt.subplots(2, 1, figsize=(8, 6), dpi=110, sharex=True)
     for i in range(3):
@@ -142,25 +169,26 @@ def plot_closed_loop(result: ClosedLoopResult, out_dir) -> list[Path]:
     axes[1].set_ylabel("torque [N m]")
     axes[1].set_xlabel("t [s]")
     axes[1].legend(fontsize=8)
-    fig.tight_layout()
-    paths.append(out / "closed_loop_joints_torques.png")
-    fig.savefig(paths[-1])
-    plt.close(fig)
+    return fig
 
-    fig, axes = plt.subplots(3, 1, figsize=(8, 5), dpi=110, sharex=True)
+
+def _plot_status(plt, result: ClosedLoopResult):
+    c, t = result.columns, result.t
+    fig, axes = plt.subplots(3, 1, figsize=(8, 5.5), dpi=110, sharex=True)
     axes[0].step(t, c["dk_status"], where="post")
     axes[0].set_yticks(sorted(STATUS))
     axes[0].set_yticklabels([STATUS[k] for k in sorted(STATUS)], fontsize=7)
+    axes[0].set_ylabel("status")
     axes[0].set_title("DK FMU: status, region used, real solutions, flags", fontsize=9)
     axes[1].step(t, c["region"], where="post", label="region")
     axes[1].step(t, c["n_real"], where="post", label="n_real")
+    axes[1].set_ylabel("number")
     axes[1].legend(fontsize=8)
-    axes[2].step(t, c["near_border"], where="post", label="near_border")
-    axes[2].step(t, c["ambiguous"] * 0.5, where="post", label="ambiguous (x0.5)")
-    axes[2].legend(fontsize=8)
+    axes[2].step(t, c["certain"], where="post", label="certain")
+    axes[2].step(t, c["near_border"] * 0.66, where="post", label="near_border (x0.66)")
+    axes[2].step(t, c["ambiguous"] * 0.33, where="post", label="ambiguous (x0.33)")
+    axes[2].set_yticks([0, 0.33, 0.66, 1])
+    axes[2].set_ylabel("flag (0 false)")
+    axes[2].legend(fontsize=8, loc="center right")
     axes[2].set_xlabel("t [s]")
-    fig.tight_layout()
-    paths.append(out / "closed_loop_dk_status.png")
-    fig.savefig(paths[-1])
-    plt.close(fig)
-    return paths
+    return fig

@@ -125,7 +125,29 @@ def system_structure(fmus: Mapping[str, Any], *, connections: Iterable[tuple[str
     unknown = sorted(set(values) - set(fmus))
     if unknown:
         raise SSPError(f"parameter_values: unknown instances {unknown}; expected some of {list(fmus)}")
+    conns = _checked_connections(connections, variables)
+    root = ET.Element(_q("ssd", "SystemStructureDescription"), {"version": "1.0", "name": name})
+    system = ET.SubElement(root, _q("ssd", "System"), {"name": name})
+    elements = ET.SubElement(system, _q("ssd", "Elements"))
+    units_used: dict[str, Any] = {}
+    for inst, path in fmus.items():
+        source = (sources or {}).get(inst, f"resources/{Path(path).name}")
+        comp = _component(elements, inst, source, mds[inst], units_used)
+        _parameter_binding(comp, inst, variables[inst], values.get(inst, {}))
+    if conns:
+        node = ET.SubElement(system, _q("ssd", "Connections"))
+        for a, u, b, v in conns:
+            ET.SubElement(node, _q("ssd", "Connection"),
+                          {"startElement": a, "startConnector": u, "endElement": b, "endConnector": v})
+    if units_used:
+        _units(root, units_used)
+    _default_experiment(root, start_time, stop_time, step_size)
+    ET.indent(root, space="  ")
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode").encode() + b"\n"
 
+
+def _checked_connections(connections, variables: dict) -> list[tuple[str, str, str, str]]:
+    """``(instance, output, instance, input)`` of each connection, checked against the variables."""
     def end(text: str, causality: str) -> tuple[str, str]:
         inst, _, var = text.partition(".")
         if inst not in variables or var not in variables[inst]:
@@ -141,43 +163,44 @@ def system_structure(fmus: Mapping[str, Any], *, connections: Iterable[tuple[str
         if variables[a][u].type != variables[b][v].type:
             raise SSPError(f"connection {src} -> {dst}: types {variables[a][u].type} and {variables[b][v].type}")
         conns.append((a, u, b, v))
+    return conns
 
-    root = ET.Element(_q("ssd", "SystemStructureDescription"), {"version": "1.0", "name": name})
-    system = ET.SubElement(root, _q("ssd", "System"), {"name": name})
-    elements = ET.SubElement(system, _q("ssd", "Elements"))
-    units_used: dict[str, Any] = {}
-    for inst, path in fmus.items():
-        source = (sources or {}).get(inst, f"resources/{Path(path).name}")
-        comp = ET.SubElement(elements, _q("ssd", "Component"), {
-            "name": inst, "type": "application/x-fmu-sharedlibrary", "source": source,
-            "implementation": "CoSimulation"})
-        connectors = ET.SubElement(comp, _q("ssd", "Connectors"))
-        for v in mds[inst].modelVariables:
-            if v.causality not in _KINDS:
-                continue
-            node = ET.SubElement(connectors, _q("ssd", "Connector"), {"name": v.name, "kind": v.causality})
-            attrib = {}
-            if v.type == "Real" and v.unit:
-                attrib["unit"] = v.unit
-                units_used[v.unit] = next((u for u in mds[inst].unitDefinitions if u.name == v.unit), None)
-            ET.SubElement(node, _q("ssc", v.type), attrib)
-        _parameter_binding(comp, inst, variables[inst], values.get(inst, {}))
-    if conns:
-        node = ET.SubElement(system, _q("ssd", "Connections"))
-        for a, u, b, v in conns:
-            ET.SubElement(node, _q("ssd", "Connection"),
-                          {"startElement": a, "startConnector": u, "endElement": b, "endConnector": v})
-    if units_used:
-        units = ET.SubElement(root, _q("ssd", "Units"))
-        for unit_name in sorted(units_used):
-            unit = ET.SubElement(units, _q("ssc", "Unit"), {"name": unit_name})
-            base = getattr(units_used[unit_name], "baseUnit", None)
-            attrib = {}
-            for key in _BASE_UNIT:
-                value = getattr(base, key, None) if base is not None else None
-                if value is not None and value != (1.0 if key == "factor" else 0):
-                    attrib[key] = repr(float(value)) if key in ("factor", "offset") else str(int(value))
-            ET.SubElement(unit, _q("ssc", "BaseUnit"), attrib)
+
+def _component(elements, inst: str, source: str, md, units_used: dict):
+    """The ``ssd:Component`` of one FMU with a connector per input, output and parameter; the units
+    its Real connectors use are added to ``units_used``."""
+    comp = ET.SubElement(elements, _q("ssd", "Component"), {
+        "name": inst, "type": "application/x-fmu-sharedlibrary", "source": source,
+        "implementation": "CoSimulation"})
+    connectors = ET.SubElement(comp, _q("ssd", "Connectors"))
+    for v in md.modelVariables:
+        if v.causality not in _KINDS:
+            continue
+        node = ET.SubElement(connectors, _q("ssd", "Connector"), {"name": v.name, "kind": v.causality})
+        attrib = {}
+        if v.type == "Real" and v.unit:
+            attrib["unit"] = v.unit
+            units_used[v.unit] = next((u for u in md.unitDefinitions if u.name == v.unit), None)
+        ET.SubElement(node, _q("ssc", v.type), attrib)
+    return comp
+
+
+def _units(root, units_used: dict) -> None:
+    """``ssd:Units``: each unit used, with its SI base-unit exponents, factor and offset."""
+    units = ET.SubElement(root, _q("ssd", "Units"))
+    for unit_name in sorted(units_used):
+        unit = ET.SubElement(units, _q("ssc", "Unit"), {"name": unit_name})
+        base = getattr(units_used[unit_name], "baseUnit", None)
+        attrib = {}
+        for key in _BASE_UNIT:
+            value = getattr(base, key, None) if base is not None else None
+            if value is not None and value != (1.0 if key == "factor" else 0):
+                attrib[key] = repr(float(value)) if key in ("factor", "offset") else str(int(value))
+        ET.SubElement(unit, _q("ssc", "BaseUnit"), attrib)
+
+
+def _default_experiment(root, start_time: float, stop_time: float | None, step_size: float | None) -> None:
+    """``ssd:DefaultExperiment``, with the communication step as an OSP fixed-step annotation."""
     experiment = {"startTime": repr(float(start_time))}
     if stop_time is not None:
         experiment["stopTime"] = repr(float(stop_time))
@@ -187,8 +210,6 @@ def system_structure(fmus: Mapping[str, Any], *, connections: Iterable[tuple[str
         annotation = ET.SubElement(annotations, _q("ssc", "Annotation"), {"type": "com.opensimulationplatform"})
         algorithm = ET.SubElement(annotation, _q("osp", "Algorithm"))
         ET.SubElement(algorithm, _q("osp", "FixedStepAlgorithm"), {"baseStepSize": repr(float(step_size))})
-    ET.indent(root, space="  ")
-    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="unicode").encode() + b"\n"
 
 
 def _parameter_binding(comp, inst: str, variables: dict, values: Mapping[str, Any]) -> None:

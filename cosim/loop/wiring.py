@@ -5,7 +5,7 @@ Three instances, named after their role: ``dk`` (``RRRDirectKinematics``), ``con
 (q -> tracker -> pose -> controller -> tau -> plant -> q), which is the Gauss-Seidel order.
 :data:`CONNECTIONS` lists every link ``("instance.output", "instance.input")``; the master feeds
 each instance's inputs from it (:func:`inputs_of`, :func:`copy_plan`) and the OSP system file
-(:mod:`dynamics.cosim.system_files`) writes it as is.  :data:`RECORDED` names the outputs the
+(:mod:`cosim.hosts.system_files`) writes it as is.  :data:`RECORDED` names the outputs the
 master reads at every step only to record them.
 """
 from __future__ import annotations
@@ -33,7 +33,7 @@ CONNECTIONS = (
 
 #: Outputs the master reads at every step beyond the connected ones, to record them.
 RECORDED = {
-    "dk": ("region", "n_real", "status", "near_border", "ambiguous"),
+    "dk": ("region", "n_real", "status", "near_border", "ambiguous", "certain", "uncertain_since"),
     "controller": ("x_ref", "y_ref", "phi_ref_out", "q1_ref", "q2_ref", "q3_ref"),
     "plant": ("x_true", "y_true", "phi_true"),
 }

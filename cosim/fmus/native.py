@@ -31,10 +31,11 @@ import warnings
 from pathlib import Path
 from typing import Mapping
 
+from .sources import LOADER_SOURCE
+
 __all__ = ["LOADER_SOURCE", "WRAPPER_NAME", "RUNTIME_FILE", "PYTHON_ENV", "NativeBuildWarning",
            "compiler", "compile_loader", "runtime_record", "loader_entries"]
 
-LOADER_SOURCE = Path(__file__).resolve().parent / "loader" / "fmi2_loader.c"
 #: pythonfmu's wrapper inside the FMU, beside the loader (the loader's ``WRAPPER_NAME``)
 WRAPPER_NAME = "libpythonfmu-export.so"
 #: the build-time record of the Python runtime, under resources/ (the loader's ``RUNTIME_FILE``)

@@ -1,18 +1,18 @@
 """The closed loop as system files for other co-simulation masters: libcosim's OspSystemStructure.xml
 (:func:`write_osp_system`) and an SSP 1.0 package (:func:`write_ssp_system`), both from
-:data:`~dynamics.cosim.wiring.CONNECTIONS` and :func:`~dynamics.cosim.wiring.start_values`."""
+:data:`~cosim.loop.wiring.CONNECTIONS` and :func:`~cosim.loop.wiring.start_values`."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
 
-from fmu_src.builds import FMU_NAMES
-from fmu_src.libcosim import write_osp_system_structure
-from fmu_src.ssp import write_ssp
+from cosim.fmus.builds import FMU_NAMES
+from cosim.hosts.libcosim import write_osp_system_structure
+from cosim.hosts.ssp import write_ssp
 
-from .scenario import Scenario
-from .wiring import CONNECTIONS, INSTANCES, start_values
+from ..loop.scenario import Scenario
+from ..loop.wiring import CONNECTIONS, INSTANCES, start_values
 
 __all__ = ["write_osp_system", "write_ssp_system", "write_closed_loop_ssp", "SSP_NAME"]
 
@@ -28,10 +28,10 @@ def _values(sc: Scenario) -> dict:
 def write_osp_system(paths: dict, folder, scenario: Scenario | None = None) -> Path:
     """The closed loop as libcosim's OspSystemStructure.xml in ``folder`` (instances dk, controller, plant).
 
-    ``paths``: {FMU name: path}.  The connections are :data:`~dynamics.cosim.wiring.CONNECTIONS`,
-    the initial values :func:`~dynamics.cosim.wiring.start_values`.  libcosim's fixed-step algorithm
+    ``paths``: {FMU name: path}.  The connections are :data:`~cosim.loop.wiring.CONNECTIONS`,
+    the initial values :func:`~cosim.loop.wiring.start_values`.  libcosim's fixed-step algorithm
     steps all FMUs from the same inputs and then moves the outputs along the connections: the
-    ``order="jacobi"`` scheme of :class:`dynamics.cosim.ClosedLoop`.
+    ``order="jacobi"`` scheme of :class:`cosim.ClosedLoop`.
     """
     sc = Scenario() if scenario is None else scenario
     folder = Path(folder)
@@ -45,13 +45,13 @@ def write_ssp_system(paths: dict, path, scenario: Scenario | None = None) -> Pat
     """The closed loop as the SSP 1.0 package ``path`` (e.g. ``build/RRRClosedLoop.ssp``).
 
     ``paths``: {FMU name: path}; the FMUs go inside the package.  Components dk, controller, plant
-    (:data:`~dynamics.cosim.wiring.INSTANCES`), the connections
-    :data:`~dynamics.cosim.wiring.CONNECTIONS`, and the scenario's parameters and initial inputs
-    (:func:`~dynamics.cosim.wiring.start_values`: the DK FMU's joints q1..q3 are those of the start
-    pose) as the parameter set :data:`fmu_src.ssp.PARAMETER_SET`; the default experiment is
-    ``[0, t_end]`` at the step ``h`` (see :mod:`fmu_src.ssp`).  Ecos and libcosim step all FMUs
+    (:data:`~cosim.loop.wiring.INSTANCES`), the connections
+    :data:`~cosim.loop.wiring.CONNECTIONS`, and the scenario's parameters and initial inputs
+    (:func:`~cosim.loop.wiring.start_values`: the DK FMU's joints q1..q3 are those of the start
+    pose) as the parameter set :data:`cosim.hosts.ssp.PARAMETER_SET`; the default experiment is
+    ``[0, t_end]`` at the step ``h`` (see :mod:`cosim.hosts.ssp`).  Ecos and libcosim step all FMUs
     from the same inputs and then move the outputs along the connections: the ``order="jacobi"``
-    scheme of :class:`dynamics.cosim.ClosedLoop`.
+    scheme of :class:`cosim.ClosedLoop`.
     """
     sc = Scenario() if scenario is None else scenario
     return write_ssp(path, {inst: paths[name] for inst, name in INSTANCES.items()}, connections=CONNECTIONS,

@@ -1,4 +1,4 @@
-"""Sweeps of :class:`dynamics.cosim.Scenario` fields: parsing values, the product of a sweep, the config file.
+"""Sweeps of :class:`cosim.Scenario` fields: parsing values, the product of a sweep, the config file.
 
 Names are the Scenario fields (``-`` may replace ``_``); values are converted to the field's type,
 read from the dataclass's annotations (``int``, ``str``, ``float``, ``tuple[float, float]``), before
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dynamics.cosim import Scenario
+from cosim import Scenario
 
 __all__ = ["SCENARIO_FIELDS", "DEFAULTS", "INT_FIELDS", "STR_FIELDS", "VEC_FIELDS", "BATCH_OPTIONS", "ConfigError",
            "field_name", "parse_value", "parse_sweep_arg", "expand", "load_config"]

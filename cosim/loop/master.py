@@ -1,12 +1,12 @@
 """The fmpy master of the paper's Figs 2 and 3: :class:`ClosedLoop` and :func:`simulate_fig3`.
 
-The master knows the FMUs only through fmpy's ``FMU2Slave`` (driven by :class:`fmu_src.unit.FMUUnit`).
+The master knows the FMUs only through fmpy's ``FMU2Slave`` (driven by :class:`cosim.unit.FMUUnit`).
 Value references are looked up by name once; time is ``t0 + k h``, never accumulated.
 
 Closed loop (Fig. 2), :meth:`ClosedLoop.run`
 --------------------------------------------
 Initialization, in the FMI phases' order: instantiate, setupExperiment(t0), enterInitializationMode,
-parameters and the inputs at ``t0`` (:func:`dynamics.cosim.wiring.start_values`: the plant starts at
+parameters and the inputs at ``t0`` (:func:`cosim.loop.wiring.start_values`: the plant starts at
 rest at the circle's first point; the DK FMU gets that pose as ``x0, y0, phi0`` and the plant's
 initial joints as inputs; the controller the plant's initial outputs), exitInitializationMode.
 
@@ -27,7 +27,7 @@ controller's are copied from two; each step's output buffers are kept as rows an
 columns are built once at the end (:data:`SAMPLE_ROW`).
 ``order="jacobi"``: all inputs are set from the outputs available at ``t_k`` before any doStep,
 so the DK pose and the torque each lag one step (the controller sees the pose of ``q_{k-1}``, the
-plant gets ``tau_{k-1}``).  Which input comes from which output is :data:`~dynamics.cosim.wiring.
+plant gets ``tau_{k-1}``).  Which input comes from which output is :data:`~cosim.loop.wiring.
 CONNECTIONS`, nothing else.  The ModelStructure of each FMU declares which outputs depend on which
 inputs (the DK pose on q1..q3; the plant's outputs on no input; the controller's held torque on no
 input at the communication point), so a master that sorts the graph finds no algebraic loop.
@@ -50,7 +50,7 @@ import time
 import numpy as np
 
 from dynamics import forward_dynamics, rk4_step
-from fmu_src.unit import FMUUnit
+from cosim.unit import FMUUnit
 from solver import Manipulator
 
 from .results import COLUMN_SOURCES, FLAG_COLUMNS, ClosedLoopResult
@@ -70,7 +70,7 @@ class Port:
     """One instance's FMI calls in a step: its connected inputs and the outputs the master reads.
 
     Value references and value buffers are ctypes arrays made once.  ``buffers``: {FMI type: ctypes
-    array} of the outputs read (:func:`~dynamics.cosim.wiring.outputs_of`, grouped by type, order
+    array} of the outputs read (:func:`~cosim.loop.wiring.outputs_of`, grouped by type, order
     kept; the Real ones come first); ``where``: ``"instance.output"`` -> (FMI type, index).
     ``set_inputs`` is bound by :meth:`bind`.
     """
@@ -100,7 +100,7 @@ class Port:
 
         Inputs that are one run of one Real buffer are passed as a view of it (no copy); otherwise
         they are copied into this port's input buffer first (the connections,
-        :func:`~dynamics.cosim.wiring.copy_plan`).
+        :func:`~cosim.loop.wiring.copy_plan`).
         """
         from fmpy.fmi2 import fmi2Real
 
@@ -306,40 +306,20 @@ def simulate_fig3(dk_fmu, params, q0, dq0, t_end: float, h: float, tau=None, X0=
         Joints, rates and the DK FMU's pose at every step.
     """
     model = Manipulator.paper()
+    q0 = np.asarray(q0, float)
+    start = {"q1": q0[0], "q2": q0[1], "q3": q0[2], "posture": posture, "mode": 0 if mode == "default" else 1}
+    if X0 is not None:
+        start.update(x0=X0[0], y0=X0[1], phi0=X0[2])
     with FMUUnit(dk_fmu, "dk-fig3") as unit:
-        q0 = np.asarray(q0, float)
-        start = {"q1": q0[0], "q2": q0[1], "q3": q0[2], "posture": posture, "mode": 0 if mode == "default" else 1}
-        if X0 is not None:
-            start.update(x0=X0[0], y0=X0[1], phi0=X0[2])
         unit.initialize(0.0, start)
-        from fmpy.fmi2 import fmi2Real, fmi2True, fmi2ValueReference
-
-        fmu = unit.fmu
-        c = fmu.component
-        # value references and value buffers made once
-        vin = (fmi2ValueReference * 3)(*unit.vr("q1", "q2", "q3"))
-        vout = (fmi2ValueReference * 3)(*unit.vr("x", "y", "phi"))
-        q_buf, x_buf = (fmi2Real * 3)(), (fmi2Real * 3)()
+        dk = _PoseCalls(unit)
         n = int(round(t_end / h))
         t = np.arange(n + 1) * h
         Q, DQ, XX = np.zeros((n + 1, 3)), np.zeros((n + 1, 3)), np.zeros((n + 1, 3))
-        q_buf[:] = q0
-        fmu.fmi2SetReal(c, vin, 3, q_buf)
-        Q[0], DQ[0] = q0, dq0
-        fmu.fmi2GetReal(c, vout, 3, x_buf)
-        XX[0] = x_buf
-
-        def pose(saved, t_n, q, dt):
-            fmu.setFMUstate(saved)
-            q_buf[:] = q
-            fmu.fmi2SetReal(c, vin, 3, q_buf)
-            fmu.fmi2DoStep(c, t_n, dt, fmi2True)
-            fmu.fmi2GetReal(c, vout, 3, x_buf)
-            return np.array(x_buf[:])
-
+        Q[0], DQ[0], XX[0] = q0, dq0, dk.initial_pose(q0)
         for k in range(n):
             tk = t[k]
-            saved = fmu.getFMUstate()
+            saved = dk.fmu.getFMUstate()
             # rk4_step evaluates f at tk, tk + h/2, tk + h/2, tk + h: the pose of the first stage is
             # the committed one, the others are the DK FMU's answer from the saved state
             offsets = iter((None, 0.5 * h, 0.5 * h, h))
@@ -347,12 +327,42 @@ def simulate_fig3(dk_fmu, params, q0, dq0, t_end: float, h: float, tau=None, X0=
             def f(t_s, x, saved=saved, tk=tk, k=k, offsets=offsets):
                 q, dq = x[:3], x[3:]
                 dt = next(offsets)
-                X = XX[k] if dt is None else pose(saved, tk, q, dt)
+                X = XX[k] if dt is None else dk.pose(saved, tk, q, dt)
                 u = np.zeros(3) if tau is None else np.asarray(tau(t_s, q, dq), float)
                 return np.concatenate([dq, forward_dynamics(params, model, q, dq, X, u)])
 
             x = rk4_step(f, tk, np.concatenate([Q[k], DQ[k]]), h)
             Q[k + 1], DQ[k + 1] = x[:3], x[3:]
-            XX[k + 1] = pose(saved, tk, Q[k + 1], h)          # commit the step's end
-            fmu.freeFMUstate(saved)
+            XX[k + 1] = dk.pose(saved, tk, Q[k + 1], h)          # commit the step's end
+            dk.fmu.freeFMUstate(saved)
         return t, Q, DQ, XX
+
+
+class _PoseCalls:
+    """The DK FMU's calls in the Fig. 3 scheme: value references and buffers made once."""
+
+    def __init__(self, unit: FMUUnit):
+        from fmpy.fmi2 import fmi2Real, fmi2True, fmi2ValueReference
+
+        self.fmu, self.true = unit.fmu, fmi2True
+        self.vin = (fmi2ValueReference * 3)(*unit.vr("q1", "q2", "q3"))
+        self.vout = (fmi2ValueReference * 3)(*unit.vr("x", "y", "phi"))
+        self.q_buf, self.x_buf = (fmi2Real * 3)(), (fmi2Real * 3)()
+
+    def initial_pose(self, q0) -> np.ndarray:
+        """Set the joints ``q0`` (rad) and read the pose of the initialized FMU, (3,) m, m, rad."""
+        fmu, c = self.fmu, self.fmu.component
+        self.q_buf[:] = q0
+        fmu.fmi2SetReal(c, self.vin, 3, self.q_buf)
+        fmu.fmi2GetReal(c, self.vout, 3, self.x_buf)
+        return np.array(self.x_buf[:])
+
+    def pose(self, saved, t_n: float, q, dt: float) -> np.ndarray:
+        """The pose after one step from FMU state ``saved`` at ``t_n`` to joints ``q`` over ``dt`` s."""
+        fmu, c = self.fmu, self.fmu.component
+        fmu.setFMUstate(saved)
+        self.q_buf[:] = q
+        fmu.fmi2SetReal(c, self.vin, 3, self.q_buf)
+        fmu.fmi2DoStep(c, t_n, dt, self.true)
+        fmu.fmi2GetReal(c, self.vout, 3, self.x_buf)
+        return np.array(self.x_buf[:])

@@ -1,6 +1,0 @@
-"""``python -m dynamics.batch``: see :mod:`dynamics.batch.cli` and the README's section "Batch runs on dask"."""
-# the entry point lives in an importable module: dask pickles the functions of __main__ by value
-from dynamics.batch.cli import main_and_exit
-
-if __name__ == "__main__":
-    main_and_exit()
