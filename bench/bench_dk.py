@@ -70,7 +70,7 @@ def _report(single_us, n, best, counts):
             ("joint vectors with 0 / 2 / 4 / 6 real solutions",
              " / ".join(f"{counts[i]:,}" for i in (0, 2, 4, 6)) + f"; odd counts {int(counts[1::2].sum())}",
              "no odd count")]
-    publish("dk", table(["what", "measured", "target"], rows))
+    publish("dk", table(["what", "measured", "target"], rows), headline=rows[:2])
 
 
 if __name__ == "__main__":

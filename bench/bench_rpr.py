@@ -88,8 +88,13 @@ def _report(groups, names, shape):
     from report import publish, table
     parts = [f"{title}: {len(ps)} streams, {sum(len(p.X) - 1 for p in ps):,} steps.\n\n"
              + table(TOTALS_HEADER, totals_rows(tot, names)) for title, (ps, tot) in groups.items()]
-    publish("rpr", "\n\n".join(parts), note=f"The cuspidal 3-RPR, map {shape[0]} x {shape[1]} x {shape[2]} nodes "
-            "over the suite's region. Per-path counts: `results/rpr_suite.csv`.")
+    tot = [sum(t["default"][i] for _, t in groups.values()) for i in range(5)]
+    steps = sum(len(p.X) - 1 for ps, _ in groups.values() for p in ps)
+    headline = [(f"3-RPR (cuspidal), default mode: errors / silent errors / false alarms, {steps:,} steps",
+                 f"{tot[1]} / {tot[2]} / {tot[3]}", "0 silent")]
+    publish("rpr", "\n\n".join(parts), headline=headline,
+            note=f"The cuspidal 3-RPR, map {shape[0]} x {shape[1]} x {shape[2]} nodes over the suite's region. "
+                 "Per-path counts: `results/rpr_suite.csv`.")
 
 
 if __name__ == "__main__":

@@ -195,9 +195,26 @@ def _report(suites, all_tot, names, times, args):
     parts.append(table(["method", "median step time, paper circle, 1000 points"],
                        [(n, f"{times[n]:.1f} us") for n in names])
                  + f"\n\nDefault mode / Newton: {ratio:.2f}x (target <= 3x; timed interleaved in one run).")
-    publish("tracker", "\n\n".join(parts),
+    publish("tracker", "\n\n".join(parts), headline=_headline(suites, all_tot, names, ratio),
             note="Errors: steps more than 1e-6 from the true pose; silent: wrong and `certain`; false alarms: "
                  "right and not `certain`, share of the steps. Per-path counts: `results/tracker_suite.csv`.")
+
+
+def _headline(suites, all_tot, names, ratio):
+    """The tracker's rows of the README's headline table: default mode against the best baseline."""
+    tot = {n: [sum(t[n][i] for t in all_tot.values()) for i in range(5)] for n in names}
+    base = [n for n in names if n not in ("default", "paper")]
+    best = min(base, key=lambda n: tot[n][1])
+    steps = sum(len(p.X) - 1 for ps in suites.values() for p in ps)
+    res, err, silent, alarms, n_steps = tot["default"]
+    return [(f"tracker, default mode: errors on resolvable paths / all ({', '.join(suites)} suites, {steps:,} steps)",
+             f"{res} / {err:,} (best baseline, {best}: {tot[best][0]:,} / {tot[best][1]:,})",
+             "0 / <= half the best baseline's"),
+            ("tracker: silent errors (wrong and `certain`), default / paper mode",
+             f"{silent} / {tot['paper'][2]}", "0"),
+            ("tracker, default mode: false alarms (right, not `certain`)", f"{100 * alarms / n_steps:.2f} % of steps",
+             "<= 3 %"),
+            ("tracker step, default mode / Newton, medians", f"{ratio:.2f}x", "<= 3x")]
 
 
 def plot(suite, table, names, path, rule):

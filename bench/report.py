@@ -5,6 +5,10 @@ Each bench script that prints a headline table ends with a call to :func:`publis
     from report import publish, table        # bench/ is on sys.path when a script there runs
     publish("dk", table(["what", "measured", "target"], rows), note="...")
 
+A script may also pass ``headline=[(what, measured, target), ...]``: those rows are kept in
+``docs/headline.json`` (per section) and the README's headline table, between ``<!-- headline -->``
+and ``<!-- /headline -->``, is rewritten from it, each row linking the section it comes from.
+
 The section ``NAME`` of the page is the text between ``<!-- bench:NAME -->`` and
 ``<!-- /bench:NAME -->``; it is replaced as a whole (or appended at the end of the page when the
 markers are missing), so the page holds the numbers the scripts last wrote, never typed ones.
@@ -17,15 +21,22 @@ replace the page's numbers).
 from __future__ import annotations
 
 import datetime
+import json
 import os
 import platform
 import re
 import sys
 from pathlib import Path
 
-__all__ = ["PAGE", "table", "provenance", "render_section", "replace_section", "publish", "ReportError"]
+__all__ = ["PAGE", "README", "HEADLINE", "SECTIONS", "table", "provenance", "render_section", "replace_section",
+           "headline_table", "publish", "ReportError"]
 
-PAGE = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
+ROOT = Path(__file__).resolve().parents[1]
+PAGE = ROOT / "docs" / "benchmarks.md"
+README = ROOT / "README.md"
+HEADLINE = ROOT / "docs" / "headline.json"
+#: The order of the sections in the README's headline table (others follow, by name).
+SECTIONS = ("dk", "maptensor", "tracker", "sensors", "rpr", "fmu", "cosim", "master", "batch", "dynamics", "rules")
 _NAME = re.compile(r"^[a-z0-9][a-z0-9_-]*$")
 
 
@@ -88,10 +99,40 @@ def replace_section(text: str, name: str, section: str) -> str:
     return text[:i] + section + text[j + len(end):]
 
 
-def publish(name: str, body: str, note: str = "", command: str | None = None, page: Path | str = PAGE) -> Path | None:
+def headline_table(rows_by_section: dict, link: str = "docs/benchmarks.md") -> str:
+    """The README's headline table from ``{section: [(what, measured, target), ...]}``."""
+    order = sorted(rows_by_section, key=lambda n: (SECTIONS.index(n) if n in SECTIONS else len(SECTIONS), n))
+    rows = [(what, measured, target, f"[{name}]({link}#{name})")
+            for name in order for what, measured, target in rows_by_section[name]]
+    return table(["what", "measured", "target", "details"], rows)
+
+
+def _replace_marked(text: str, start: str, end: str, body: str) -> str:
+    i, j = text.find(start), text.find(end)
+    if i < 0 or j < i:
+        raise ReportError(f"expected the markers {start!r} ... {end!r} in this order (found at {i} and {j})")
+    return text[:i + len(start)] + "\n" + body + "\n" + text[j:]
+
+
+def _write_headline(name: str, rows, store: Path, readme: Path) -> None:
+    """Keep ``rows`` as section ``name``'s headline rows and rewrite the README's headline table."""
+    data = json.loads(store.read_text()) if store.is_file() else {}
+    data[name] = [[str(c) for c in row] for row in rows]
+    for i, row in enumerate(data[name]):
+        if len(row) != 3:
+            raise ReportError(f"headline[{i}]: expected (what, measured, target), got {row!r}")
+    store.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+    if readme.is_file():
+        text = readme.read_text()
+        readme.write_text(_replace_marked(text, "<!-- headline -->", "<!-- /headline -->", headline_table(data)))
+
+
+def publish(name: str, body: str, note: str = "", command: str | None = None, headline=None,
+            page: Path | str = PAGE, store: Path | str = HEADLINE, readme: Path | str = README) -> Path | None:
     """Write ``body`` (markdown) as section ``name`` of the benchmarks page; returns the page's path.
 
-    Nothing is written when ``RRR_DK_NO_REPORT`` is set to a non-empty value other than ``0``
+    ``headline``: rows ``(what, measured, target)`` for the README's headline table (see the module
+    doc).  Nothing is written when ``RRR_DK_NO_REPORT`` is set to a non-empty value other than ``0``
     (returns None).  The page is created with a title if it does not exist.
     """
     if os.environ.get("RRR_DK_NO_REPORT", "0") not in ("", "0"):
@@ -100,4 +141,6 @@ def publish(name: str, body: str, note: str = "", command: str | None = None, pa
     text = page.read_text() if page.is_file() else "# Benchmarks\n"
     page.write_text(replace_section(text, name, render_section(name, body, command, note)))
     print(f"wrote section {name!r} of {page}")
+    if headline is not None:
+        _write_headline(name, headline, Path(store), Path(readme))
     return page
