@@ -104,3 +104,61 @@ def test_relative_links_resolve(path):
         if not (path.parent / file).exists():
             bad.append(target)
     assert not bad, f"{path.relative_to(ROOT)}: links to missing files {bad}"
+
+
+def test_readme_interface_table_is_generated():
+    from cosim.fmus.interface_table import interface_table, slave_class
+
+    text = README.read_text()
+    start, end = "<!-- interface:RRRDirectKinematics -->", "<!-- /interface:RRRDirectKinematics -->"
+    assert start in text and end in text, "README.md lacks the interface table markers"
+    found = text.split(start, 1)[1].split(end, 1)[0].strip()
+    assert found == interface_table(slave_class("RRRDirectKinematics")), \
+        "README.md's DK FMU interface table is stale: run python -m cosim.fmus.interface_table"
+
+
+def test_interface_table_lists_every_variable_in_value_reference_order():
+    from cosim.fmus.interface_table import InterfaceTableError, interface_table, replace_table, slave_class
+
+    cls = slave_class("RRRDirectKinematics")
+    lines = interface_table(cls).splitlines()[2:]
+    assert [line.split(" | ")[1].strip("`") for line in lines] == [v.name for v in cls.VARIABLES]
+    assert [int(line.split(" | ")[0].lstrip("| ")) for line in lines] == [cls.VR[v.name] for v in cls.VARIABLES]
+    assert replace_table("a\n<!-- interface:X -->\nold\n<!-- /interface:X -->\nb", "X", "T") == \
+        "a\n<!-- interface:X -->\nT\n<!-- /interface:X -->\nb"
+    with pytest.raises(InterfaceTableError, match="interface:X"):
+        replace_table("no markers", "X", "T")
+    with pytest.raises(InterfaceTableError, match="name: expected one of"):
+        slave_class("NoSuchFMU")
+
+
+def _report_module():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("bench_report", ROOT / "bench" / "report.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_bench_report_replaces_only_its_section(tmp_path, monkeypatch):
+    report = _report_module()
+    monkeypatch.delenv("RRR_DK_NO_REPORT", raising=False)
+    page, store, readme = tmp_path / "b.md", tmp_path / "h.json", tmp_path / "R.md"
+    page.write_text("# B\n\nintro\n\n<!-- bench:a -->\nold a\n<!-- /bench:a -->\n\ntail\n")
+    readme.write_text("x\n<!-- headline -->\n<!-- /headline -->\ny\n")
+    body = report.table(["k", "v"], [("n", 1)])
+    report.publish("a", body, command="python bench/a.py", headline=[("n", "1", ">= 1")], page=page, store=store,
+                   readme=readme)
+    report.publish("b", "new b", command="python bench/b.py", page=page, store=store, readme=readme)
+    text = page.read_text()
+    assert text.startswith("# B\n\nintro\n\n<!-- bench:a -->") and "old a" not in text and "tail" in text
+    assert "| n | 1 |" in text and "`python bench/a.py`" in text and text.rstrip().endswith("<!-- /bench:b -->")
+    assert "| n | 1 | >= 1 | [a](docs/benchmarks.md#a) |" in readme.read_text()
+    monkeypatch.setenv("RRR_DK_NO_REPORT", "1")
+    assert report.publish("a", "changed", page=page, store=store, readme=readme) is None
+    assert page.read_text() == text
+    with pytest.raises(report.ReportError, match=r"rows\[0\]: expected 2 cells"):
+        report.table(["k", "v"], [(1,)])
+    with pytest.raises(report.ReportError, match="one marker without the other"):
+        report.replace_section("<!-- bench:a -->", "a", "x")
