@@ -25,7 +25,7 @@ __all__ = ["HEADER", "slave_class", "interface_rows", "interface_table", "replac
            "InterfaceTableError"]
 
 #: The columns of the rendered table.
-HEADER = ("vr", "name", "causality", "variability", "type", "unit", "start", "range", "description")
+HEADER = ("vr", "name", "causality", "variability", "type", "unit", "start", "range", "depends on", "description")
 #: The FMUs whose slaves this module knows (the closed loop's three and the 3-RPR's DK).
 NAMES = (*FMU_NAMES, "RPRDirectKinematics")
 
@@ -66,8 +66,9 @@ def interface_rows(variables) -> list[tuple[str, ...]]:
         if v.initial == "exact" and v.causality == "output":
             start += " (initial exact)"
         description = v.description.replace("|", "\\|").replace("\n", " ")
+        deps = "" if not v.is_output else ", ".join(v.depends_on) or "none"
         rows.append((str(vr), f"`{v.name}`", v.causality, v.variability, v.type, v.unit or "", start, _range(v),
-                     description))
+                     deps, description))
     return rows
 
 
