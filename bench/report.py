@@ -99,11 +99,12 @@ def replace_section(text: str, name: str, section: str) -> str:
     return text[:i] + section + text[j + len(end):]
 
 
-def headline_table(rows_by_section: dict, link: str = "docs/benchmarks.md") -> str:
-    """The README's headline table from ``{section: [(what, measured, target), ...]}``."""
-    order = sorted(rows_by_section, key=lambda n: (SECTIONS.index(n) if n in SECTIONS else len(SECTIONS), n))
-    rows = [(what, measured, target, f"[{name}]({link}#{name})")
-            for name in order for what, measured, target in rows_by_section[name]]
+def headline_table(sections: dict, link: str = "docs/benchmarks.md") -> str:
+    """The README's headline table from ``{section: {"rows": [(what, measured, target), ...], "load": float}}``
+    (the load average of the machine when the section was written, shown next to the link)."""
+    order = sorted(sections, key=lambda n: (SECTIONS.index(n) if n in SECTIONS else len(SECTIONS), n))
+    rows = [(what, measured, target, f"[{name}]({link}#{name}), load {sections[name]['load']:.1f}")
+            for name in order for what, measured, target in sections[name]["rows"]]
     return table(["what", "measured", "target", "details"], rows)
 
 
@@ -117,10 +118,12 @@ def _replace_marked(text: str, start: str, end: str, body: str) -> str:
 def _write_headline(name: str, rows, store: Path, readme: Path) -> None:
     """Keep ``rows`` as section ``name``'s headline rows and rewrite the README's headline table."""
     data = json.loads(store.read_text()) if store.is_file() else {}
-    data[name] = [[str(c) for c in row] for row in rows]
-    for i, row in enumerate(data[name]):
+    rows = [[str(c) for c in row] for row in rows]
+    for i, row in enumerate(rows):
         if len(row) != 3:
             raise ReportError(f"headline[{i}]: expected (what, measured, target), got {row!r}")
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    data[name] = {"rows": rows, "load": round(load, 2)}
     store.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
     if readme.is_file():
         text = readme.read_text()
