@@ -120,8 +120,27 @@ def main(argv=None) -> int:
           f"{t_serial / (t_serial / args.workers + (s1['load'] + s1['warmup']) * (1 - 1 / args.workers)):.2f}x")
     print(f"same metrics bit for bit, serial vs workers: {same}")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
+    _report(args, len(params), s1, s2, t_serial, t_pool, t_start, same)
     # FMUs were loaded in this process: skip the pythonfmu libraries' exit code (see cosim.unit)
     exit_process(0)
+
+
+def _report(args, n, s1, s2, t_serial, t_pool, t_start, same):
+    """The batch timings into docs/benchmarks.md (bench/report.py)."""
+    from report import publish, table
+    rows = []
+    for s in (s1, s2):
+        rows.append((s["label"], f"{s['wall']:.1f} s", f"{s['failed']}", f"{s['load'] * 1e3:.0f} ms",
+                     f"{s['init'] * 1e3:.1f} ms", f"{s['sim'] * 1e3:.0f} ms"))
+    speedup = t_serial / t_pool
+    body = (table(["how", "wall", "failed runs", "FMU load, once per process", "init per run", "simulation per run"],
+                  rows)
+            + f"\n\nSpeed-up of {args.workers} workers: {speedup:.2f}x on a started cluster, "
+            f"{t_serial / (t_pool + t_start):.2f}x counting its start-up ({t_start:.1f} s). Same metrics bit for "
+            f"bit, serial vs workers: {same}.")
+    publish("batch", body, note=f"{n} runs of {args.t_end:g} s simulated at h = 1 or 2 ms.",
+            headline=[(f"batch: {n} runs of {args.t_end:g} s, {args.workers} workers vs one process",
+                       f"{speedup:.2f}x ({t_serial:.1f} s -> {t_pool:.1f} s)", ">= 1.7x on 2 cores")])
 
 
 if __name__ == "__main__":

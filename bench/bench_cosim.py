@@ -271,14 +271,39 @@ def main(argv=None):
     print(f"   | {'part':55s} | {'us/step':>7s} | {'share':>6s} |")
     print(f"   |{'-' * 57}|{'-' * 9}|{'-' * 8}|")
     acc = 0.0
+    parts = []
     for name, sel, col in groups:
         v = float(sum(r[col].mean() for r in sel))
         acc += v
+        parts.append((name, v))
         print(f"   | {name:55s} | {v:7.1f} | {100 * v / total:5.1f}% |")
     v = float(master.mean())
     acc += v
     print(f"   | {'master: input copies, kept rows, bookkeeping':55s} | {v:7.1f} | {100 * v / total:5.1f}% |")
     print(f"   | {'total (instrumented; clocks add ~2 us)':55s} | {total:7.1f} | {100 * acc / total:5.1f}% |")
+    _report(sc, med, m, [*parts, ("master: input copies, kept rows, bookkeeping", v)], total, args)
+
+
+def _report(sc, med, metrics, parts, total, args):
+    """The closed loop's timings and where a step's time goes into docs/benchmarks.md (bench/report.py)."""
+    from report import publish, table
+    loop = []
+    for key, label in (("flags", "with the DK's Integer/Boolean outputs (11 FMI calls)"),
+                       ("no flags", "without them (9 FMI calls, `flags=False`)")):
+        for clock in ("wall", "cpu"):
+            v, trk = med[key, clock], med["tracker", clock]
+            loop.append((f"{label}, {clock} time", f"{1e6 * v:.1f} us", f"{v / trk:.2f}x", f"{sc.h / v:.1f}x"))
+    body = (table(["closed loop per step", "time", "/ one in-process tracker step", "real time"], loop)
+            + f"\n\nLast run: RMS joint error after 0.5 s {metrics['rms_joint_error_after_0.5s']:.3e} rad, "
+            f"max |DK pose - true pose| {metrics['max_dk_vs_true']:.1e}.\n\nWhere a step's time goes (one "
+            "instrumented run, mean per step):\n\n"
+            + table(["part", "us/step", "share"], [(n, f"{v:.1f}", f"{100 * v / total:.0f} %") for n, v in parts]))
+    wall, trk = med["flags", "wall"], med["tracker", "wall"]
+    publish("cosim", body, note=f"Default scenario, {sc.t_end:g} s at h = {sc.h * 1e3:g} ms, {sc.order}, "
+            f"{args.repeat} runs alternating with the in-process tracker on each run's joints; medians.",
+            headline=[("closed loop through FMI at 1 ms: wall per step / one in-process tracker step; real time",
+                       f"{1e6 * wall:.0f} us = {wall / trk:.2f}x; {sc.h / wall:.1f}x real time",
+                       "<= 4x, >= 10x real time")])
 
 
 if __name__ == "__main__":

@@ -59,6 +59,18 @@ def main(argv=None):
           f"(target >= 100,000)")
     print("  real-solution counts 0/2/4/6: " + " / ".join(str(counts[i]) for i in (0, 2, 4, 6))
           + f"; odd counts: {int(counts[1::2].sum())}")
+    _report(np.median(samples), len(q), best, counts)
+
+
+def _report(single_us, n, best, counts):
+    """The headline rows into docs/benchmarks.md (bench/report.py)."""
+    from report import publish, table
+    rows = [("`dk_all` single call, median over 200 joint vectors", f"{single_us:.1f} us", "<= 30 us"),
+            (f"`dk_all` batch of {n:,} joint vectors", f"{n / best:,.0f} sets/s", ">= 100,000 sets/s"),
+            ("joint vectors with 0 / 2 / 4 / 6 real solutions",
+             " / ".join(f"{counts[i]:,}" for i in (0, 2, 4, 6)) + f"; odd counts {int(counts[1::2].sum())}",
+             "no odd count")]
+    publish("dk", table(["what", "measured", "target"], rows), headline=rows[:2])
 
 
 if __name__ == "__main__":

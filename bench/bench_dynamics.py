@@ -120,6 +120,23 @@ def main(argv=None):
     print(f"task space: rk4, per step (of {args.steps:5d} steps)      : {us_task_loop:8.1f} us")
     print(f"FMU plant step: PlantStepper.step (1 RK4 step)    : {us_plant:8.1f} us")
     print(f"FMU controller step: ControllerStepper.step       : {us_ctrl:8.1f} us")
+    _report(args, [("RK4 step, joint-space dynamics with the DK at 4 stages", us_step),
+                   ("DK pose supplier call (dk_all + nearest)", us_dk),
+                   ("forward_dynamics (eq. 7), pose given", us_fd),
+                   ("computed-torque evaluation, pose given", us_ct),
+                   ("computed-torque evaluation with the DK call", us_ct_dk),
+                   ("task space: forward_dynamics_task, q by IK", us_fdt),
+                   ("task space: rk4_step of task_space_rhs", us_task_step),
+                   ("task space: rk4, per step", us_task_loop),
+                   ("plant FMU's step: PlantStepper.step (one RK4 step)", us_plant),
+                   ("controller FMU's step: ControllerStepper.step", us_ctrl)])
+
+
+def _report(args, rows):
+    """The timings into docs/benchmarks.md (bench/report.py)."""
+    from report import publish, table
+    publish("dynamics", table(["call", "median time per call"], [(name, f"{us:.1f} us") for name, us in rows]),
+            note=f"{args.steps} states along the circle, median of {args.repeat} runs.")
 
 
 if __name__ == "__main__":

@@ -287,6 +287,7 @@ def main(argv=None):
     params = {"center": sc.center, "radius": sc.radius, "phi": sc.phi, "period": sc.period,
               "ramp_time": sc.ramp_time, "bandwidth": sc.bandwidth, "damping": sc.damping}
     n_steps = len(cols["time"])
+    others = {}
     for name, fn, extra in (("RRRPlant", bench_plant, ()), ("ComputedTorqueController", bench_controller, (params,))):
         with FMUUnit(paths[name], f"bench-{name}") as unit:
             r = fn(unit, cols, args.passes, *extra)
@@ -297,7 +298,33 @@ def main(argv=None):
               f"(target <= 1.5x or <= +10 us: {_verdict(r['doStep'], r['in-process'], extra_us=10.0)})")
         print(f"  FMU set + doStep + get cycle                {r['cycle']:6.1f} us")
         print(f"  FMU outputs identical to the in-process step's: {r['identical']}")
+        others[name] = r
+    _report(dk_path, times, dk, others, args)
     return 0
+
+
+def _report(dk_path, times, dk, others, args):
+    """The FMI path's table into docs/benchmarks.md (bench/report.py)."""
+    from report import publish, table
+    ratio = dk["minimal"] / dk["tracker"]
+    rows = [("DK FMU size", f"{dk_path.stat().st_size / 1e6:.3f} MB ({dk_path.stat().st_size:,} bytes)", ""),
+            ("DK instantiation + initialization, first in the process / later (median)",
+             f"{times[0] * 1e3:.0f} ms / {np.median(times[1:]) * 1e3:.0f} ms", ""),
+            ("DK: `fmi2SetReal(q) + fmi2DoStep + fmi2GetReal(x, y, phi)` / in-process `Tracker.step`, medians",
+             f"{dk['minimal']:.1f} / {dk['tracker']:.1f} us = {ratio:.2f}x", "<= 1.5x"),
+            ("DK, reading all outputs (+ getInteger, getBoolean)", f"{dk['all']:.1f} us", ""),
+            ("DK poses identical to the in-process tracker's", dk["identical"], "True")]
+    for name, r in others.items():
+        rows.append((f"{name}: `fmi2DoStep` / in-process step, medians",
+                     f"{r['doStep']:.1f} / {r['in-process']:.1f} us = {r['doStep'] / r['in-process']:.2f}x "
+                     f"(+{r['doStep'] - r['in-process']:.1f} us)", "<= 1.5x or <= +10 us"))
+        rows.append((f"{name}: outputs identical to the in-process step's", r["identical"], "True"))
+    publish("fmu", table(["what", "measured", "target"], rows),
+            note=f"DK over the paper circle ({args.n} points x {args.passes} passes, h = 1 ms, map 10 mm / 2 deg); "
+                 "plant and controller replay the closed loop's steps. FMU and in-process timed alternately in "
+                 "the same run.",
+            headline=[("DK FMU step through fmpy / the same tracker step in process", f"{ratio:.2f}x", "<= 1.5x"),
+                      ("DK FMU size", f"{dk_path.stat().st_size / 1e6:.2f} MB", "")])
 
 
 if __name__ == "__main__":

@@ -47,6 +47,23 @@ def main(argv=None):
     print(f"memory: process max RSS {rss0 / 1e3:.0f} MB before the build, {rss1 / 1e3:.0f} MB after "
           f"(the build's peak adds {(rss1 - rss0) / 1e3:.0f} MB)")
     print(f"largest node-solution distance: {mt.stats['max_node_solution_distance']:.2e}")
+    _report(mt, seconds, size, load, (rss1 - rss0) / 1e3)
+
+
+def _report(mt, seconds, size, load, extra_mb):
+    """The headline rows into docs/benchmarks.md (bench/report.py)."""
+    from report import publish, table
+    n, reach = mt.labels.size, mt.stats["reachable_nodes"]
+    rows = [("grid (default resolution)", f"{mt.shape[0]} x {mt.shape[1]} x {mt.shape[2]} = {n:,} nodes "
+             f"({reach:,} reachable)", ""),
+            (f"build, posture {mt.posture}, rule `{mt.rule}`", f"{seconds:.1f} s = {n / seconds:,.0f} nodes/s "
+             f"({reach / seconds:,.0f} reachable nodes/s)", ">= 100,000 nodes/s"),
+            ("file (compressed) / labels as int8", f"{size / 1e6:.3f} MB / {n / 1e6:.2f} MB", ""),
+            ("load + verify", f"{load * 1e3:.0f} ms", ""),
+            ("peak resident memory added by the build", f"{extra_mb:.0f} MB", ""),
+            ("largest node-solution distance", f"{mt.stats['max_node_solution_distance']:.1e}", "")]
+    publish("maptensor", table(["what", "measured", "target"], rows),
+            headline=[("map tensor build, default resolution", rows[1][1].split(" (")[0], rows[1][2])])
 
 
 if __name__ == "__main__":

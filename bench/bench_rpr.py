@@ -51,6 +51,8 @@ def main(argv=None):
     circles = [p for p in suite if "loop" not in p.name]
     print_totals("near-singular circles", totals(table, circles, names), names)
     print_totals("cusp loops (non-singular assembly-mode changes)", totals(table, loops, names), names)
+    _report({"near-singular circles": (circles, totals(table, circles, names)),
+             "cusp loops (non-singular assembly-mode changes)": (loops, totals(table, loops, names))}, names, shape)
     print("\n| loop | samples | ratio | resolvable | default: errors/silent/alarms | newton: errors | "
           "end pose, default / newton (distance to the true one) |")
     print("|---|---|---|---|---|---|---|")
@@ -78,6 +80,21 @@ def main(argv=None):
         for phd, (path, stats) in res.items():
             print(f"{path}: label-border nodes within a cell of a singular curve {100 * stats['border_singular']:.0f} %"
                   f" (the rest: borders that are not singular curves)")
+
+
+def _report(groups, names, shape):
+    """The totals of the circles and of the cusp loops into docs/benchmarks.md (bench/report.py)."""
+    from bench_tracker import TOTALS_HEADER, totals_rows
+    from report import publish, table
+    parts = [f"{title}: {len(ps)} streams, {sum(len(p.X) - 1 for p in ps):,} steps.\n\n"
+             + table(TOTALS_HEADER, totals_rows(tot, names)) for title, (ps, tot) in groups.items()]
+    tot = [sum(t["default"][i] for _, t in groups.values()) for i in range(5)]
+    steps = sum(len(p.X) - 1 for ps, _ in groups.values() for p in ps)
+    headline = [(f"3-RPR (cuspidal), default mode: errors / silent errors / false alarms, {steps:,} steps",
+                 f"{tot[1]} / {tot[2]} / {tot[3]}", "0 silent")]
+    publish("rpr", "\n\n".join(parts), headline=headline,
+            note=f"The cuspidal 3-RPR, map {shape[0]} x {shape[1]} x {shape[2]} nodes over the suite's region. "
+                 "Per-path counts: `results/rpr_suite.csv`.")
 
 
 if __name__ == "__main__":

@@ -45,6 +45,19 @@ def main(argv=None):
     for rule in args.rules:
         vals = [table[rule, p][0] for p in args.postures]
         print(f"| {rule} | " + " | ".join(f"{100 * v:.1f} %" for v in vals) + f" | {100 * np.mean(vals):.1f} % |")
+    _report(table, args, shape)
+
+
+def _report(table, args, shape):
+    """The border volumes into docs/benchmarks.md (bench/report.py)."""
+    from report import publish, table as md_table
+    rows = []
+    for rule in args.rules:
+        vals = [table[rule, p][0] for p in args.postures]
+        rows.append((rule, *(f"{100 * v:.1f} %" for v in vals), f"{100 * np.mean(vals):.1f} %"))
+    publish("rules", md_table(["rule", *(f"posture {p}" for p in args.postures), "mean"], rows),
+            note=f"Share of reachable nodes with more than one label within 2.5 node spacings (eq. 19 weights), "
+                 f"grid {shape[0]} x {shape[1]} x {shape[2]}, {args.step_mm:g} mm / {args.step_deg:g} deg.")
 
 
 if __name__ == "__main__":

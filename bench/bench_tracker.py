@@ -99,13 +99,24 @@ def totals(table, suite, names):
     return out
 
 
-def print_totals(title, tot, names):
-    print(f"\n{title}\n| method | errors, resolvable paths | errors | silent errors | false alarms | largest error |")
-    print("|---|---|---|---|---|---|")
+TOTALS_HEADER = ("method", "errors, resolvable paths", "errors", "silent errors", "false alarms", "largest error")
+
+
+def totals_rows(tot, names):
+    """The rows of :data:`TOTALS_HEADER` for the totals ``tot`` (from :func:`totals`)."""
+    rows = []
     for n in names:
         res, err, silent, alarms, steps, big = tot[n]
         fa = f"{alarms} ({100 * alarms / steps:.2f} %)" if n in VOUCHING else "n/a (never vouches)"
-        print(f"| {n} | {res} | {err} | {silent} | {fa} | {big:.3g} |")
+        rows.append((n, res, err, silent, fa, f"{big:.3g}"))
+    return rows
+
+
+def print_totals(title, tot, names):
+    print(f"\n{title}\n| " + " | ".join(TOTALS_HEADER) + " |")
+    print("|---|---|---|---|---|---|")
+    for row in totals_rows(tot, names):
+        print("| " + " | ".join(str(c) for c in row) + " |")
 
 
 def main(argv=None):
@@ -156,6 +167,7 @@ def main(argv=None):
     print(f"\ntargets, default mode: errors on resolvable paths {d_res} (0); errors {d_err} vs best baseline "
           f"{best} {b_err} (<= half); silent errors {d_silent} (0); false alarms {100 * d_alarm:.2f} % of steps "
           f"(<= 3 %); step time {times['default'] / times['newton']:.2f}x newton (<= 3x)")
+    _report(suites, all_tot, names, times, args)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     with open(out / "tracker_suite.csv", "w", newline="") as f:
@@ -169,6 +181,41 @@ def main(argv=None):
                             f"{big:.6g}", steps])
     if not args.no_plot:
         plot(suite, table, names, out / "figures" / "tracker_errors.png", args.rule)
+
+
+def _report(suites, all_tot, names, times, args):
+    """The totals per suite and the step times into docs/benchmarks.md (bench/report.py)."""
+    from report import publish, table
+    parts = []
+    for key, ps in suites.items():
+        parts.append(f"Suite `{key}`: {len(ps)} streams, {sum(p.resolvable for p in ps)} resolvable, "
+                     f"{sum(len(p.X) - 1 for p in ps):,} steps; map rule `{args.rule}`, "
+                     f"{args.step_mm:g} mm / {args.step_deg:g} deg.\n\n"
+                     + table(TOTALS_HEADER, totals_rows(all_tot[key], names)))
+    ratio = times["default"] / times["newton"]
+    parts.append(table(["method", "median step time, paper circle, 1000 points"],
+                       [(n, f"{times[n]:.1f} us") for n in names])
+                 + f"\n\nDefault mode / Newton: {ratio:.2f}x (target <= 3x; timed interleaved in one run).")
+    publish("tracker", "\n\n".join(parts), headline=_headline(suites, all_tot, names, ratio),
+            note="Errors: steps more than 1e-6 from the true pose; silent: wrong and `certain`; false alarms: "
+                 "right and not `certain`, share of the steps. Per-path counts: `results/tracker_suite.csv`.")
+
+
+def _headline(suites, all_tot, names, ratio):
+    """The tracker's rows of the README's headline table: default mode against the best baseline."""
+    tot = {n: [sum(t[n][i] for t in all_tot.values()) for i in range(5)] for n in names}
+    base = [n for n in names if n not in ("default", "paper")]
+    best = min(base, key=lambda n: tot[n][1])
+    steps = sum(len(p.X) - 1 for ps in suites.values() for p in ps)
+    res, err, silent, alarms, n_steps = tot["default"]
+    return [(f"tracker, default mode: errors on resolvable paths / all ({', '.join(suites)} suites, {steps:,} steps)",
+             f"{res} / {err:,} (best baseline, {best}: {tot[best][0]:,} / {tot[best][1]:,})",
+             "0 / <= half the best baseline's"),
+            ("tracker: silent errors (wrong and `certain`), default / paper mode",
+             f"{silent} / {tot['paper'][2]}", "0"),
+            ("tracker, default mode: false alarms (right, not `certain`)", f"{100 * alarms / n_steps:.2f} % of steps",
+             "<= 3 %"),
+            ("tracker step, default mode / Newton, medians", f"{ratio:.2f}x", "<= 3x")]
 
 
 def plot(suite, table, names, path, rule):
