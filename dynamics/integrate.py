@@ -30,10 +30,11 @@ import numpy as np
 from solver import Manipulator, SolverInputError, as_array, dk_all
 
 from ._checks import broadcast, check_model, check_pair, ik_or_raise, is_single, posture_bits
-from ._evaluate import arm_pack, bodies_pack, evaluate_joint, evaluate_task
+from ._evaluate import evaluate_joint, evaluate_task
 from ._kernels import rows as _rows
 from ._kernels.layout import FORWARD, refusal
 from ._kernels.rk4 import PYTHON_STAGES, make_rk4_step, rk4_task
+from ._packs import arm_pack, bodies_pack
 from .errors import refused
 from .geometry import ASSEMBLY_TOL
 from .parameters import DynamicParameters

@@ -40,9 +40,9 @@ import numpy as np
 from solver import PAPER_CIRCLE, Manipulator, SolverInputError, check_posture
 
 from ._checks import check_model
-from ._evaluate import arm_pack, bodies_pack
 from ._kernels.circle import circle_batch
-from ._kernels.layout import BAD_INPUT, pack_circle, refusal
+from ._kernels.layout import BAD_INPUT, refusal
+from ._packs import arm_pack, bodies_pack, circle_pack
 from .errors import DynamicsError, refused
 from .geometry import KINEMATIC_ONLY
 
@@ -110,9 +110,6 @@ class CircleTrajectory:
                 raise SolverInputError(f"{key}: expected a finite angle in rad, got {v!r}")
             object.__setattr__(self, key, float(v))
         object.__setattr__(self, "posture", int(check_posture(self.posture)))
-        # packed constants of the compiled kernel (not a field: no part of eq, hash or repr)
-        object.__setattr__(self, "_kernel_pack", pack_circle(self.center, self.radius, self.phi,
-                                                             self.angular_speed, self.ramp_time, self.start))
 
     @property
     def angular_speed(self) -> float:
@@ -195,11 +192,12 @@ class CircleTrajectory:
         flat = np.ascontiguousarray(tt.reshape(-1))
         joint = model is not None
         buf = np.empty((6 if joint else 3, flat.shape[0], 3))
+        circle = circle_pack(self)
         if joint:
             arm, bodies = arm_pack(model), bodies_pack(KINEMATIC_ONLY)
         else:
-            arm = bodies = self._kernel_pack              # unused without the joint part
-        code = circle_batch(arm, bodies, self._kernel_pack, self.posture - 1, flat, joint, buf[0], buf[1], buf[2],
+            arm = bodies = circle                         # unused without the joint part
+        code = circle_batch(arm, bodies, circle, self.posture - 1, flat, joint, buf[0], buf[1], buf[2],
                             buf[3 if joint else 0], buf[4 if joint else 0], buf[5 if joint else 0])
         if code:
             raise self._refused(code, model, tt)

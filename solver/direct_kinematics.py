@@ -72,6 +72,7 @@ The six solutions are numbered 1..6 by an ordering rule, see
 """
 from __future__ import annotations
 
+from types import MappingProxyType
 from typing import NamedTuple
 
 import numpy as np
@@ -80,6 +81,7 @@ from ._kernels import direct_kinematics as _dk
 from ._kernels.layout import RULE_ASPECT, pack_model
 from ._kernels.ordering import number_batch
 from .checks import SolverInputError, as_array
+from .identity_cache import by_identity
 from .kinematics import check_manipulator, wrap_angle
 from .manipulator import Manipulator
 from .ordering import DEFAULT_RULE, rule_code
@@ -125,16 +127,13 @@ class DKSolutions(NamedTuple):
         return self.poses[self.real].real
 
 
-def kernel_constants(model: Manipulator) -> dict:
-    """What the DK kernel needs of a model, computed once and cached on the (frozen) model.
+def _kernel_constants(model: Manipulator) -> MappingProxyType:
+    """What the DK kernel needs of a model (the explicit data of :func:`kernel_constants`).
 
     Keys: ``pack`` (the model pack of :mod:`solver._kernels.layout`), ``sample_to_sextic``
     (8, 8, 7), and the geometry and sample arrays it was packed from (``M``, ``l1``,
     ``l2sq``, ``b``, ``cos8``, ``sin8``, ``psi``, ``phis``).
     """
-    k = model.__dict__.get("_kernel_constants")
-    if k is not None:
-        return k
     m = np.arange(8)
     phis = 2.0 * np.pi * m / 8.0
     # T[j] maps the 8 samples f(phi_m) to the coefficients (t^6 ... t^0) of
@@ -162,8 +161,13 @@ def kernel_constants(model: Manipulator) -> dict:
     scale = float(np.max(model.platform_radius)) ** 2 if rpr else float(np.min(l2sq))
     k["pack"] = pack_model(M, l1, l2sq, k["b"], k["cos8"], k["sin8"], k["psi"], REAL_SNAP, REAL_RESIDUAL * scale,
                            NEWTON_STEPS)
-    object.__setattr__(model, "_kernel_constants", k)
-    return k
+    return MappingProxyType(k)
+
+
+#: ``kernel_constants(model)``: the DK kernel's data of a model (:func:`_kernel_constants`), a read-only
+#: mapping built once per model object and kept beside it (:func:`solver.identity_cache.by_identity`:
+#: the model is frozen, so its data stays valid while it lives; nothing is stored on the model).
+kernel_constants = by_identity(_kernel_constants)
 
 
 def dk_all(model: Manipulator, q, rule: str = DEFAULT_RULE) -> DKSolutions:
