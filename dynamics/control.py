@@ -33,7 +33,8 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from solver import Manipulator, SolverInputError, as_array
+from solver import Manipulator, SolverInputError, as_array, wrap_angle
+from solver.checks import check_instance
 
 from ._checks import broadcast, check_pair, is_single
 from ._evaluate import evaluate_computed_torque
@@ -45,9 +46,8 @@ __all__ = ["ComputedTorqueGains", "ComputedTorqueController", "computed_torque",
            "simulate_tracking", "wrap"]
 
 
-def wrap(a):
-    """Angles (rad) wrapped to (-pi, pi], elementwise."""
-    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2.0 * np.pi)
+#: Angles (rad) wrapped to (-pi, pi], elementwise: :func:`solver.wrap_angle`, the one wrap of the numpy side.
+wrap = wrap_angle
 
 
 def _double_integrator():
@@ -246,8 +246,7 @@ def computed_torque(params: DynamicParameters, model: Manipulator, gains: Comput
 
 
 def _check_gains(gains):
-    if not isinstance(gains, ComputedTorqueGains):
-        raise SolverInputError(f"gains: expected a ComputedTorqueGains, got {type(gains).__name__}")
+    check_instance("gains", gains, ComputedTorqueGains, "a ComputedTorqueGains")
 
 
 @dataclass(frozen=True, eq=False)
@@ -349,13 +348,10 @@ def simulate_tracking(controller: ComputedTorqueController, plant: DynamicParame
     -------
     TrackingResult
     """
-    if not isinstance(controller, ComputedTorqueController):
-        raise SolverInputError(f"controller: expected a ComputedTorqueController, got "
-                               f"{type(controller).__name__}")
+    check_instance("controller", controller, ComputedTorqueController, "a ComputedTorqueController")
     model = controller.model
     check_pair(plant, model)
-    if not isinstance(trajectory, CircleTrajectory):
-        raise SolverInputError(f"trajectory: expected a CircleTrajectory, got {type(trajectory).__name__}")
+    check_instance("trajectory", trajectory, CircleTrajectory, "a CircleTrajectory")
     for key, v in (("t_end", t_end), ("h", h)):
         if not (isinstance(v, (int, float, np.floating, np.integer)) and np.isfinite(v) and v > 0):
             raise SolverInputError(f"{key}: expected a positive finite time in s, got {v!r}")

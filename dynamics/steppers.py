@@ -19,6 +19,7 @@ import math
 import numpy as np
 
 from solver import Manipulator, SolverInputError, check_posture
+from solver.checks import check_instance
 
 from ._checks import check_pair
 from ._packs import arm_pack, bodies_pack, circle_pack, gains_pack
@@ -118,10 +119,8 @@ class ControllerStepper:
     def __init__(self, params: DynamicParameters, model: Manipulator, gains: ComputedTorqueGains,
                  trajectory: CircleTrajectory):
         check_pair(params, model)
-        if not isinstance(gains, ComputedTorqueGains):
-            raise SolverInputError(f"gains: expected a ComputedTorqueGains, got {type(gains).__name__}")
-        if not isinstance(trajectory, CircleTrajectory):
-            raise SolverInputError(f"trajectory: expected a CircleTrajectory, got {type(trajectory).__name__}")
+        check_instance("gains", gains, ComputedTorqueGains, "a ComputedTorqueGains")
+        check_instance("trajectory", trajectory, CircleTrajectory, "a CircleTrajectory")
         self.params, self.model, self.gains, self.trajectory = params, model, gains, trajectory
         self._pack = np.concatenate([arm_pack(model), bodies_pack(params), gains_pack(gains),
                                      circle_pack(trajectory)])

@@ -78,6 +78,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ._kernels import direct_kinematics as _dk
+from ._kernels.choice import nearest as _nearest
 from ._kernels.layout import RULE_ASPECT, pack_model
 from ._kernels.ordering import number_batch
 from .checks import SolverInputError, as_array
@@ -86,7 +87,7 @@ from .kinematics import check_manipulator, wrap_angle
 from .manipulator import Manipulator
 from .ordering import DEFAULT_RULE, rule_code
 
-__all__ = ["DKSolutions", "dk_all", "order_solutions", "kernel_constants", "REAL_SNAP", "REAL_RESIDUAL", "NEWTON_STEPS",
+__all__ = ["DKSolutions", "dk_all", "nearest_solution", "order_solutions", "kernel_constants", "REAL_SNAP", "REAL_RESIDUAL", "NEWTON_STEPS",
            "PARALLEL_MIN"]
 
 #: Roots whose |Im phi| is below this are tried as real (double roots split).
@@ -212,6 +213,39 @@ def dk_all(model: Manipulator, q, rule: str = DEFAULT_RULE) -> DKSolutions:
     run = _dk.dk_parallel if n >= PARALLEL_MIN else _dk.dk_serial
     run(flat, k["pack"], k["sample_to_sextic"], code, poses, real)
     return DKSolutions(poses.reshape(lead + (6, 3)), real.reshape(lead + (6,)))
+
+
+#: No label masks: :func:`nearest_solution` chooses among all real solutions.
+_NO_MASK = np.zeros(7, dtype=np.bool_)
+
+
+def nearest_solution(model: Manipulator, q, X_ref, weights) -> np.ndarray:
+    """The real DK solution of one joint vector nearest to a reference pose (eq. 19 distance).
+
+    The rule of the tracker's choice and of the ``nearest`` baseline (one compiled definition,
+    :func:`solver._kernels.choice.nearest`): all six solutions by :func:`dk_all`, then the real
+    one minimising ``sqrt(w_x dx^2 + w_y dy^2 + w_phi dphi^2)`` with ``dphi`` wrapped.
+
+    Parameters
+    ----------
+    model : Manipulator or RPRManipulator
+    q : array_like, shape (3,)
+        Joints, rad (m for a 3-RPR).
+    X_ref : ndarray, shape (3,), float64
+        Reference pose, m, m, rad.
+    weights : ndarray, shape (3,), float64
+        Eq. 19 weights ``(w_x, w_y, w_phi)``, 1, 1 and m^2/rad^2.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        The nearest real solution (m, m, rad), or NaN (3,) if ``q`` has no real solution.
+    """
+    sol = dk_all(model, q)
+    if sol.real.ndim != 1:
+        raise SolverInputError(f"q: expected one joint vector (3,), got shape {np.shape(q)}")
+    k, _ = _nearest(sol.poses, sol.real, X_ref, weights, _NO_MASK, _NO_MASK, _NO_MASK, False)
+    return sol.poses[k].real.copy() if k >= 0 else np.full(3, np.nan)
 
 
 def order_solutions(poses, real, rule: str = DEFAULT_RULE, model: Manipulator | None = None,

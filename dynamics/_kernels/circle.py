@@ -20,26 +20,31 @@ from .rows import geometry_row, motion_row
 
 
 @njit(cache=True, error_model="numpy")
-def circle_task_row(circle, t, X, dX, ddX):
-    """Pose, rate and acceleration of the circle at time ``t`` (finite) into ``X, dX, ddX`` (3,)."""
+def polar_row(circle, t):
+    """The time law: polar angle ``theta``, its rate and its acceleration at time ``t`` (finite)."""
     rate, ramp, start = circle[CIRCLE_RATE], circle[CIRCLE_RAMP], circle[CIRCLE_START]
     if ramp == 0.0:
-        theta = start + rate * max(t, 0.0)
-        dth = rate if t >= 0 else 0.0
-        ddth = 0.0
-    else:
-        u = min(max(t / ramp, 0.0), 1.0)
-        if t < ramp:
-            S = u ** 4.0 * (2.5 - 3.0 * u + u * u)           # integral of s
-            s = u ** 3.0 * (10.0 - 15.0 * u + 6.0 * u * u)
-            ds = 30.0 * u * u * (1.0 - u) ** 2.0
-            theta = start + rate * ramp * S
-            dth = rate * s
-            ddth = rate * ds / ramp
-        else:
-            theta = start + rate * (t - 0.5 * ramp)
-            dth = rate
-            ddth = 0.0
+        return start + rate * max(t, 0.0), (rate if t >= 0 else 0.0), 0.0
+    u = min(max(t / ramp, 0.0), 1.0)
+    if t < ramp:
+        S = u ** 4.0 * (2.5 - 3.0 * u + u * u)           # integral of s
+        s = u ** 3.0 * (10.0 - 15.0 * u + 6.0 * u * u)
+        ds = 30.0 * u * u * (1.0 - u) ** 2.0
+        return start + rate * ramp * S, rate * s, rate * ds / ramp
+    return start + rate * (t - 0.5 * ramp), rate, 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def polar_batch(circle, t, out):
+    """:func:`polar_row` at the times ``t`` (n,) (finite) into ``out`` (n, 3)."""
+    for k in range(t.shape[0]):
+        out[k, 0], out[k, 1], out[k, 2] = polar_row(circle, t[k])
+
+
+@njit(cache=True, error_model="numpy")
+def circle_task_row(circle, t, X, dX, ddX):
+    """Pose, rate and acceleration of the circle at time ``t`` (finite) into ``X, dX, ddX`` (3,)."""
+    theta, dth, ddth = polar_row(circle, t)
     c, s_ = math.cos(theta), math.sin(theta)
     r = circle[CIRCLE_RADIUS]
     X[0] = circle[CIRCLE_CENTER_X] + r * c

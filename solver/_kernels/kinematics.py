@@ -80,6 +80,22 @@ def leg_row(x, y, c, s, q_i, mx, my, l1_i, bx, by):
     return cq, sq, rbx, rby, lx, ly, lr, l1_i * (ly * cq - lx * sq)
 
 
+#: rows of :func:`leg_batch`'s output (N, LEG_ROWS, 3): the values :func:`leg_row` returns, per leg
+LEG_COS, LEG_SIN, LEG_RBX, LEG_RBY, LEG_LX, LEG_LY, LEG_LR, LEG_DEN = range(8)
+LEG_ROWS = 8
+
+
+@njit(cache=True)
+def leg_batch(X, q, M, l1, b, out):
+    """:func:`leg_row` of the three legs at poses ``X`` and joints ``q`` (N, 3) into ``out`` (N, 8, 3)."""
+    for n in range(X.shape[0]):
+        c, s = math.cos(X[n, 2]), math.sin(X[n, 2])
+        for i in range(3):
+            row = leg_row(X[n, 0], X[n, 1], c, s, q[n, i], M[i, 0], M[i, 1], l1[i], b[i, 0], b[i, 1])
+            for r in range(LEG_ROWS):
+                out[n, r, i] = row[r]
+
+
 # ----------------------------------------------------------------------------- inverse kinematics
 @njit(cache=True)
 def ik_pose(x, y, phi, elbow_bits, M, l1, l2, b, q):
