@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .angles import wrap_angle as _wrap  # noqa: F401  (the one wrap, under the name solver.rpr_scan imports)
 from .checks import GeometryError, SolverInputError, as_array, check_instance
 from .manipulator import GeometryIdentity, _frozen, _triangle_area
 
