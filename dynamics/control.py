@@ -315,6 +315,16 @@ class TrackingResult(NamedTuple):
         return float(np.max(np.abs(self.error[self.t >= t_from - 1e-12])))
 
 
+def _check_loop(controller, plant, trajectory, t_end, h):
+    """The argument checks of :func:`simulate_tracking` (:class:`SolverInputError` naming the argument)."""
+    check_instance("controller", controller, ComputedTorqueController, "a ComputedTorqueController")
+    check_pair(plant, controller.model)
+    check_instance("trajectory", trajectory, CircleTrajectory, "a CircleTrajectory")
+    for key, v in (("t_end", t_end), ("h", h)):
+        if not (isinstance(v, (int, float, np.floating, np.integer)) and np.isfinite(v) and v > 0):
+            raise SolverInputError(f"{key}: expected a positive finite time in s, got {v!r}")
+
+
 def simulate_tracking(controller: ComputedTorqueController, plant: DynamicParameters,
                       trajectory: CircleTrajectory, t_end: float, h: float = 1e-3, *,
                       dk_plant: Callable | None = None, dk_controller: Callable | None = None,
@@ -348,13 +358,8 @@ def simulate_tracking(controller: ComputedTorqueController, plant: DynamicParame
     -------
     TrackingResult
     """
-    check_instance("controller", controller, ComputedTorqueController, "a ComputedTorqueController")
+    _check_loop(controller, plant, trajectory, t_end, h)
     model = controller.model
-    check_pair(plant, model)
-    check_instance("trajectory", trajectory, CircleTrajectory, "a CircleTrajectory")
-    for key, v in (("t_end", t_end), ("h", h)):
-        if not (isinstance(v, (int, float, np.floating, np.integer)) and np.isfinite(v) and v > 0):
-            raise SolverInputError(f"{key}: expected a positive finite time in s, got {v!r}")
     n = int(round(t_end / h))
     t = h * np.arange(n + 1)
     q_d, dq_d, ddq_d = trajectory.joint(model, t)
