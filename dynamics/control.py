@@ -19,7 +19,7 @@ gains come from pole placement with python-control on that model
 The law is built from the lower-level terms: ``v = ddq_d + K_d de + K_p e`` is the commanded
 acceleration and ``tau`` the inverse dynamics at ``v``, ``M v + (C dq + G + F)``
 (:func:`dynamics.inverse_dynamics`); one compiled kernel evaluates both
-(:func:`dynamics._kernels.rows.computed_torque_batch`).  The FMU controller runs the same law
+(:func:`dynamics._kernels.control.computed_torque_batch`).  The FMU controller runs the same law
 through :class:`dynamics.ControllerStepper`.
 """
 from __future__ import annotations
