@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from solver import SolverInputError, as_array, ik
+from solver import Manipulator, SolverInputError, as_array, ik
 from solver.checks import check_instance
 from solver.kinematics import check_model
 
@@ -16,8 +16,10 @@ _F8 = np.dtype(np.float64)
 def check_pair(params, model):
     """:class:`SolverInputError` unless ``params`` is a :class:`DynamicParameters` and ``model`` a
     :class:`solver.Manipulator` (:func:`solver.checks.check_instance`, the one type check)."""
-    check_instance("params", params, DynamicParameters, "a DynamicParameters")
-    check_model(model)
+    if not isinstance(params, DynamicParameters):     # isinstance first: the fast path of every call
+        check_instance("params", params, DynamicParameters, "a DynamicParameters")
+    if not isinstance(model, Manipulator):
+        check_model(model)
 
 
 def broadcast(**arrays):

@@ -246,7 +246,8 @@ def computed_torque(params: DynamicParameters, model: Manipulator, gains: Comput
 
 
 def _check_gains(gains):
-    check_instance("gains", gains, ComputedTorqueGains, "a ComputedTorqueGains")
+    if not isinstance(gains, ComputedTorqueGains):   # isinstance first: the fast path of every call
+        check_instance("gains", gains, ComputedTorqueGains, "a ComputedTorqueGains")
 
 
 @dataclass(frozen=True, eq=False)

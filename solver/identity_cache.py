@@ -54,12 +54,12 @@ def by_identity(build: Callable[[object], T]) -> Callable[[object], T]:
             del cache[key]
 
     @wraps(build)
-    def get(obj):
-        key = id(obj)
-        entry = cache.get(key)
+    def get(obj, _lookup=cache.get, _id=id):
+        entry = _lookup(_id(obj))
         if entry is not None and entry[0]() is obj:
             return entry[1]
         data = build(obj)
+        key = _id(obj)
         cache[key] = (weakref.ref(obj, lambda ref, key=key: _drop(ref, key)), data)
         return data
 

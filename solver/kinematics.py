@@ -65,6 +65,8 @@ def _rot(c, s, b):
 
 def check_model(model) -> Manipulator:
     """``model`` if it is a :class:`Manipulator` (3-RRR), else :class:`SolverInputError`."""
+    if isinstance(model, Manipulator):                 # the fast path of every call
+        return model
     return check_instance("model", model, Manipulator, "a Manipulator")
 
 

@@ -6,7 +6,7 @@ wrap and the 3x3 algebra are the solver's kinematics core (:mod:`solver._kernels
 
 * :mod:`.layout`: the named offsets of every packed argument array and the packers;
   status codes and what a kernel returns;
-* :mod:`.base`: the ``arm`` pack as the core's arrays, finiteness, refusal codes, work arrays;
+* :mod:`.base`: the core's inverse kinematics on the ``arm`` pack, finiteness, refusal codes, work arrays;
 * :mod:`.rows`: one configuration at a time: the loop geometry table, the body velocity rows,
   the task- and joint-space terms (``task_row``, ``joint_row``) and their batches;
 * :mod:`.control`: the computed-torque law (commanded acceleration, inverse dynamics at it);

@@ -1,5 +1,5 @@
-"""Compiled building blocks shared by the dynamics kernels: the ``arm`` pack as the kinematics core's
-arrays, finiteness, refusal codes and the work arrays of one configuration.  The angle wrap and
+"""Compiled building blocks shared by the dynamics kernels: the kinematics core's inverse kinematics
+on the ``arm`` pack, finiteness, refusal codes and the work arrays of one configuration.  The angle wrap and
 the 3x3 algebra are the solver's (:mod:`solver._kernels.linalg`), the one family of them."""
 from __future__ import annotations
 
@@ -8,17 +8,29 @@ import math
 import numpy as np
 from numba import njit
 
+from solver._kernels.kinematics import ik_leg
+
 from .layout import (ARM_L1, ARM_L2, ARM_MOTORS, ARM_PLATFORM, OK, STATUS_SPAN, WS_AUG, WS_BETA, WS_FORCES, WS_JQ,
                      WS_JX, WS_LEG, WS_M, WS_MX, WS_SIZE, WS_U, WS_V, WS_V3, WS_VJ)
 
 
 # ----------------------------------------------------------------------------- helpers
-@njit(cache=True, inline="always")
-def arm_views(arm):
-    """The ``arm`` pack as the arrays of the kinematics core (:mod:`solver._kernels.kinematics`):
-    motors ``M`` (3, 2), ``l1`` (3,), ``l2`` (3,) and platform joints ``b`` (3, 2), views."""
-    return (arm[ARM_MOTORS:ARM_MOTORS + 6].reshape((3, 2)), arm[ARM_L1:ARM_L1 + 3], arm[ARM_L2:ARM_L2 + 3],
-            arm[ARM_PLATFORM:ARM_PLATFORM + 6].reshape((3, 2)))
+@njit(cache=True, error_model="numpy")
+def ik_arm(arm, x, y, phi, bits, q):
+    """The kinematics core's inverse kinematics (:func:`solver._kernels.kinematics.ik_leg`, leg by leg
+    as :func:`solver.ik` runs it, so the angles are that function's to the last bit) of one pose on
+    the ``arm`` pack, posture elbow bits ``bits``, into ``q`` (3,); False if a leg cannot reach.
+
+    It reads the pack's scalars in place: 2-D views of the pack (what :func:`solver._kernels.kinematics.ik_pose`
+    takes) cost more to make than the whole inverse kinematics."""
+    c, s = math.cos(phi), math.sin(phi)
+    for i in range(3):
+        ok, qi = ik_leg(x, y, c, s, arm[ARM_MOTORS + 2 * i], arm[ARM_MOTORS + 2 * i + 1], arm[ARM_L1 + i],
+                        arm[ARM_L2 + i], arm[ARM_PLATFORM + 2 * i], arm[ARM_PLATFORM + 2 * i + 1], (bits >> i) & 1)
+        if not ok:
+            return False
+        q[i] = qi
+    return True
 
 
 @njit(cache=True, error_model="numpy")

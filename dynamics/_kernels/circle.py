@@ -2,7 +2,7 @@
 
 The time law and the geometry are derived in :mod:`dynamics.trajectory`; here they run with
 scalar code, one time at a time, on the ``circle`` pack (:mod:`.layout`).  The joint-space part
-runs the kinematics core's inverse kinematics (:func:`solver._kernels.kinematics.ik_pose`, what
+runs the kinematics core's inverse kinematics (:func:`.base.ik_arm`: the core's ``ik_leg``, what
 :func:`solver.ik` runs), so the reference angles are that function's to the last bit.
 """
 from __future__ import annotations
@@ -11,9 +11,7 @@ import math
 
 from numba import njit
 
-from solver._kernels.kinematics import ik_pose
-
-from .base import arm_views, code, new_workspace
+from .base import code, ik_arm, new_workspace
 from .layout import (BAD_INPUT, CIRCLE_CENTER_X, CIRCLE_CENTER_Y, CIRCLE_PHI, CIRCLE_RADIUS, CIRCLE_RAMP,
                      CIRCLE_RATE, CIRCLE_START, LEG_DDQ0, LEG_DQ, OK, OUTSIDE, SINGULAR)
 from .rows import geometry_row, motion_row
@@ -71,8 +69,7 @@ def circle_joint_row(arm, bodies, circle, bits, t, X, dX, ddX, q, dq, ddq, leg, 
     if not math.isfinite(t):
         return BAD_INPUT
     circle_task_row(circle, t, X, dX, ddX)
-    motors, l1, l2, platform = arm_views(arm)
-    if not ik_pose(X[0], X[1], X[2], bits, motors, l1, l2, platform, q):
+    if not ik_arm(arm, X[0], X[1], X[2], bits, q):
         return OUTSIDE
     rcx, rcy, res = geometry_row(arm, bodies, X[0], X[1], X[2], q, leg, Jq)
     motion_row(arm, bodies, dX[0], dX[1], dX[2], rcx, rcy, leg, Jq, beta)

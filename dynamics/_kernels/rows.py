@@ -21,10 +21,10 @@ import math
 import numpy as np
 from numba import njit
 
-from solver._kernels.kinematics import ik_pose, leg_row
+from solver._kernels.kinematics import leg_row
 from solver._kernels.linalg import inverse3, solve3
 
-from .base import arm_views, code, finite, new_workspace
+from .base import code, finite, ik_arm, new_workspace
 from .layout import (ARM_L1, ARM_L2, ARM_MOTORS, ARM_PLATFORM, BAD_INPUT, BODY_COM_DISTAL, BODY_COM_PLATFORM,
                      BODY_COM_PROXIMAL, BODY_FRICTION, BODY_GRAVITY, BODY_WEIGHTS, CORIOLIS, FORCE_CJ, FORCE_CX,
                      FORCE_FJ, FORCE_FX, FORCE_GJ, FORCE_GX, FORWARD, FRICTION, GENERALIZED, GRAVITY, INVERSE,
@@ -205,8 +205,7 @@ def task_row(arm, bodies, X, dX, U, q, bits, mode, out, ws):
     if not (finite(X) and finite(dX) and finite(U)):
         return BAD_INPUT
     if bits >= 0:
-        motors, l1, l2, platform = arm_views(arm)
-        if not ik_pose(X[0], X[1], X[2], bits, motors, l1, l2, platform, q):
+        if not ik_arm(arm, X[0], X[1], X[2], bits, q):
             return OUTSIDE
     elif not finite(q):
         return BAD_INPUT

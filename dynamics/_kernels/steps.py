@@ -9,10 +9,9 @@ from __future__ import annotations
 
 from numba import njit
 
-from solver._kernels.kinematics import ik_pose
 from solver._kernels.linalg import wrap
 
-from .base import arm_views, code, finite, workspace
+from .base import code, finite, ik_arm, workspace
 from .circle import circle_joint_row
 from .control import commanded_acceleration
 from .layout import (ARM_L1, ARM_L2, ARM_MOTORS, BAD_INPUT, BAD_SHAPE, CONTROLLER_OUT_SIZE, BODY_COM_DISTAL, BODY_COM_PROXIMAL, BODY_GRAVITY,
@@ -69,8 +68,7 @@ def plant_outputs(arm, bodies, bits, out, ws):
     q = out[PLANT_OUT_Q:PLANT_OUT_Q + 3]
     if not finite(x):
         return OUTSIDE
-    motors, l1, l2, platform = arm_views(arm)
-    if not ik_pose(x[0], x[1], x[2], bits, motors, l1, l2, platform, q):
+    if not ik_arm(arm, x[0], x[1], x[2], bits, q):
         return OUTSIDE
     rcx, rcy, res = geometry_row(arm, bodies, x[0], x[1], x[2], q, leg, Jq)
     for i in range(3):
@@ -137,8 +135,7 @@ def controller_step(controller, bits, t, q1, q2, q3, dq1, dq2, dq3, x, y, phi, t
     X[0], X[1], X[2] = x, y, phi
     if not (finite(q) and finite(dq) and finite(X)):
         return code(BAD_INPUT, CONTROLLER_PHASE_MEASURED)
-    motors, l1, l2, platform = arm_views(arm)
-    if not ik_pose(x, y, phi, bits, motors, l1, l2, platform, qx):
+    if not ik_arm(arm, x, y, phi, bits, qx):
         return code(OUTSIDE, CONTROLLER_PHASE_MEASURED)
     for i in range(3):
         qx[i] = q[i] + wrap(qx[i] - q[i])          # q_X next to q (2 pi turns)

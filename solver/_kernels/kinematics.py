@@ -8,8 +8,8 @@ joint ``A_i = P + R(phi) b_i``, loop vector ``L_i = A_i - D_i``, loop constraint
 :func:`leg_row` adds the motor side: ``den_i = l1_i L_i . n_i = -K_ii / 2`` (``n_i`` the
 normal of the proximal link), so ``J_q = dq/dX = -K^-1 J`` has rows ``(L_x, L_y, L . dR/dphi b) / den``
 (what :mod:`dynamics._kernels.rows` uses) and ``K = diag(-2 den)``.
-:func:`ik_pose` is the one inverse kinematics (:func:`solver.ik`, the dynamics' plant, controller
-and reference all run it).  The 3x3 algebra and the angle wrap are in :mod:`.linalg`.
+:func:`ik_leg` is the one inverse kinematics formula (:func:`ik_pose` and :func:`solver.ik` loop
+over it, and so do the dynamics' plant, controller and reference).  The 3x3 algebra and the angle wrap are in :mod:`.linalg`.
 """
 from __future__ import annotations
 
@@ -97,6 +97,26 @@ def leg_batch(X, q, M, l1, b, out):
 
 
 # ----------------------------------------------------------------------------- inverse kinematics
+@njit(cache=True, inline="always")
+def ik_leg(x, y, c, s, mx, my, l1_i, l2_i, bx, by, bit):
+    """Inverse kinematics of leg ``i`` at pose ``(x, y)``, ``cos/sin phi = c, s``: motor ``(mx, my)``,
+    link lengths ``l1_i, l2_i``, platform joint ``(bx, by)``, elbow bit ``bit`` (1: the elbow sign is
+    negative).  Returns ``(True, q_i)`` with ``q_i`` in (-pi, pi], or ``(False, 0.0)`` if the leg
+    cannot reach.  The one IK formula: :func:`ik_pose` and the dynamics kernels loop over it."""
+    dx = x + c * bx - s * by - mx
+    dy = y + s * bx + c * by - my
+    rho2 = dx * dx + dy * dy
+    rho = math.sqrt(rho2)
+    if rho == 0.0:
+        return False, 0.0
+    ca = (l1_i * l1_i + rho2 - l2_i * l2_i) / (2.0 * l1_i * rho)
+    if not abs(ca) <= 1.0 + 1e-12:
+        return False, 0.0
+    alpha = math.acos(min(1.0, max(-1.0, ca)))
+    sign = 1.0 - 2.0 * bit
+    return True, wrap(math.atan2(dy, dx) - sign * alpha)
+
+
 @njit(cache=True)
 def ik_pose(x, y, phi, elbow_bits, M, l1, l2, b, q):
     """Inverse kinematics of one pose into ``q`` (3,); False (``q`` partly written) if a leg cannot reach.
@@ -105,18 +125,10 @@ def ik_pose(x, y, phi, elbow_bits, M, l1, l2, b, q):
     """
     c, s = math.cos(phi), math.sin(phi)
     for i in range(3):
-        dx = x + c * b[i, 0] - s * b[i, 1] - M[i, 0]
-        dy = y + s * b[i, 0] + c * b[i, 1] - M[i, 1]
-        rho2 = dx * dx + dy * dy
-        rho = math.sqrt(rho2)
-        if rho == 0.0:
+        ok, qi = ik_leg(x, y, c, s, M[i, 0], M[i, 1], l1[i], l2[i], b[i, 0], b[i, 1], (elbow_bits >> i) & 1)
+        if not ok:
             return False
-        ca = (l1[i] * l1[i] + rho2 - l2[i] * l2[i]) / (2.0 * l1[i] * rho)
-        if not abs(ca) <= 1.0 + 1e-12:
-            return False
-        alpha = math.acos(min(1.0, max(-1.0, ca)))
-        sign = 1.0 - 2.0 * ((elbow_bits >> i) & 1)
-        q[i] = wrap(math.atan2(dy, dx) - sign * alpha)
+        q[i] = qi
     return True
 
 
