@@ -7,20 +7,20 @@ import math
 from numba import njit
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True)
 def wrap(a):
     """An angle wrapped to (-pi, pi] (as :func:`solver.wrap_angle`)."""
     return math.pi - ((math.pi - a) % (2.0 * math.pi)) + 0.0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True)
 def det3(A):
     """Determinant of a 3x3 matrix by cofactors of its first row."""
     return (A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]) - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
             + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True)
 def cramer3(A, r, det, out):
     """``out = A^-1 r`` by Cramer's rule with ``det = det3(A)`` (nonzero); False if not finite."""
     out[0] = (r[0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]) - A[0, 1] * (r[1] * A[2, 2] - A[1, 2] * r[2])
@@ -32,7 +32,7 @@ def cramer3(A, r, det, out):
     return math.isfinite(out[0]) and math.isfinite(out[1]) and math.isfinite(out[2])
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True)
 def solve3(A, r, out):
     """Solve ``A x = r`` (3x3) into ``out``; False if ``A`` is singular or the solution not finite."""
     det = det3(A)
@@ -41,7 +41,7 @@ def solve3(A, r, out):
     return cramer3(A, r, det, out)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True)
 def row_ratio(A, det):
     """``|det| / prod |rows of A|`` for ``det = det3(A)``: 0 singular, 1 for orthogonal rows."""
     norm = 1.0
@@ -50,13 +50,13 @@ def row_ratio(A, det):
     return abs(det) / norm if norm > 0 else 0.0
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True)
 def hadamard(A):
     """The Hadamard ratio ``|det A| / prod |rows of A|`` (0 at a singularity, 1 at best)."""
     return row_ratio(A, det3(A))
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True)
 def inverse3(A, out):
     """``out = A^-1`` (3, 3) by the adjugate over ``det3(A)``; False if ``A`` is singular or the
     inverse not finite (``out`` then partly written)."""
