@@ -208,7 +208,7 @@ def acceptable(x, y, ph, res, had, ph0, out, isreal, real_tol):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def sextic(D, b, l2sq, cos8, sin8, sample_to_sextic, coef):
     """Steps 2-3: the eliminant at the eight sample angles, mapped to the sextic's coefficients
     ``coef`` (7,) for the half-angle shift of the sample of largest ``|f|``; returns that sample's index."""
@@ -219,7 +219,8 @@ def sextic(D, b, l2sq, cos8, sin8, sample_to_sextic, coef):
         f[m] = nx * nx + ny * ny + 2.0 * delta * (nx * u0x + ny * u0y) + delta * delta * k0
         if abs(f[m]) > fbest:
             fbest, jbest = abs(f[m]), m
-    coef[:] = 0.0
+    for c in range(7):
+        coef[c] = 0.0
     for m in range(8):
         for c in range(7):
             coef[c] += f[m] * sample_to_sextic[jbest, m, c]
@@ -227,14 +228,15 @@ def sextic(D, b, l2sq, cos8, sin8, sample_to_sextic, coef):
 
 
 @njit(cache=True, inline="always")
-def complex_solution(phi, D, b, l2sq, out_k):
-    """Step 5: ``P`` from step 1 at a complex ``phi``, with ``phi``, into ``out_k`` (3,) complex."""
+def complex_solution(phi, D, b, l2sq, out, k):
+    """Step 5: ``P`` from step 1 at a complex ``phi``, with ``phi``, into row ``k`` of ``out`` (6, 3) complex
+    (the row's index, not a view of it: making a view costs more than this step)."""
     cc, ss = cmath.cos(phi), cmath.sin(phi)
     delta, nx, ny, _u, _v, _k, _a, _b, _c, _d, _e, _f = elim(cc, ss, D, b, l2sq)
-    out_k[0], out_k[1], out_k[2] = nx / delta, ny / delta, phi
+    out[k, 0], out[k, 1], out[k, 2] = nx / delta, ny / delta, phi
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def twin_start(nx, ny, delta, ph0, D, b, l2sq, out, isreal):
     """Candidate 3 of a real root at ``ph0``: a twin of an accepted solution (a close pair the sextic
     cannot separate), deflated Newton from the Cramer point away from the nearest accepted one.
@@ -252,7 +254,7 @@ def twin_start(nx, ny, delta, ph0, D, b, l2sq, out, isreal):
     return x0, y0, p0, True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def real_solution(k, ph0, D, b, l2sq, steps, real_tol, out, isreal):
     """Steps 6-7 for the (near-)real root ``k`` at ``ph0``: candidates polished by Newton, the first
     acceptable one is written into ``out[k]`` and marked in ``isreal``; True if there is one."""
@@ -282,7 +284,7 @@ def real_solution(k, ph0, D, b, l2sq, steps, real_tol, out, isreal):
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def normalise(out, isreal):
     """Real solutions as real numbers with phi wrapped; complex ones with Re phi wrapped, or NaN
     throughout if any part is not finite."""
@@ -337,11 +339,11 @@ def dk_one(q, model_pack, sample_to_sextic, rule, poses, real):
             phi_root[k] = psi + 2.0 * cmath.atan(t[k])
         for k in range(6):                           # complex roots first: P from step 1 at complex phi
             if abs(phi_root[k].imag) > snap_tol:
-                complex_solution(phi_root[k], D, b, l2sq, out[k])
+                complex_solution(phi_root[k], D, b, l2sq, out, k)
         for k in range(6):                           # (near-)real roots, or complex after all
             if not abs(phi_root[k].imag) > snap_tol and not real_solution(
                     k, phi_root[k].real, D, b, l2sq, int(model_pack[MODEL_NEWTON_STEPS]), real_tol, out, isreal):
-                complex_solution(phi_root[k], D, b, l2sq, out[k])
+                complex_solution(phi_root[k], D, b, l2sq, out, k)
         normalise(out, isreal)
     number_solutions(out, isreal, rule, D, b, poses, real)
 
