@@ -4,6 +4,8 @@ from __future__ import annotations
 import numpy as np
 
 from solver import Manipulator, SolverInputError, as_array, ik
+from solver.checks import check_instance
+from solver.kinematics import check_model
 
 from .errors import DynamicsError, outside_text
 from .parameters import DynamicParameters
@@ -11,14 +13,11 @@ from .parameters import DynamicParameters
 _F8 = np.dtype(np.float64)
 
 
-def check_model(model):
-    if not isinstance(model, Manipulator):
-        raise SolverInputError(f"model: expected a Manipulator, got {type(model).__name__}")
-
-
 def check_pair(params, model):
-    if not isinstance(params, DynamicParameters):
-        raise SolverInputError(f"params: expected a DynamicParameters, got {type(params).__name__}")
+    """:class:`SolverInputError` unless ``params`` is a :class:`DynamicParameters` and ``model`` a
+    :class:`solver.Manipulator` (:func:`solver.checks.check_instance`, the one type check)."""
+    if not isinstance(params, DynamicParameters):     # isinstance first: the fast path of every call
+        check_instance("params", params, DynamicParameters, "a DynamicParameters")
     if not isinstance(model, Manipulator):
         check_model(model)
 

@@ -4,8 +4,8 @@ Each public term runs one batch kernel of :mod:`dynamics._kernels.rows` over row
 single configuration (float64 arrays of shape (3,)) is a batch of one and skips the numpy
 argument checks, which the kernel replaces by its own (finite inputs, inverse kinematics, loop
 closure, non-singular matrices); other inputs are checked and broadcast first.  A refusal raises
-:class:`dynamics.DynamicsError` (:func:`dynamics.errors.refused`).  The packs of the model and the
-parameters are built once and cached on those (frozen) objects.
+:class:`dynamics.DynamicsError` (:func:`dynamics.errors.refused`).  The packs of the model, the
+parameters and the gains are the explicit data of :mod:`dynamics._packs` (built once per object).
 """
 from __future__ import annotations
 
@@ -16,40 +16,11 @@ import numpy as np
 from solver import as_array
 
 from ._checks import as_rows, broadcast, check_pair, ik_or_raise, is_single, posture_bits
-from ._kernels import rows as _rows
-from ._kernels.layout import MASS, pack_arm, pack_bodies, pack_gains
+from ._kernels import control as _control, rows as _rows
+from ._kernels.layout import MASS
 from .errors import refused
 from .geometry import ASSEMBLY_TOL
-from .parameters import row_constants
-
-
-def arm_pack(model) -> np.ndarray:
-    """The ``arm`` pack of a :class:`solver.Manipulator`, cached on it."""
-    arm = model.__dict__.get("_dynamics_kernel_pack")
-    if arm is None:
-        arm = pack_arm(model.motors, model.l1, model.l2, model.platform)
-        object.__setattr__(model, "_dynamics_kernel_pack", arm)
-    return arm
-
-
-def bodies_pack(params) -> np.ndarray:
-    """The ``bodies`` pack of a :class:`dynamics.DynamicParameters`, cached on it."""
-    bodies = params.__dict__.get("_kernel_pack")
-    if bodies is None:
-        c = row_constants(params)
-        bodies = pack_bodies(params.com_proximal, params.com_distal, c["w"], c["b"], params.gravity,
-                             params.com_platform)
-        object.__setattr__(params, "_kernel_pack", bodies)
-    return bodies
-
-
-def gains_pack(gains) -> np.ndarray:
-    """The ``gains`` pack of a :class:`dynamics.ComputedTorqueGains`, cached on it."""
-    packed = gains.__dict__.get("_kernel_pack")
-    if packed is None:
-        packed = pack_gains(gains.kp, gains.kd)
-        object.__setattr__(gains, "_kernel_pack", packed)
-    return packed
+from ._packs import arm_pack, bodies_pack, gains_pack
 
 
 def _rows_of(arrays):
@@ -151,7 +122,7 @@ def evaluate_computed_torque(params, model, gains, arrays: dict, single=None):
     else:
         lead, n, rows_in = _rows_of(rows_in)
     out = np.empty(lead + (3,))
-    code = _rows.computed_torque_batch(arm_pack(model), bodies_pack(params), gains_pack(gains), *rows_in,
+    code = _control.computed_torque_batch(arm_pack(model), bodies_pack(params), gains_pack(gains), *rows_in,
                                        ASSEMBLY_TOL, out.reshape(n, 3))
     if code:
         raise refused(code, arrays, model=model, lead=lead)

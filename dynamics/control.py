@@ -19,7 +19,7 @@ gains come from pole placement with python-control on that model
 The law is built from the lower-level terms: ``v = ddq_d + K_d de + K_p e`` is the commanded
 acceleration and ``tau`` the inverse dynamics at ``v``, ``M v + (C dq + G + F)``
 (:func:`dynamics.inverse_dynamics`); one compiled kernel evaluates both
-(:func:`dynamics._kernels.rows.computed_torque_batch`).  The FMU controller runs the same law
+(:func:`dynamics._kernels.control.computed_torque_batch`).  The FMU controller runs the same law
 through :class:`dynamics.ControllerStepper`.
 """
 from __future__ import annotations
@@ -33,7 +33,8 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from solver import Manipulator, SolverInputError, as_array
+from solver import Manipulator, SolverInputError, as_array, wrap_angle
+from solver.checks import check_instance
 
 from ._checks import broadcast, check_pair, is_single
 from ._evaluate import evaluate_computed_torque
@@ -45,9 +46,8 @@ __all__ = ["ComputedTorqueGains", "ComputedTorqueController", "computed_torque",
            "simulate_tracking", "wrap"]
 
 
-def wrap(a):
-    """Angles (rad) wrapped to (-pi, pi], elementwise."""
-    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2.0 * np.pi)
+#: Angles (rad) wrapped to (-pi, pi], elementwise: :func:`solver.wrap_angle`, the one wrap of the numpy side.
+wrap = wrap_angle
 
 
 def _double_integrator():
@@ -246,8 +246,8 @@ def computed_torque(params: DynamicParameters, model: Manipulator, gains: Comput
 
 
 def _check_gains(gains):
-    if not isinstance(gains, ComputedTorqueGains):
-        raise SolverInputError(f"gains: expected a ComputedTorqueGains, got {type(gains).__name__}")
+    if not isinstance(gains, ComputedTorqueGains):   # isinstance first: the fast path of every call
+        check_instance("gains", gains, ComputedTorqueGains, "a ComputedTorqueGains")
 
 
 @dataclass(frozen=True, eq=False)
@@ -316,6 +316,16 @@ class TrackingResult(NamedTuple):
         return float(np.max(np.abs(self.error[self.t >= t_from - 1e-12])))
 
 
+def _check_loop(controller, plant, trajectory, t_end, h):
+    """The argument checks of :func:`simulate_tracking` (:class:`SolverInputError` naming the argument)."""
+    check_instance("controller", controller, ComputedTorqueController, "a ComputedTorqueController")
+    check_pair(plant, controller.model)
+    check_instance("trajectory", trajectory, CircleTrajectory, "a CircleTrajectory")
+    for key, v in (("t_end", t_end), ("h", h)):
+        if not (isinstance(v, (int, float, np.floating, np.integer)) and np.isfinite(v) and v > 0):
+            raise SolverInputError(f"{key}: expected a positive finite time in s, got {v!r}")
+
+
 def simulate_tracking(controller: ComputedTorqueController, plant: DynamicParameters,
                       trajectory: CircleTrajectory, t_end: float, h: float = 1e-3, *,
                       dk_plant: Callable | None = None, dk_controller: Callable | None = None,
@@ -349,16 +359,8 @@ def simulate_tracking(controller: ComputedTorqueController, plant: DynamicParame
     -------
     TrackingResult
     """
-    if not isinstance(controller, ComputedTorqueController):
-        raise SolverInputError(f"controller: expected a ComputedTorqueController, got "
-                               f"{type(controller).__name__}")
+    _check_loop(controller, plant, trajectory, t_end, h)
     model = controller.model
-    check_pair(plant, model)
-    if not isinstance(trajectory, CircleTrajectory):
-        raise SolverInputError(f"trajectory: expected a CircleTrajectory, got {type(trajectory).__name__}")
-    for key, v in (("t_end", t_end), ("h", h)):
-        if not (isinstance(v, (int, float, np.floating, np.integer)) and np.isfinite(v) and v > 0):
-            raise SolverInputError(f"{key}: expected a positive finite time in s, got {v!r}")
     n = int(round(t_end / h))
     t = h * np.arange(n + 1)
     q_d, dq_d, ddq_d = trajectory.joint(model, t)

@@ -30,18 +30,20 @@ is affine in ``ddX``:
 .. math::  v_b = V_b(X)\,\dot X, \qquad a_b = V_b(X)\,\ddot X + \beta_b(X, \dot X),
 
 where ``beta_b`` (the velocity-product acceleration) follows from the formulas above with
-``ddX = 0``: no numerical differentiation anywhere.  :func:`geometry` and :func:`motion`
-evaluate these quantities with numpy for the kinematic helpers below and the energies
-(:mod:`dynamics.energy`); the dynamics terms evaluate them compiled
-(:mod:`dynamics._kernels.rows`).
+``ddX = 0``: no numerical differentiation anywhere.  :func:`geometry` takes the loop geometry
+from the kinematics core (:mod:`solver._kernels.kinematics`, compiled) and :func:`motion`
+evaluates the body motion with numpy for the kinematic helpers below and the energies
+(:mod:`dynamics.energy`); the dynamics terms evaluate both compiled (:mod:`dynamics._kernels.rows`).
 """
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
 
-from solver import Manipulator, as_array
+from solver import Manipulator, as_array, wrap_angle
+from solver._kernels.kinematics import LEG_ROWS, leg_batch
 
 from ._checks import broadcast, check_model
 from .parameters import DynamicParameters
@@ -70,17 +72,17 @@ class Geom(NamedTuple):
 
 
 def geometry(model, com_platform, X, q) -> Geom:
+    """The loop geometry of configurations ``(X, q)`` (..., 3) broadcast together, by the kinematics
+    core (:func:`solver._kernels.kinematics.leg_row`, the one the compiled dynamics and the solver run)."""
+    X, q = np.broadcast_arrays(X, q)
+    lead = X.shape[:-1]
+    legs = np.empty((math.prod(lead), LEG_ROWS, 3))
+    leg_batch(np.ascontiguousarray(X, dtype=np.float64).reshape(-1, 3),
+              np.ascontiguousarray(q, dtype=np.float64).reshape(-1, 3), model.motors, model.l1, model.platform, legs)
+    legs = legs.reshape(lead + (LEG_ROWS, 3))
+    cq, sq, Rbx, Rby, Lx, Ly, Lr, den = (legs[..., r, :] for r in range(LEG_ROWS))
+    Jq = np.stack([Lx, Ly, Lr], axis=-1) / den[..., None]
     c, s = np.cos(X[..., 2]), np.sin(X[..., 2])
-    b = model.platform
-    c1, s1 = c[..., None], s[..., None]
-    Rbx = c1 * b[:, 0] - s1 * b[:, 1]
-    Rby = s1 * b[:, 0] + c1 * b[:, 1]
-    cq, sq = np.cos(q), np.sin(q)
-    l1 = model.l1
-    Lx = X[..., 0:1] + Rbx - model.motors[:, 0] - l1 * cq
-    Ly = X[..., 1:2] + Rby - model.motors[:, 1] - l1 * sq
-    den = l1 * (Ly * cq - Lx * sq)
-    Jq = np.stack([Lx, Ly, Ly * Rbx - Lx * Rby], axis=-1) / den[..., None]
     Rcx = c * com_platform[0] - s * com_platform[1]
     Rcy = s * com_platform[0] + c * com_platform[1]
     return Geom(cq, sq, Lx, Ly, Rbx, Rby, Rcx, Rcy, den, Jq)
@@ -229,8 +231,7 @@ def passive_joint_angles(model: Manipulator, X, q) -> np.ndarray:
     X, q = broadcast(X=as_array("X", X), q=as_array("q", q))
     g = geometry(model, (0.0, 0.0), X, q)
     psi = np.arctan2(g.Ly, g.Lx)
-    rel = np.concatenate([psi - q, X[..., 2:3] - psi], axis=-1)
-    return np.pi - np.mod(np.pi - rel, 2.0 * np.pi)
+    return wrap_angle(np.concatenate([psi - q, X[..., 2:3] - psi], axis=-1))
 
 
 def passive_joint_rates(model: Manipulator, X, q, dX) -> np.ndarray:

@@ -27,13 +27,15 @@ from typing import Callable
 
 import numpy as np
 
-from solver import Manipulator, SolverInputError, as_array, dk_all
+from solver import Manipulator, SolverInputError, as_array
+from solver.direct_kinematics import nearest_solution
 
 from ._checks import broadcast, check_model, check_pair, ik_or_raise, is_single, posture_bits
-from ._evaluate import arm_pack, bodies_pack, evaluate_joint, evaluate_task
+from ._evaluate import evaluate_joint, evaluate_task
 from ._kernels import rows as _rows
 from ._kernels.layout import FORWARD, refusal
 from ._kernels.rk4 import PYTHON_STAGES, make_rk4_step, rk4_task
+from ._packs import arm_pack, bodies_pack
 from .errors import refused
 from .geometry import ASSEMBLY_TOL
 from .parameters import DynamicParameters
@@ -308,9 +310,9 @@ class _JointSpaceRHS:
 class NearestPoseDK:
     """Pose supplier ``q -> X``: the real DK solution nearest to the previous pose.
 
-    Stands in for the DK FMU.  Every call solves all six DK solutions (:func:`solver.dk_all`) and
-    returns the real one nearest to the pose returned last (distance ``|dP|^2 + (r dphi)^2`` with
-    ``r`` the mean platform radius and ``dphi`` wrapped), then remembers it.  Valid while the
+    Stands in for the DK FMU.  Every call returns the real DK solution nearest to the pose returned
+    last (:func:`solver.direct_kinematics.nearest_solution`: the eq. 19 distance with weights
+    ``(1, 1, r^2)``, ``r`` the mean platform radius, ``dphi`` wrapped), then remembers it.  Valid while the
     steps are small compared with the distance between assembly modes, i.e. away from type-1
     singularities.
 
@@ -333,16 +335,12 @@ class NearestPoseDK:
             raise SolverInputError(f"X0: expected shape (3,), got {X0.shape}")
         self.model = model
         self.pose = X0.copy()
-        self._r2 = float(np.mean(model.platform_radius)) ** 2
+        self._w = np.array([1.0, 1.0, float(np.mean(model.platform_radius)) ** 2])
 
     def __call__(self, q) -> np.ndarray:
         """Pose (3,) of the motor angles ``q`` (3,), m, m, rad."""
-        sol = dk_all(self.model, q)
-        cand = sol.poses.real[sol.real]
-        if len(cand) == 0:
+        X = nearest_solution(self.model, q, self.pose, self._w)
+        if np.isnan(X[0]):
             raise SolverInputError(f"q: expected joints with a real DK solution, got {np.asarray(q).tolist()}")
-        d = cand - self.pose
-        dphi = np.angle(np.exp(1j * d[:, 2]))
-        k = int(np.argmin(d[:, 0] ** 2 + d[:, 1] ** 2 + self._r2 * dphi ** 2))
-        self.pose = cand[k]
-        return self.pose.copy()
+        self.pose = X
+        return X.copy()

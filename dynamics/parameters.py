@@ -9,8 +9,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields, replace
+from types import MappingProxyType
 
 import numpy as np
+
+from solver.identity_cache import by_identity
 
 __all__ = ["DynamicParameters", "ParameterError", "row_constants"]
 
@@ -213,8 +216,8 @@ class DynamicParameters:
         return float(np.sum(self.mass_proximal) + np.sum(self.mass_distal) + self.mass_platform)
 
 
-def row_constants(params) -> dict:
-    """Per-parameter constant vectors, computed once and cached on the (frozen) parameters.
+def _row_constants(params) -> MappingProxyType:
+    """Per-parameter constant vectors (read-only), the data of :func:`row_constants`.
 
     ``w`` (21,): weights of the velocity rows -- platform (x, y, rot), proximal
     x3 / y3 / rot3 (rotor included), distal x3 / y3 / rot3; ``gamma`` (21,): gravity
@@ -222,21 +225,22 @@ def row_constants(params) -> dict:
     coefficients of the motors, elbows and platform joints; ``m`` (7,): masses of
     the platform, proximal and distal links.
     """
-    k = params.__dict__.get("_constants")
-    if k is None:
-        gx, gy = params.gravity
-        z3, o3 = np.zeros(3), np.ones(3)
-        k = {
-            "w": np.concatenate([[params.mass_platform, params.mass_platform, params.inertia_platform],
-                                 params.mass_proximal, params.mass_proximal,
-                                 params.inertia_proximal + params.rotor_inertia,
-                                 params.mass_distal, params.mass_distal, params.inertia_distal]),
-            "gamma": np.concatenate([[gx, gy, 0.0], gx * o3, gy * o3, z3, gx * o3, gy * o3, z3]),
-            "b": np.concatenate([params.friction_active, params.friction_elbow, params.friction_platform]),
-            "m": np.concatenate([[params.mass_platform], params.mass_proximal, params.mass_distal]),
-        }
-        for v in k.values():
-            v.setflags(write=False)
-        object.__setattr__(params, "_constants", k)
-    return k
+    gx, gy = params.gravity
+    z3, o3 = np.zeros(3), np.ones(3)
+    k = {
+        "w": np.concatenate([[params.mass_platform, params.mass_platform, params.inertia_platform],
+                             params.mass_proximal, params.mass_proximal,
+                             params.inertia_proximal + params.rotor_inertia,
+                             params.mass_distal, params.mass_distal, params.inertia_distal]),
+        "gamma": np.concatenate([[gx, gy, 0.0], gx * o3, gy * o3, z3, gx * o3, gy * o3, z3]),
+        "b": np.concatenate([params.friction_active, params.friction_elbow, params.friction_platform]),
+        "m": np.concatenate([[params.mass_platform], params.mass_proximal, params.mass_distal]),
+    }
+    for v in k.values():
+        v.setflags(write=False)
+    return MappingProxyType(k)
 
+
+#: ``row_constants(params)``: :func:`_row_constants` built once per parameter object and kept beside it
+#: (:func:`solver.identity_cache.by_identity`; the parameters are frozen, nothing is stored on them).
+row_constants = by_identity(_row_constants)

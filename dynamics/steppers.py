@@ -19,9 +19,10 @@ import math
 import numpy as np
 
 from solver import Manipulator, SolverInputError, check_posture
+from solver.checks import check_instance
 
 from ._checks import check_pair
-from ._evaluate import arm_pack, bodies_pack, gains_pack
+from ._packs import arm_pack, bodies_pack, circle_pack, gains_pack
 from ._kernels.layout import (BAD_SHAPE, CONTROLLER_OUT_SIZE, CONTROLLER_PHASE_REFERENCE, OUTSIDE, PLANT_OUT_SIZE,
                               PLANT_OUT_STATE, STEP_WORK_SIZE, refusal)
 from ._kernels.steps import controller_step, plant_step
@@ -118,13 +119,11 @@ class ControllerStepper:
     def __init__(self, params: DynamicParameters, model: Manipulator, gains: ComputedTorqueGains,
                  trajectory: CircleTrajectory):
         check_pair(params, model)
-        if not isinstance(gains, ComputedTorqueGains):
-            raise SolverInputError(f"gains: expected a ComputedTorqueGains, got {type(gains).__name__}")
-        if not isinstance(trajectory, CircleTrajectory):
-            raise SolverInputError(f"trajectory: expected a CircleTrajectory, got {type(trajectory).__name__}")
+        check_instance("gains", gains, ComputedTorqueGains, "a ComputedTorqueGains")
+        check_instance("trajectory", trajectory, CircleTrajectory, "a CircleTrajectory")
         self.params, self.model, self.gains, self.trajectory = params, model, gains, trajectory
         self._pack = np.concatenate([arm_pack(model), bodies_pack(params), gains_pack(gains),
-                                     trajectory._kernel_pack])
+                                     circle_pack(trajectory)])
         self._bits = trajectory.posture - 1
         self._work = np.empty(STEP_WORK_SIZE)
         # load the compiled step now, not in the first step (a refused call: the result is unused)

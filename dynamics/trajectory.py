@@ -26,9 +26,10 @@ The joint-space reference is exact: ``q_d = g_j(X)`` (inverse kinematics in the
 posture), ``dq_d = J_q dX`` (eq. 3) and ``ddq_d = J_q ddX + ddq_0(X, dX)`` from
 the loop constraints differentiated twice (:func:`dynamics.joint_accelerations`).
 
-Implementation: :meth:`CircleTrajectory.task` and :meth:`CircleTrajectory.joint` run a compiled
-kernel (:func:`dynamics._kernels.circle.circle_batch`: the formulas above with scalar code, and the
-inverse kinematics with the operations of :func:`solver.ik`), a few microseconds per call.  A time
+Implementation: :meth:`CircleTrajectory.polar_angle`, :meth:`CircleTrajectory.task` and
+:meth:`CircleTrajectory.joint` run the one compiled time law and circle
+(:mod:`dynamics._kernels.circle`: the formulas above with scalar code, and the kinematics core's
+inverse kinematics, :func:`solver.ik`'s), a few microseconds per call.  A time
 that is not finite, or a point outside the tool space, raises :class:`dynamics.DynamicsError`.
 """
 from __future__ import annotations
@@ -40,9 +41,9 @@ import numpy as np
 from solver import PAPER_CIRCLE, Manipulator, SolverInputError, check_posture
 
 from ._checks import check_model
-from ._evaluate import arm_pack, bodies_pack
-from ._kernels.circle import circle_batch
-from ._kernels.layout import BAD_INPUT, pack_circle, refusal
+from ._kernels.circle import circle_batch, polar_batch
+from ._kernels.layout import BAD_INPUT, refusal
+from ._packs import arm_pack, bodies_pack, circle_pack
 from .errors import DynamicsError, refused
 from .geometry import KINEMATIC_ONLY
 
@@ -110,9 +111,6 @@ class CircleTrajectory:
                 raise SolverInputError(f"{key}: expected a finite angle in rad, got {v!r}")
             object.__setattr__(self, key, float(v))
         object.__setattr__(self, "posture", int(check_posture(self.posture)))
-        # packed constants of the compiled kernel (not a field: no part of eq, hash or repr)
-        object.__setattr__(self, "_kernel_pack", pack_circle(self.center, self.radius, self.phi,
-                                                             self.angular_speed, self.ramp_time, self.start))
 
     @property
     def angular_speed(self) -> float:
@@ -135,19 +133,9 @@ class CircleTrajectory:
         t = np.asarray(t, dtype=float)
         if not np.all(np.isfinite(t)):
             raise SolverInputError(f"t: expected finite times in s, got {t!r}")
-        W, Tr = self.angular_speed, self.ramp_time
-        if Tr == 0.0:
-            tt = np.maximum(t, 0.0)
-            return self.start + W * tt, np.where(t >= 0, W, 0.0), np.zeros_like(t)
-        u = np.clip(t / Tr, 0.0, 1.0)
-        ramp = t < Tr
-        S = u ** 4 * (2.5 - 3.0 * u + u * u)                 # integral of s
-        s = u ** 3 * (10.0 - 15.0 * u + 6.0 * u * u)
-        ds = 30.0 * u * u * (1.0 - u) ** 2
-        theta = self.start + np.where(ramp, W * Tr * S, W * (t - 0.5 * Tr))
-        dtheta = np.where(ramp, W * s, W)
-        ddtheta = np.where(ramp, W * ds / Tr, 0.0)
-        return theta, dtheta, ddtheta
+        out = np.empty(t.shape + (3,))
+        polar_batch(circle_pack(self), np.ascontiguousarray(t.reshape(-1)), out.reshape(-1, 3))
+        return out[..., 0], out[..., 1], out[..., 2]
 
     def task(self, t):
         """Tool-space reference at time ``t``.
@@ -195,11 +183,12 @@ class CircleTrajectory:
         flat = np.ascontiguousarray(tt.reshape(-1))
         joint = model is not None
         buf = np.empty((6 if joint else 3, flat.shape[0], 3))
+        circle = circle_pack(self)
         if joint:
             arm, bodies = arm_pack(model), bodies_pack(KINEMATIC_ONLY)
         else:
-            arm = bodies = self._kernel_pack              # unused without the joint part
-        code = circle_batch(arm, bodies, self._kernel_pack, self.posture - 1, flat, joint, buf[0], buf[1], buf[2],
+            arm = bodies = circle                         # unused without the joint part
+        code = circle_batch(arm, bodies, circle, self.posture - 1, flat, joint, buf[0], buf[1], buf[2],
                             buf[3 if joint else 0], buf[4 if joint else 0], buf[5 if joint else 0])
         if code:
             raise self._refused(code, model, tt)

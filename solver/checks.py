@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SolverInputError", "GeometryError", "as_array", "check_posture"]
+__all__ = ["SolverInputError", "GeometryError", "as_array", "check_posture", "check_instance"]
 
 
 class SolverInputError(ValueError):
@@ -18,6 +18,32 @@ class SolverInputError(ValueError):
 
 class GeometryError(ValueError):
     """A manipulator geometry is invalid (non-positive lengths, degenerate triangles...)."""
+
+
+def check_instance(name: str, value, types, expected: str):
+    """``value`` if it is an instance of ``types`` (a type or a tuple of types), else raise.
+
+    The one type check of the packages' models (a manipulator, dynamic parameters, gains...).
+
+    Parameters
+    ----------
+    name : str
+        Argument name used in the error message.
+    value : object
+        The argument.
+    types : type or tuple of type
+        The accepted types.
+    expected : str
+        What was expected, for the message (``"a Manipulator"``).
+
+    Raises
+    ------
+    SolverInputError
+        ``"<name>: expected <expected>, got <type name>"``.
+    """
+    if not isinstance(value, types):
+        raise SolverInputError(f"{name}: expected {expected}, got {type(value).__name__}")
+    return value
 
 
 def _shape_text(trailing: tuple[int, ...]) -> str:

@@ -72,19 +72,22 @@ The six solutions are numbered 1..6 by an ordering rule, see
 """
 from __future__ import annotations
 
+from types import MappingProxyType
 from typing import NamedTuple
 
 import numpy as np
 
 from ._kernels import direct_kinematics as _dk
+from ._kernels.choice import nearest as _nearest
 from ._kernels.layout import RULE_ASPECT, pack_model
 from ._kernels.ordering import number_batch
 from .checks import SolverInputError, as_array
+from .identity_cache import by_identity
 from .kinematics import check_manipulator, wrap_angle
 from .manipulator import Manipulator
 from .ordering import DEFAULT_RULE, rule_code
 
-__all__ = ["DKSolutions", "dk_all", "order_solutions", "kernel_constants", "REAL_SNAP", "REAL_RESIDUAL", "NEWTON_STEPS",
+__all__ = ["DKSolutions", "dk_all", "nearest_solution", "order_solutions", "kernel_constants", "REAL_SNAP", "REAL_RESIDUAL", "NEWTON_STEPS",
            "PARALLEL_MIN"]
 
 #: Roots whose |Im phi| is below this are tried as real (double roots split).
@@ -125,16 +128,13 @@ class DKSolutions(NamedTuple):
         return self.poses[self.real].real
 
 
-def kernel_constants(model: Manipulator) -> dict:
-    """What the DK kernel needs of a model, computed once and cached on the (frozen) model.
+def _kernel_constants(model: Manipulator) -> MappingProxyType:
+    """What the DK kernel needs of a model (the explicit data of :func:`kernel_constants`).
 
     Keys: ``pack`` (the model pack of :mod:`solver._kernels.layout`), ``sample_to_sextic``
     (8, 8, 7), and the geometry and sample arrays it was packed from (``M``, ``l1``,
     ``l2sq``, ``b``, ``cos8``, ``sin8``, ``psi``, ``phis``).
     """
-    k = model.__dict__.get("_kernel_constants")
-    if k is not None:
-        return k
     m = np.arange(8)
     phis = 2.0 * np.pi * m / 8.0
     # T[j] maps the 8 samples f(phi_m) to the coefficients (t^6 ... t^0) of
@@ -162,8 +162,13 @@ def kernel_constants(model: Manipulator) -> dict:
     scale = float(np.max(model.platform_radius)) ** 2 if rpr else float(np.min(l2sq))
     k["pack"] = pack_model(M, l1, l2sq, k["b"], k["cos8"], k["sin8"], k["psi"], REAL_SNAP, REAL_RESIDUAL * scale,
                            NEWTON_STEPS)
-    object.__setattr__(model, "_kernel_constants", k)
-    return k
+    return MappingProxyType(k)
+
+
+#: ``kernel_constants(model)``: the DK kernel's data of a model (:func:`_kernel_constants`), a read-only
+#: mapping built once per model object and kept beside it (:func:`solver.identity_cache.by_identity`:
+#: the model is frozen, so its data stays valid while it lives; nothing is stored on the model).
+kernel_constants = by_identity(_kernel_constants)
 
 
 def dk_all(model: Manipulator, q, rule: str = DEFAULT_RULE) -> DKSolutions:
@@ -208,6 +213,39 @@ def dk_all(model: Manipulator, q, rule: str = DEFAULT_RULE) -> DKSolutions:
     run = _dk.dk_parallel if n >= PARALLEL_MIN else _dk.dk_serial
     run(flat, k["pack"], k["sample_to_sextic"], code, poses, real)
     return DKSolutions(poses.reshape(lead + (6, 3)), real.reshape(lead + (6,)))
+
+
+#: No label masks: :func:`nearest_solution` chooses among all real solutions.
+_NO_MASK = np.zeros(7, dtype=np.bool_)
+
+
+def nearest_solution(model: Manipulator, q, X_ref, weights) -> np.ndarray:
+    """The real DK solution of one joint vector nearest to a reference pose (eq. 19 distance).
+
+    The rule of the tracker's choice and of the ``nearest`` baseline (one compiled definition,
+    :func:`solver._kernels.choice.nearest`): all six solutions by :func:`dk_all`, then the real
+    one minimising ``sqrt(w_x dx^2 + w_y dy^2 + w_phi dphi^2)`` with ``dphi`` wrapped.
+
+    Parameters
+    ----------
+    model : Manipulator or RPRManipulator
+    q : array_like, shape (3,)
+        Joints, rad (m for a 3-RPR).
+    X_ref : ndarray, shape (3,), float64
+        Reference pose, m, m, rad.
+    weights : ndarray, shape (3,), float64
+        Eq. 19 weights ``(w_x, w_y, w_phi)``, 1, 1 and m^2/rad^2.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        The nearest real solution (m, m, rad), or NaN (3,) if ``q`` has no real solution.
+    """
+    sol = dk_all(model, q)
+    if sol.real.ndim != 1:
+        raise SolverInputError(f"q: expected one joint vector (3,), got shape {np.shape(q)}")
+    k, _ = _nearest(sol.poses, sol.real, X_ref, weights, _NO_MASK, _NO_MASK, _NO_MASK, False)
+    return sol.poses[k].real.copy() if k >= 0 else np.full(3, np.nan)
 
 
 def order_solutions(poses, real, rule: str = DEFAULT_RULE, model: Manipulator | None = None,

@@ -18,7 +18,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ._kernels import kinematics as _kin
-from .checks import SolverInputError, as_array, check_posture
+from .angles import wrap_angle
+from .checks import SolverInputError, as_array, check_instance, check_posture
 from . import rpr as _rpr
 from .manipulator import Manipulator
 from .manipulators import check_manipulator
@@ -57,11 +58,6 @@ class SingularityMeasures(NamedTuple):
 
 
 # ----------------------------------------------------------------------------- helpers
-def wrap_angle(a):
-    """Wrap angles (rad) to (-pi, pi]; works elementwise on any array."""
-    return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
-
-
 def _rot(c, s, b):
     """R(phi) b for cos/sin arrays ``c, s`` (...) and vectors ``b`` (..., 2)."""
     return np.stack([c * b[..., 0] - s * b[..., 1], s * b[..., 0] + c * b[..., 1]], axis=-1)
@@ -69,9 +65,9 @@ def _rot(c, s, b):
 
 def check_model(model) -> Manipulator:
     """``model`` if it is a :class:`Manipulator` (3-RRR), else :class:`SolverInputError`."""
-    if not isinstance(model, Manipulator):
-        raise SolverInputError(f"model: expected a Manipulator, got {type(model).__name__}")
-    return model
+    if isinstance(model, Manipulator):                 # the fast path of every call
+        return model
+    return check_instance("model", model, Manipulator, "a Manipulator")
 
 
 def _is_rpr(model) -> bool:

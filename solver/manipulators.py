@@ -21,7 +21,7 @@ Every model provides
 """
 from __future__ import annotations
 
-from .checks import GeometryError, SolverInputError
+from .checks import GeometryError, check_instance
 from .manipulator import Manipulator
 from .rpr import RPRManipulator
 
@@ -29,14 +29,13 @@ __all__ = ["MANIPULATOR_TYPES", "check_manipulator", "manipulator_from_dict"]
 
 #: The manipulator types by kind.
 MANIPULATOR_TYPES = {"3-RRR": Manipulator, "3-RPR": RPRManipulator}
+_TYPES = tuple(MANIPULATOR_TYPES.values())
+_EXPECTED = "a " + " or an ".join(t.__name__ for t in _TYPES) + " (the manipulator interface)"
 
 
 def check_manipulator(model):
-    """``model`` if it implements the manipulator interface, else :class:`SolverInputError`."""
-    if not isinstance(model, tuple(MANIPULATOR_TYPES.values())):
-        raise SolverInputError("model: expected a " + " or an ".join(t.__name__ for t in MANIPULATOR_TYPES.values())
-                               + f" (the manipulator interface), got {type(model).__name__}")
-    return model
+    """``model`` if it implements the manipulator interface, else :class:`solver.SolverInputError`."""
+    return check_instance("model", model, _TYPES, _EXPECTED)
 
 
 def manipulator_from_dict(data: dict):

@@ -19,7 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .checks import GeometryError, SolverInputError, as_array
+from .angles import wrap_angle as _wrap  # noqa: F401  (the one wrap, under the name solver.rpr_scan imports)
+from .checks import GeometryError, SolverInputError, as_array, check_instance
 from .manipulator import GeometryIdentity, _frozen, _triangle_area
 
 __all__ = ["RPRManipulator", "ZEIN_RHO1", "RPR_HOME_POSE", "RPR_WORK_BOUNDS", "ik", "constraints", "jacobians",
@@ -127,9 +128,7 @@ class RPRManipulator(GeometryIdentity):
 
 # ----------------------------------------------------------------------------- checks and helpers
 def _check_model(model) -> RPRManipulator:
-    if not isinstance(model, RPRManipulator):
-        raise SolverInputError(f"model: expected an RPRManipulator, got {type(model).__name__}")
-    return model
+    return check_instance("model", model, RPRManipulator, "an RPRManipulator")
 
 
 def _rho(name, rho) -> np.ndarray:
@@ -150,10 +149,6 @@ def _rot(phi, b):
     """R(phi) b for angles (...) and vectors b (..., 2), broadcast."""
     c, s = np.cos(phi), np.sin(phi)
     return np.stack([c * b[..., 0] - s * b[..., 1], s * b[..., 0] + c * b[..., 1]], -1)
-
-
-def _wrap(a):
-    return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
 
 
 def _joints(model, X):

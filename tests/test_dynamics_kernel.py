@@ -23,8 +23,9 @@ import dynamics_reference as oracle
 from solver import SolverInputError, ik, singularity_measures
 from dynamics import (CircleTrajectory, ComputedTorqueGains, ControllerStepper, DynamicsError, NearestPoseDK,
                       PlantStepper, computed_torque, joint_space_rhs, rk4, rk4_step, task_space_rhs, wrap)
-from dynamics._evaluate import arm_pack
-from dynamics._kernels.rows import ik_row
+from dynamics._kernels.layout import MASS, OUTSIDE, refusal
+from dynamics._kernels.rows import task_batch
+from dynamics._packs import arm_pack, bodies_pack
 
 #: kernel vs reference, relative to the largest entry of each result
 REL = 1e-12
@@ -177,19 +178,25 @@ def test_right_hand_sides_equal_reference(model, params, configs):
             assert _rel(d[None, 3:], ref[None]).max() <= REL
 
 
-def test_kernel_ik_equals_solver_ik(model):
-    """Same reach test and angles; rounding is amplified by arccos near a stretched or folded leg."""
+def test_task_space_kernel_runs_the_solver_ik(model, params):
+    """The task-space kernel's motor angles are solver.ik's to the last bit (one IK, the core's), and it
+    refuses exactly the poses solver.ik cannot reach."""
     rng = np.random.default_rng(3)
     X = np.column_stack([rng.uniform(-0.2, 1.2, 4000), rng.uniform(-0.3, 1.1, 4000), rng.uniform(-np.pi, np.pi, 4000)])
-    arm = arm_pack(model)
-    q = np.empty(3)
+    arm, bodies = arm_pack(model), bodies_pack(params)
+    zero, q, out = np.zeros((1, 3)), np.empty((1, 3)), np.empty((1, 9))
+    reached = 0
     for posture in range(1, 9):
         ref = ik(model, X, posture)
         for k in range(len(X)):
-            ok = ik_row(arm, X[k, 0], X[k, 1], X[k, 2], posture - 1, q)
-            assert ok == (not np.isnan(ref[k, 0]))
-            if ok:
-                np.testing.assert_allclose(wrap(q - ref[k]), 0.0, rtol=0, atol=1e-12)
+            status = refusal(task_batch(arm, bodies, X[k:k + 1], zero, zero, q, posture - 1, MASS, out))[0]
+            if np.isnan(ref[k, 0]):
+                assert status == OUTSIDE
+            else:
+                assert status != OUTSIDE
+                np.testing.assert_array_equal(q[0], ref[k])
+                reached += 1
+    assert reached > 1000
 
 
 # ---------------------------------------------------------------------------- integrators

@@ -1,10 +1,15 @@
 """Compiled (numba) kernels of :mod:`dynamics`: private, called only by the package's own modules.
 
+The kinematics is not here: the inverse kinematics, the leg rows (``L_i``, ``J_q``), the angle
+wrap and the 3x3 algebra are the solver's kinematics core (:mod:`solver._kernels.kinematics`,
+:mod:`solver._kernels.linalg`), which these kernels call.
+
 * :mod:`.layout`: the named offsets of every packed argument array and the packers;
   status codes and what a kernel returns;
-* :mod:`.rows`: one configuration at a time: linear algebra on 3x3 systems, the loop
-  geometry, the body velocity rows, the task- and joint-space terms (``task_row``,
-  ``joint_row``) and their batches;
+* :mod:`.base`: the core's inverse kinematics on the ``arm`` pack, finiteness, refusal codes, work arrays;
+* :mod:`.rows`: one configuration at a time: the loop geometry table, the body velocity rows,
+  the task- and joint-space terms (``task_row``, ``joint_row``) and their batches;
+* :mod:`.control`: the computed-torque law (commanded acceleration, inverse dynamics at it);
 * :mod:`.rk4`: the classic RK4 step, written once (:func:`.rk4.make_rk4_step`), compiled here
   around the task-space right-hand side and run as plain Python by :mod:`dynamics.integrate`;
 * :mod:`.circle`: the circle reference of :class:`dynamics.trajectory.CircleTrajectory`;
@@ -14,6 +19,7 @@
 Every kernel refuses instead of raising: it returns :data:`.layout.OK` (0) or a refusal code
 (:func:`.layout.refusal`: the status and the index of the refused row, step or phase), and the
 Python caller raises :class:`dynamics.DynamicsError`.  numba caches the machine code next to each
-file and checks only that file's time stamp: after editing one kernel file, delete
-``dynamics/_kernels/__pycache__`` so that the files that call it are recompiled too.
+file and checks only that file's time stamp: after editing one kernel file (here or in the
+solver's core), delete ``dynamics/_kernels/__pycache__`` and ``solver/_kernels/__pycache__`` so
+that the files that call it are recompiled too.
 """

@@ -2,8 +2,8 @@
 
 The time law and the geometry are derived in :mod:`dynamics.trajectory`; here they run with
 scalar code, one time at a time, on the ``circle`` pack (:mod:`.layout`).  The joint-space part
-uses the inverse kinematics with the operations of :func:`solver.ik` (:func:`ik_as_solver`), so the
-reference angles are that function's to the last bit.
+runs the kinematics core's inverse kinematics (:func:`.base.ik_arm`: the core's ``ik_leg``, what
+:func:`solver.ik` runs), so the reference angles are that function's to the last bit.
 """
 from __future__ import annotations
 
@@ -11,58 +11,38 @@ import math
 
 from numba import njit
 
-from .base import TWO_PI, code, new_workspace
-from .layout import (ARM_L1, ARM_L2, ARM_MOTORS, ARM_PLATFORM, BAD_INPUT, CIRCLE_CENTER_X, CIRCLE_CENTER_Y,
-                     CIRCLE_PHI, CIRCLE_RADIUS, CIRCLE_RAMP, CIRCLE_RATE, CIRCLE_START, LEG_DDQ0, LEG_DQ, OK,
-                     OUTSIDE, SINGULAR)
+from .base import code, ik_arm, new_workspace
+from .layout import (BAD_INPUT, CIRCLE_CENTER_X, CIRCLE_CENTER_Y, CIRCLE_PHI, CIRCLE_RADIUS, CIRCLE_RAMP,
+                     CIRCLE_RATE, CIRCLE_START, LEG_DDQ0, LEG_DQ, OK, OUTSIDE, SINGULAR)
 from .rows import geometry_row, motion_row
 
 
 @njit(cache=True, error_model="numpy")
-def ik_as_solver(arm, x, y, phi, bits, q):
-    """Inverse kinematics of one pose with the operations of :func:`solver.ik` (its compiled
-    batch), so the angles are that function's to the last bit; writes ``q`` (3,) and returns
-    False if a leg cannot reach (``solver.ik`` returns NaN there)."""
-    c, s = math.cos(phi), math.sin(phi)
-    for i in range(3):
-        bx, by = arm[ARM_PLATFORM + 2 * i], arm[ARM_PLATFORM + 2 * i + 1]
-        dx = x + c * bx - s * by - arm[ARM_MOTORS + 2 * i]
-        dy = y + s * bx + c * by - arm[ARM_MOTORS + 2 * i + 1]
-        rho2 = dx * dx + dy * dy
-        rho = math.sqrt(rho2)
-        if rho == 0.0:
-            return False
-        l1, l2 = arm[ARM_L1 + i], arm[ARM_L2 + i]
-        ca = (l1 * l1 + rho2 - l2 * l2) / (2.0 * l1 * rho)
-        if not abs(ca) <= 1.0 + 1e-12:
-            return False
-        alpha = math.acos(min(1.0, max(-1.0, ca)))
-        sign = 1.0 - 2.0 * ((bits >> i) & 1)
-        q[i] = math.pi - ((math.pi - (math.atan2(dy, dx) - sign * alpha)) % TWO_PI) + 0.0
-    return True
+def polar_row(circle, t):
+    """The time law: polar angle ``theta``, its rate and its acceleration at time ``t`` (finite)."""
+    rate, ramp, start = circle[CIRCLE_RATE], circle[CIRCLE_RAMP], circle[CIRCLE_START]
+    if ramp == 0.0:
+        return start + rate * max(t, 0.0), (rate if t >= 0 else 0.0), 0.0
+    u = min(max(t / ramp, 0.0), 1.0)
+    if t < ramp:
+        S = u ** 4.0 * (2.5 - 3.0 * u + u * u)           # integral of s
+        s = u ** 3.0 * (10.0 - 15.0 * u + 6.0 * u * u)
+        ds = 30.0 * u * u * (1.0 - u) ** 2.0
+        return start + rate * ramp * S, rate * s, rate * ds / ramp
+    return start + rate * (t - 0.5 * ramp), rate, 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def polar_batch(circle, t, out):
+    """:func:`polar_row` at the times ``t`` (n,) (finite) into ``out`` (n, 3)."""
+    for k in range(t.shape[0]):
+        out[k, 0], out[k, 1], out[k, 2] = polar_row(circle, t[k])
 
 
 @njit(cache=True, error_model="numpy")
 def circle_task_row(circle, t, X, dX, ddX):
     """Pose, rate and acceleration of the circle at time ``t`` (finite) into ``X, dX, ddX`` (3,)."""
-    rate, ramp, start = circle[CIRCLE_RATE], circle[CIRCLE_RAMP], circle[CIRCLE_START]
-    if ramp == 0.0:
-        theta = start + rate * max(t, 0.0)
-        dth = rate if t >= 0 else 0.0
-        ddth = 0.0
-    else:
-        u = min(max(t / ramp, 0.0), 1.0)
-        if t < ramp:
-            S = u ** 4.0 * (2.5 - 3.0 * u + u * u)           # integral of s
-            s = u ** 3.0 * (10.0 - 15.0 * u + 6.0 * u * u)
-            ds = 30.0 * u * u * (1.0 - u) ** 2.0
-            theta = start + rate * ramp * S
-            dth = rate * s
-            ddth = rate * ds / ramp
-        else:
-            theta = start + rate * (t - 0.5 * ramp)
-            dth = rate
-            ddth = 0.0
+    theta, dth, ddth = polar_row(circle, t)
     c, s_ = math.cos(theta), math.sin(theta)
     r = circle[CIRCLE_RADIUS]
     X[0] = circle[CIRCLE_CENTER_X] + r * c
@@ -89,7 +69,7 @@ def circle_joint_row(arm, bodies, circle, bits, t, X, dX, ddX, q, dq, ddq, leg, 
     if not math.isfinite(t):
         return BAD_INPUT
     circle_task_row(circle, t, X, dX, ddX)
-    if not ik_as_solver(arm, X[0], X[1], X[2], bits, q):
+    if not ik_arm(arm, X[0], X[1], X[2], bits, q):
         return OUTSIDE
     rcx, rcy, res = geometry_row(arm, bodies, X[0], X[1], X[2], q, leg, Jq)
     motion_row(arm, bodies, dX[0], dX[1], dX[2], rcx, rcy, leg, Jq, beta)

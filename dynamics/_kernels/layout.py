@@ -83,10 +83,10 @@ CONTROLLER_PHASE_REFERENCE, CONTROLLER_PHASE_MEASURED = 0, 1
 # ----------------------------------------------------------------------------- work arrays
 #: one configuration's work arrays (:func:`dynamics._kernels.rows.workspace`), in one buffer:
 #: per-leg table (9, 3), J_q, J_x, V (21, 3), beta (21,), M_X, M, forces (6, 3), V J_x (21, 3),
-#: the elimination scratch (3, 6) and two 3-vectors
+#: a 3x3 scratch (a transposed matrix) and two 3-vectors
 WS_LEG, WS_JQ, WS_JX, WS_V, WS_BETA, WS_MX, WS_M = 0, 27, 36, 45, 108, 129, 138
-WS_FORCES, WS_VJ, WS_AUG, WS_U, WS_V3 = 147, 165, 228, 246, 249
-WS_SIZE = 252
+WS_FORCES, WS_VJ, WS_AUG, WS_U, WS_V3 = 147, 165, 228, 237, 240
+WS_SIZE = 243
 #: the controller step's 3-vectors (in its work buffer at STEP_CONTROL): the reference (X, dX,
 #: ddX, q, dq, ddq), the measured q, dq and pose, the commanded acceleration, q_X, the torque
 CONTROL_X_REF, CONTROL_DX_REF, CONTROL_DDX_REF, CONTROL_Q_REF, CONTROL_DQ_REF, CONTROL_DDQ_REF = 0, 3, 6, 9, 12, 15

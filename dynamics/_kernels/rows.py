@@ -21,7 +21,10 @@ import math
 import numpy as np
 from numba import njit
 
-from .base import code, finite, inverse, new_workspace, solve, wrap_angle
+from solver._kernels.kinematics import leg_row
+from solver._kernels.linalg import inverse3, solve3
+
+from .base import code, finite, ik_arm, new_workspace
 from .layout import (ARM_L1, ARM_L2, ARM_MOTORS, ARM_PLATFORM, BAD_INPUT, BODY_COM_DISTAL, BODY_COM_PLATFORM,
                      BODY_COM_PROXIMAL, BODY_FRICTION, BODY_GRAVITY, BODY_WEIGHTS, CORIOLIS, FORCE_CJ, FORCE_CX,
                      FORCE_FJ, FORCE_FX, FORCE_GJ, FORCE_GX, FORWARD, FRICTION, GENERALIZED, GRAVITY, INVERSE,
@@ -33,34 +36,9 @@ from .layout import (ARM_L1, ARM_L2, ARM_MOTORS, ARM_PLATFORM, BAD_INPUT, BODY_C
 
 # ----------------------------------------------------------------------------- kinematics
 @njit(cache=True, error_model="numpy")
-def ik_row(arm, x, y, phi, bits, q):
-    """Inverse kinematics of one pose in the posture with elbow bits ``bits`` (posture - 1), the
-    dynamics kernels' own; writes ``q`` (3,) and returns False if a leg cannot reach.
-
-    :func:`dynamics._kernels.circle.ik_as_solver` computes the same angles with the operations of
-    :func:`solver.ik` (this one groups the sums differently, and its rounding is what the task-space
-    dynamics has always used)."""
-    c, s = math.cos(phi), math.sin(phi)
-    ok = True
-    for i in range(3):
-        bx, by = arm[ARM_PLATFORM + 2 * i], arm[ARM_PLATFORM + 2 * i + 1]
-        l1, l2 = arm[ARM_L1 + i], arm[ARM_L2 + i]
-        dx = x + (c * bx - s * by) - arm[ARM_MOTORS + 2 * i]
-        dy = y + (s * bx + c * by) - arm[ARM_MOTORS + 2 * i + 1]
-        rho2 = dx * dx + dy * dy
-        rho = math.sqrt(rho2)
-        cos_a = (l1 * l1 + rho2 - l2 * l2) / (2.0 * l1 * rho)
-        if not abs(cos_a) <= 1.0 + 1e-12:
-            ok = False
-        alpha = math.acos(min(max(cos_a, -1.0), 1.0)) if math.isfinite(cos_a) else 0.0
-        sign = 1.0 - 2.0 * ((bits >> i) & 1)
-        q[i] = wrap_angle(math.atan2(dy, dx) - sign * alpha)
-    return ok
-
-
-@njit(cache=True, error_model="numpy")
 def geometry_row(arm, bodies, x, y, phi, q, leg, Jq):
-    """Per-leg table (cos q, sin q, R b, L = A - D, den = l1 L.n) and ``J_q = dq/dX``.
+    """Per-leg table (cos q, sin q, R b, L = A - D, den = l1 L.n) and ``J_q = dq/dX``, from the
+    kinematics core's :func:`solver._kernels.kinematics.leg_row`.
 
     Returns ``(R c)_x, (R c)_y`` (platform centre-of-mass offset) and the loop residual
     ``max_i |F_i| / l2_i^2`` (NaN propagates).
@@ -68,20 +46,15 @@ def geometry_row(arm, bodies, x, y, phi, q, leg, Jq):
     c, s = math.cos(phi), math.sin(phi)
     res = 0.0
     for i in range(3):
-        bx, by = arm[ARM_PLATFORM + 2 * i], arm[ARM_PLATFORM + 2 * i + 1]
-        l1, l2 = arm[ARM_L1 + i], arm[ARM_L2 + i]
-        cq, sq = math.cos(q[i]), math.sin(q[i])
-        rbx = c * bx - s * by
-        rby = s * bx + c * by
-        lx = x + rbx - arm[ARM_MOTORS + 2 * i] - l1 * cq
-        ly = y + rby - arm[ARM_MOTORS + 2 * i + 1] - l1 * sq
-        den = l1 * (ly * cq - lx * sq)
+        cq, sq, rbx, rby, lx, ly, lr, den = leg_row(x, y, c, s, q[i], arm[ARM_MOTORS + 2 * i],
+                                                    arm[ARM_MOTORS + 2 * i + 1], arm[ARM_L1 + i],
+                                                    arm[ARM_PLATFORM + 2 * i], arm[ARM_PLATFORM + 2 * i + 1])
         leg[LEG_COS_Q, i], leg[LEG_SIN_Q, i], leg[LEG_RBX, i], leg[LEG_RBY, i] = cq, sq, rbx, rby
         leg[LEG_LX, i], leg[LEG_LY, i], leg[LEG_DEN, i] = lx, ly, den
         Jq[i, 0] = lx / den
         Jq[i, 1] = ly / den
-        Jq[i, 2] = (ly * rbx - lx * rby) / den
-        l2sq = l2 ** 2
+        Jq[i, 2] = lr / den
+        l2sq = arm[ARM_L2 + i] ** 2
         r = abs(lx ** 2 + ly ** 2 - l2sq) / l2sq
         if not r <= res:
             res = r
@@ -232,7 +205,7 @@ def task_row(arm, bodies, X, dX, U, q, bits, mode, out, ws):
     if not (finite(X) and finite(dX) and finite(U)):
         return BAD_INPUT
     if bits >= 0:
-        if not ik_row(arm, X[0], X[1], X[2], bits, q):
+        if not ik_arm(arm, X[0], X[1], X[2], bits, q):
             return OUTSIDE
     elif not finite(q):
         return BAD_INPUT
@@ -257,13 +230,16 @@ def task_row(arm, bodies, X, dX, U, q, bits, mode, out, ws):
         if mode == GENERALIZED:
             for a in range(3):
                 out[a] = u[a]
-        elif not solve(MX, False, u, out, aug):
+        elif not solve3(MX, u, out):
             return SINGULAR
     elif mode == INVERSE:
         for a in range(3):          # tau = J_q^{-T} (M_X ddX + C_X dX + G_X + F_X)
             u[a] = ((MX[a, 0] * U[0] + MX[a, 1] * U[1] + MX[a, 2] * U[2]) + f[FORCE_CX, a] + f[FORCE_GX, a]
                     + f[FORCE_FX, a])
-        if not solve(Jq, True, u, out, aug):
+        for a in range(3):
+            for k in range(3):
+                aug[a, k] = Jq[k, a]
+        if not solve3(aug, u, out):
             return SINGULAR
     return OK if finite(out[:n]) else SINGULAR
 
@@ -303,6 +279,26 @@ def task_rhs_batch(arm, bodies, x, tau, bits, out):
     return OK
 
 
+@njit(cache=True, error_model="numpy")
+def _mass_joint(bodies, V, Jx, VJ, M):
+    """``M = (V J_x)^T W (V J_x)``, with ``V J_x`` into ``VJ`` (21, 3)."""
+    for r in range(N_ROWS):
+        for b in range(3):
+            VJ[r, b] = V[r, 0] * Jx[0, b] + V[r, 1] * Jx[1, b] + V[r, 2] * Jx[2, b]
+    for a in range(3):
+        for b in range(3):
+            s = 0.0
+            for r in range(N_ROWS):
+                s += VJ[r, a] * (bodies[BODY_WEIGHTS + r] * VJ[r, b])
+            M[a, b] = s
+
+
+@njit(cache=True, inline="always")
+def _column_dot(Jx, a, f, row):
+    """``(J_x^T f[row])_a``: column ``a`` of ``J_x`` dotted with a row of the force table."""
+    return Jx[0, a] * f[row, 0] + Jx[1, a] * f[row, 1] + Jx[2, a] * f[row, 2]
+
+
 # ----------------------------------------------------------------------------- joint space
 @njit(cache=True, error_model="numpy")
 def joint_row(arm, bodies, q, dq, X, U, tol, mode, out, ws):
@@ -317,7 +313,7 @@ def joint_row(arm, bodies, q, dq, X, U, tol, mode, out, ws):
     rcx, rcy, res = geometry_row(arm, bodies, X[0], X[1], X[2], q, leg, Jq)
     if not res <= tol:
         return NOT_ASSEMBLED
-    if not inverse(Jq, Jx, aug):
+    if not inverse3(Jq, Jx):
         return SINGULAR
     for a in range(3):                                  # dX = J_x dq
         dX[a] = Jx[a, 0] * dq[0] + Jx[a, 1] * dq[1] + Jx[a, 2] * dq[2]
@@ -327,16 +323,8 @@ def joint_row(arm, bodies, q, dq, X, U, tol, mode, out, ws):
     need_c = mode == CORIOLIS or mode == FORWARD or mode == INVERSE
     need_g = mode == GRAVITY or mode == FORWARD or mode == INVERSE
     need_f = mode == FRICTION or mode == FORWARD or mode == INVERSE
-    if need_m:                                          # M = (V J_x)^T W (V J_x)
-        for r in range(N_ROWS):
-            for b in range(3):
-                VJ[r, b] = V[r, 0] * Jx[0, b] + V[r, 1] * Jx[1, b] + V[r, 2] * Jx[2, b]
-        for a in range(3):
-            for b in range(3):
-                s = 0.0
-                for r in range(N_ROWS):
-                    s += VJ[r, a] * (bodies[BODY_WEIGHTS + r] * VJ[r, b])
-                M[a, b] = s
+    if need_m:
+        _mass_joint(bodies, V, Jx, VJ, M)
     if need_c:                                          # C dq = J_x^T V^T W (beta + V ddX0)
         motion_row(arm, bodies, dx, dy, dphi, rcx, rcy, leg, Jq, beta)
         for a in range(3):
@@ -350,16 +338,16 @@ def joint_row(arm, bodies, q, dq, X, U, tol, mode, out, ws):
         _friction_task(bodies, dx, dy, dphi, Jq, V, f)
     for a in range(3):                                  # J_x^T (.)
         if need_c:
-            f[FORCE_CJ, a] = Jx[0, a] * f[FORCE_CX, 0] + Jx[1, a] * f[FORCE_CX, 1] + Jx[2, a] * f[FORCE_CX, 2]
+            f[FORCE_CJ, a] = _column_dot(Jx, a, f, FORCE_CX)
         if need_g:
-            f[FORCE_GJ, a] = Jx[0, a] * f[FORCE_GX, 0] + Jx[1, a] * f[FORCE_GX, 1] + Jx[2, a] * f[FORCE_GX, 2]
+            f[FORCE_GJ, a] = _column_dot(Jx, a, f, FORCE_GX)
         if need_f:
-            f[FORCE_FJ, a] = Jx[0, a] * f[FORCE_FX, 0] + Jx[1, a] * f[FORCE_FX, 1] + Jx[2, a] * f[FORCE_FX, 2]
+            f[FORCE_FJ, a] = _column_dot(Jx, a, f, FORCE_FX)
     n = _copy_term(mode, M, f, FORCE_CJ, out)
     if mode == FORWARD:                               # ddq = M^{-1} (tau - C dq - G - F)
         for a in range(3):
             u[a] = U[a] - f[FORCE_CJ, a] - f[FORCE_GJ, a] - f[FORCE_FJ, a]
-        if not solve(M, False, u, out, aug):
+        if not solve3(M, u, out):
             return SINGULAR
     elif mode == INVERSE:                               # tau = M ddq + C dq + G + F
         for a in range(3):
@@ -390,29 +378,4 @@ def joint_rhs_batch(arm, bodies, x, X, tau, tol, out):
             return code(st, k)
         for j in range(3):
             out[k, j] = x[k, 3 + j]
-    return OK
-
-
-# ----------------------------------------------------------------------------- computed torque
-@njit(cache=True, error_model="numpy")
-def commanded_acceleration(gains, q, dq, q_d, dq_d, ddq_d, v):
-    """``v = ddq_d + K_d (dq_d - dq) + K_p wrap(q_d - q)`` into ``v`` (3,); ``gains`` is ``(kp, kd)``."""
-    for i in range(3):
-        v[i] = ddq_d[i] + gains[3 + i] * (dq_d[i] - dq[i]) + gains[i] * wrap_angle(q_d[i] - q[i])
-
-
-@njit(cache=True, error_model="numpy")
-def computed_torque_batch(arm, bodies, gains, q, dq, X, q_d, dq_d, ddq_d, tol, out):
-    """Computed torque, the inverse dynamics at the commanded acceleration,
-    ``tau = M v + C dq + G + F`` (:func:`commanded_acceleration`, :func:`joint_row` INVERSE), over
-    the rows of the (n, 3) arrays."""
-    ws = new_workspace()
-    v = np.empty(3)
-    for k in range(q.shape[0]):
-        if not (finite(q_d[k]) and finite(dq_d[k]) and finite(ddq_d[k])):
-            return code(BAD_INPUT, k)
-        commanded_acceleration(gains, q[k], dq[k], q_d[k], dq_d[k], ddq_d[k], v)
-        st = joint_row(arm, bodies, q[k], dq[k], X[k], v, tol, INVERSE, out[k], ws)
-        if st != OK:
-            return code(st, k)
     return OK

@@ -9,8 +9,11 @@ from __future__ import annotations
 
 from numba import njit
 
-from .base import code, finite, workspace, wrap_angle
-from .circle import circle_joint_row, ik_as_solver
+from solver._kernels.linalg import wrap
+
+from .base import code, finite, ik_arm, workspace
+from .circle import circle_joint_row
+from .control import commanded_acceleration
 from .layout import (ARM_L1, ARM_L2, ARM_MOTORS, BAD_INPUT, BAD_SHAPE, CONTROLLER_OUT_SIZE, BODY_COM_DISTAL, BODY_COM_PROXIMAL, BODY_GRAVITY,
                      BODY_WEIGHTS, CONTROL_DDQ_REF, CONTROL_DDX_REF, CONTROL_DQ, CONTROL_DQ_REF, CONTROL_DX_REF,
                      CONTROL_Q, CONTROL_Q_REF, CONTROL_Q_X, CONTROL_TAU, CONTROL_X, CONTROL_X_REF, CONTROL_ACC,
@@ -23,7 +26,7 @@ from .layout import (ARM_L1, ARM_L2, ARM_MOTORS, BAD_INPUT, BAD_SHAPE, CONTROLLE
                      ROW_PROXIMAL_X, ROW_PROXIMAL_Y, SINGULAR, STEP_CONTROL, STEP_Q, STEP_STAGES, STEP_TAU,
                      STEP_WORK_SIZE, STEP_WS)
 from .rk4 import rk4_task_step, stages_of
-from .rows import commanded_acceleration, geometry_row, joint_row
+from .rows import geometry_row, joint_row
 
 
 @njit(cache=True, error_model="numpy")
@@ -57,13 +60,15 @@ def _energy(arm, bodies, x, y, phi, dx, dy, dphi, rcx, rcy, leg):
 
 @njit(cache=True, error_model="numpy")
 def plant_outputs(arm, bodies, bits, out, ws):
-    """Sensor outputs of the task-space state ``out[PLANT_OUT_STATE:+6]``: ``q`` (solver's IK),
+    """Sensor outputs of the task-space state ``out[PLANT_OUT_STATE:+6]``: ``q`` (the core's IK, :func:`solver.ik`'s),
     ``dq = J_q dX`` and the total energy, into ``out``.  Returns :data:`OUTSIDE` if the pose has
     no inverse kinematics in the posture, :data:`SINGULAR` for a non-finite output, else :data:`OK`."""
     leg, Jq = ws[0], ws[1]
     x = out[PLANT_OUT_STATE:PLANT_OUT_STATE + 6]
     q = out[PLANT_OUT_Q:PLANT_OUT_Q + 3]
-    if not (finite(x) and ik_as_solver(arm, x[0], x[1], x[2], bits, q)):
+    if not finite(x):
+        return OUTSIDE
+    if not ik_arm(arm, x[0], x[1], x[2], bits, q):
         return OUTSIDE
     rcx, rcy, res = geometry_row(arm, bodies, x[0], x[1], x[2], q, leg, Jq)
     for i in range(3):
@@ -130,10 +135,10 @@ def controller_step(controller, bits, t, q1, q2, q3, dq1, dq2, dq3, x, y, phi, t
     X[0], X[1], X[2] = x, y, phi
     if not (finite(q) and finite(dq) and finite(X)):
         return code(BAD_INPUT, CONTROLLER_PHASE_MEASURED)
-    if not ik_as_solver(arm, x, y, phi, bits, qx):
+    if not ik_arm(arm, x, y, phi, bits, qx):
         return code(OUTSIDE, CONTROLLER_PHASE_MEASURED)
     for i in range(3):
-        qx[i] = q[i] + wrap_angle(qx[i] - q[i])          # q_X next to q (2 pi turns)
+        qx[i] = q[i] + wrap(qx[i] - q[i])          # q_X next to q (2 pi turns)
     commanded_acceleration(gains, q, dq, qd, dqd, ddqd, v)
     st = joint_row(arm, bodies, qx, dq, X, v, tol, INVERSE, tau, ws)
     if st != OK:

@@ -5,9 +5,12 @@ into flat float arrays whose fields are read through the named offsets of :mod:`
 (never by position).  Modules:
 
 - :mod:`.layout`: the packed arrays' offsets, the status / mode / rule codes, and the packers;
-- :mod:`.linalg`: angle wrapping and 3x3 determinant, solve and Hadamard ratio;
-- :mod:`.kinematics`: the one inverse kinematics and the one Jacobian (loop rows, J and K,
-  the Newton step on the loop constraints, the velocity model);
+- :mod:`.linalg`: the one angle wrap and the one family of 3x3 algebra (determinant, Cramer
+  solve, adjugate inverse, Hadamard ratio);
+- :mod:`.kinematics`: the kinematics core: the one inverse kinematics, loop row, leg row
+  (``J_q``'s denominator) and Jacobian (J and K, the Newton step on the loop constraints,
+  the velocity model).  The dynamics kernels (:mod:`dynamics._kernels`) call this core and
+  :mod:`.linalg`; they have no kinematics of their own;
 - :mod:`.direct_kinematics`: all six DK solutions of one joint vector (the sextic);
 - :mod:`.ordering`: the numbering rules of the six solutions;
 - :mod:`.maptensor`: procedure 2 (labels near a pose) and the nearest node's label;

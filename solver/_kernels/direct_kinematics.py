@@ -208,6 +208,103 @@ def acceptable(x, y, ph, res, had, ph0, out, isreal, real_tol):
     return True
 
 
+@njit(cache=True, inline="always")
+def sextic(D, b, l2sq, cos8, sin8, sample_to_sextic, coef):
+    """Steps 2-3: the eliminant at the eight sample angles, mapped to the sextic's coefficients
+    ``coef`` (7,) for the half-angle shift of the sample of largest ``|f|``; returns that sample's index."""
+    f = np.empty(8)
+    jbest, fbest = 0, -1.0
+    for m in range(8):
+        delta, nx, ny, u0x, u0y, k0, _a, _b, _c, _d, _e, _f = elim(cos8[m], sin8[m], D, b, l2sq)
+        f[m] = nx * nx + ny * ny + 2.0 * delta * (nx * u0x + ny * u0y) + delta * delta * k0
+        if abs(f[m]) > fbest:
+            fbest, jbest = abs(f[m]), m
+    for c in range(7):
+        coef[c] = 0.0
+    for m in range(8):
+        for c in range(7):
+            coef[c] += f[m] * sample_to_sextic[jbest, m, c]
+    return jbest
+
+
+@njit(cache=True, inline="always")
+def complex_solution(phi, D, b, l2sq, out, k):
+    """Step 5: ``P`` from step 1 at a complex ``phi``, with ``phi``, into row ``k`` of ``out`` (6, 3) complex
+    (the row's index, not a view of it: making a view costs more than this step)."""
+    cc, ss = cmath.cos(phi), cmath.sin(phi)
+    delta, nx, ny, _u, _v, _k, _a, _b, _c, _d, _e, _f = elim(cc, ss, D, b, l2sq)
+    out[k, 0], out[k, 1], out[k, 2] = nx / delta, ny / delta, phi
+
+
+@njit(cache=True, inline="always")
+def twin_start(nx, ny, delta, ph0, D, b, l2sq, out, isreal):
+    """Candidate 3 of a real root at ``ph0``: a twin of an accepted solution (a close pair the sextic
+    cannot separate), deflated Newton from the Cramer point away from the nearest accepted one.
+    Returns x0, y0, phi0 and whether there is such a candidate."""
+    jn, dn = -1, np.inf
+    for j in range(6):
+        if isreal[j] and abs(wrap(out[j, 2].real - ph0)) < 1e-4:
+            dd = abs(wrap(out[j, 2].real - ph0))
+            if dd < dn:
+                jn, dn = j, dd
+    if jn < 0 or delta == 0.0:
+        return 0.0, 0.0, 0.0, False
+    x0, y0, p0 = deflated_newton(nx / delta, ny / delta, ph0, out[jn, 0].real, out[jn, 1].real, out[jn, 2].real,
+                                 D, b, l2sq, 40)
+    return x0, y0, p0, True
+
+
+@njit(cache=True, inline="always")
+def real_solution(k, ph0, D, b, l2sq, steps, real_tol, out, isreal):
+    """Steps 6-7 for the (near-)real root ``k`` at ``ph0``: candidates polished by Newton, the first
+    acceptable one is written into ``out[k]`` and marked in ``isreal``; True if there is one."""
+    out[k, 0], out[k, 1], out[k, 2] = complex(np.nan, np.nan), complex(np.nan, np.nan), ph0
+    c0, s0 = math.cos(ph0), math.sin(ph0)
+    delta, nx, ny, _u, _v, _k, _a, _b, _c, _d, _e, _f = elim(c0, s0, D, b, l2sq)
+    xa, ya, xb, yb, lc_ok = line_circle_candidates(ph0, D, b, l2sq)
+    for cand in range(4):
+        p0 = ph0
+        if cand == 0:
+            if delta == 0.0:
+                continue
+            x0, y0 = nx / delta, ny / delta
+        elif cand == 1 or cand == 2:
+            if not lc_ok:
+                continue
+            x0, y0 = (xa, ya) if cand == 1 else (xb, yb)
+        else:
+            x0, y0, p0, ok = twin_start(nx, ny, delta, ph0, D, b, l2sq, out, isreal)
+            if not ok:
+                continue
+        x, y, ph, res, had = polish(x0, y0, p0, D, b, l2sq, steps)
+        if acceptable(x, y, ph, res, had, ph0, out, isreal, real_tol):
+            out[k, 0], out[k, 1], out[k, 2] = x, y, ph
+            isreal[k] = True
+            return True
+    return False
+
+
+@njit(cache=True, inline="always")
+def normalise(out, isreal):
+    """Real solutions as real numbers with phi wrapped; complex ones with Re phi wrapped, or NaN
+    throughout if any part is not finite."""
+    for k in range(6):
+        if isreal[k]:
+            out[k, 0] = out[k, 0].real
+            out[k, 1] = out[k, 1].real
+            out[k, 2] = wrap(out[k, 2].real)
+        else:
+            finite = True
+            for c in range(3):
+                if not (math.isfinite(out[k, c].real) and math.isfinite(out[k, c].imag)):
+                    finite = False
+            if finite:
+                out[k, 2] = complex(wrap(out[k, 2].real), out[k, 2].imag)
+            else:
+                for c in range(3):
+                    out[k, c] = complex(np.nan, np.nan)
+
+
 @njit(cache=True)
 def dk_one(q, model_pack, sample_to_sextic, rule, poses, real):
     """All six DK solutions of joints ``q`` (3,), numbered by ``rule``, into ``poses`` (6, 3) and ``real`` (6,).
@@ -217,30 +314,17 @@ def dk_one(q, model_pack, sample_to_sextic, rule, poses, real):
     half-angle shift ``psi_j``.
     """
     M, l1, l2sq, b = geometry(model_pack)
-    cos8 = model_pack[MODEL_COS8:MODEL_COS8 + 8]
-    sin8 = model_pack[MODEL_SIN8:MODEL_SIN8 + 8]
-    psis = model_pack[MODEL_PSI:MODEL_PSI + 8]
     snap_tol, real_tol = model_pack[MODEL_SNAP_TOL], model_pack[MODEL_REAL_TOL]
-    steps = int(model_pack[MODEL_NEWTON_STEPS])
     D = np.empty((3, 2))
     elbows(q, M, l1, D)                              # the 3-RPR has l1 = 0: D = M, its base joints
     r2 = np.empty(3)
     for i in range(3):
         r2[i] = radius_sq(l2sq[i], q[i])             # ... and its joints are the legs' lengths
     l2sq = r2
-    # 2-3: eliminant at the eight samples; psi + pi at the sample of largest |f|
-    f = np.empty(8)
-    jbest, fbest = 0, -1.0
-    for m in range(8):
-        delta, nx, ny, u0x, u0y, k0, _a, _b, _c, _d, _e, _f = elim(cos8[m], sin8[m], D, b, l2sq)
-        f[m] = nx * nx + ny * ny + 2.0 * delta * (nx * u0x + ny * u0y) + delta * delta * k0
-        if abs(f[m]) > fbest:
-            fbest, jbest = abs(f[m]), m
-    coef = np.zeros(7)
-    for m in range(8):
-        for c in range(7):
-            coef[c] += f[m] * sample_to_sextic[jbest, m, c]
-    psi = psis[jbest]
+    coef = np.empty(7)
+    jbest = sextic(D, b, l2sq, model_pack[MODEL_COS8:MODEL_COS8 + 8], model_pack[MODEL_SIN8:MODEL_SIN8 + 8],
+                   sample_to_sextic, coef)
+    psi = model_pack[MODEL_PSI + jbest]
     out = np.empty((6, 3), dtype=np.complex128)
     isreal = np.zeros(6, dtype=np.bool_)
     if coef[0] == 0.0 or not math.isfinite(coef[0]):
@@ -253,70 +337,14 @@ def dk_one(q, model_pack, sample_to_sextic, rule, poses, real):
         phi_root = np.empty(6, dtype=np.complex128)
         for k in range(6):
             phi_root[k] = psi + 2.0 * cmath.atan(t[k])
-        # complex roots first: P from step 1 at complex phi
-        for k in range(6):
-            phi = phi_root[k]
-            if abs(phi.imag) > snap_tol:
-                cc, ss = cmath.cos(phi), cmath.sin(phi)
-                delta, nx, ny, _u, _v, _k, _a, _b, _c, _d, _e, _f = elim(cc, ss, D, b, l2sq)
-                out[k, 0], out[k, 1], out[k, 2] = nx / delta, ny / delta, phi
-        # (near-)real roots: candidates polished by Newton, the first acceptable one is kept
-        for k in range(6):
-            ph0 = phi_root[k].real
+        for k in range(6):                           # complex roots first: P from step 1 at complex phi
             if abs(phi_root[k].imag) > snap_tol:
-                continue
-            out[k, 0], out[k, 1], out[k, 2] = complex(np.nan, np.nan), complex(np.nan, np.nan), ph0
-            c0, s0 = math.cos(ph0), math.sin(ph0)
-            delta, nx, ny, _u, _v, _k, _a, _b, _c, _d, _e, _f = elim(c0, s0, D, b, l2sq)
-            xa, ya, xb, yb, lc_ok = line_circle_candidates(ph0, D, b, l2sq)
-            for cand in range(4):
-                p0 = ph0
-                if cand == 0:
-                    if delta == 0.0:
-                        continue
-                    x0, y0 = nx / delta, ny / delta
-                elif cand == 1 or cand == 2:
-                    if not lc_ok:
-                        continue
-                    x0, y0 = (xa, ya) if cand == 1 else (xb, yb)
-                else:
-                    # a twin of an accepted solution (a close pair the sextic cannot separate):
-                    # deflated Newton from the Cramer point, away from the nearest accepted one
-                    jn, dn = -1, np.inf
-                    for j in range(6):
-                        if isreal[j] and abs(wrap(out[j, 2].real - ph0)) < 1e-4:
-                            dd = abs(wrap(out[j, 2].real - ph0))
-                            if dd < dn:
-                                jn, dn = j, dd
-                    if jn < 0 or delta == 0.0:
-                        continue
-                    x0, y0, p0 = deflated_newton(nx / delta, ny / delta, ph0, out[jn, 0].real,
-                                                  out[jn, 1].real, out[jn, 2].real, D, b, l2sq, 40)
-                x, y, ph, res, had = polish(x0, y0, p0, D, b, l2sq, steps)
-                if acceptable(x, y, ph, res, had, ph0, out, isreal, real_tol):
-                    out[k, 0], out[k, 1], out[k, 2] = x, y, ph
-                    isreal[k] = True
-                    break
-            if not isreal[k]:
-                # not a real solution after all: keep the root as a complex one
-                cc, ss = cmath.cos(phi_root[k]), cmath.sin(phi_root[k])
-                delta, nx, ny, _u, _v, _k, _a, _b, _c, _d, _e, _f = elim(cc, ss, D, b, l2sq)
-                out[k, 0], out[k, 1], out[k, 2] = nx / delta, ny / delta, phi_root[k]
-        for k in range(6):
-            if isreal[k]:
-                out[k, 0] = out[k, 0].real
-                out[k, 1] = out[k, 1].real
-                out[k, 2] = wrap(out[k, 2].real)
-            else:
-                finite = True
-                for c in range(3):
-                    if not (math.isfinite(out[k, c].real) and math.isfinite(out[k, c].imag)):
-                        finite = False
-                if finite:
-                    out[k, 2] = complex(wrap(out[k, 2].real), out[k, 2].imag)
-                else:
-                    for c in range(3):
-                        out[k, c] = complex(np.nan, np.nan)
+                complex_solution(phi_root[k], D, b, l2sq, out, k)
+        for k in range(6):                           # (near-)real roots, or complex after all
+            if not abs(phi_root[k].imag) > snap_tol and not real_solution(
+                    k, phi_root[k].real, D, b, l2sq, int(model_pack[MODEL_NEWTON_STEPS]), real_tol, out, isreal):
+                complex_solution(phi_root[k], D, b, l2sq, out, k)
+        normalise(out, isreal)
     number_solutions(out, isreal, rule, D, b, poses, real)
 
 

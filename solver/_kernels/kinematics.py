@@ -1,9 +1,15 @@
-"""The one inverse kinematics and the one Jacobian of the package, compiled.
+"""The kinematics core of every compiled kernel (the solver's and the dynamics'): one inverse
+kinematics, one loop row, one leg row with ``J_q``'s denominator, one Jacobian.
 
 Leg ``i`` is ``M_i - D_i - A_i``: elbow ``D_i = M_i + l1_i (cos q_i, sin q_i)``, platform
 joint ``A_i = P + R(phi) b_i``, loop vector ``L_i = A_i - D_i``, loop constraint
 ``F_i = |L_i|^2 - l2_i^2``.  :func:`loop_row` gives ``L_i`` and row ``i`` of ``J / 2``
 (``J = dF/dX``); every J, Newton step and det J sign of the kernels is built from it.
+:func:`leg_row` adds the motor side: ``den_i = l1_i L_i . n_i = -K_ii / 2`` (``n_i`` the
+normal of the proximal link), so ``J_q = dq/dX = -K^-1 J`` has rows ``(L_x, L_y, L . dR/dphi b) / den``
+(what :mod:`dynamics._kernels.rows` uses) and ``K = diag(-2 den)``.
+:func:`ik_leg` is the one inverse kinematics formula (:func:`ik_pose` and :func:`solver.ik` loop
+over it, and so do the dynamics' plant, controller and reference).  The 3x3 algebra and the angle wrap are in :mod:`.linalg`.
 """
 from __future__ import annotations
 
@@ -60,7 +66,57 @@ def loop_row(x, y, c, s, bx, by, mx, my, ax, ay):
     return rbx, rby, lx, ly, ly * rbx - lx * rby
 
 
+@njit(cache=True, inline="always")
+def leg_row(x, y, c, s, q_i, mx, my, l1_i, bx, by):
+    """Leg ``i`` at pose ``(x, y)``, ``cos/sin phi = c, s``, motor angle ``q_i``, motor ``(mx, my)``,
+    proximal length ``l1_i`` and platform joint ``(bx, by)``.
+
+    Returns ``cos q_i, sin q_i``, ``R b`` (2 values), ``L = A - D`` (2 values), ``L . dR/dphi b``
+    (as :func:`loop_row`) and ``den = l1_i L . (-sin q_i, cos q_i)`` (``K_ii = -2 den`` for a
+    revolute leg; row ``i`` of ``J_q`` is ``(L_x, L_y, L . dR/dphi b) / den``).
+    """
+    cq, sq = math.cos(q_i), math.sin(q_i)
+    rbx, rby, lx, ly, lr = loop_row(x, y, c, s, bx, by, mx, my, l1_i * cq, l1_i * sq)
+    return cq, sq, rbx, rby, lx, ly, lr, l1_i * (ly * cq - lx * sq)
+
+
+#: rows of :func:`leg_batch`'s output (N, LEG_ROWS, 3): the values :func:`leg_row` returns, per leg
+LEG_COS, LEG_SIN, LEG_RBX, LEG_RBY, LEG_LX, LEG_LY, LEG_LR, LEG_DEN = range(8)
+LEG_ROWS = 8
+
+
+@njit(cache=True)
+def leg_batch(X, q, M, l1, b, out):
+    """:func:`leg_row` of the three legs at poses ``X`` and joints ``q`` (N, 3) into ``out`` (N, 8, 3)."""
+    for n in range(X.shape[0]):
+        c, s = math.cos(X[n, 2]), math.sin(X[n, 2])
+        for i in range(3):
+            row = leg_row(X[n, 0], X[n, 1], c, s, q[n, i], M[i, 0], M[i, 1], l1[i], b[i, 0], b[i, 1])
+            for r in range(LEG_ROWS):
+                out[n, r, i] = row[r]
+
+
 # ----------------------------------------------------------------------------- inverse kinematics
+@njit(cache=True, inline="always")
+def ik_leg(x, y, c, s, mx, my, l1_i, l2_i, bx, by, bit):
+    """Inverse kinematics of leg ``i`` at pose ``(x, y)``, ``cos/sin phi = c, s``: motor ``(mx, my)``,
+    link lengths ``l1_i, l2_i``, platform joint ``(bx, by)``, elbow bit ``bit`` (1: the elbow sign is
+    negative).  Returns ``(True, q_i)`` with ``q_i`` in (-pi, pi], or ``(False, 0.0)`` if the leg
+    cannot reach.  The one IK formula: :func:`ik_pose` and the dynamics kernels loop over it."""
+    dx = x + c * bx - s * by - mx
+    dy = y + s * bx + c * by - my
+    rho2 = dx * dx + dy * dy
+    rho = math.sqrt(rho2)
+    if rho == 0.0:
+        return False, 0.0
+    ca = (l1_i * l1_i + rho2 - l2_i * l2_i) / (2.0 * l1_i * rho)
+    if not abs(ca) <= 1.0 + 1e-12:
+        return False, 0.0
+    alpha = math.acos(min(1.0, max(-1.0, ca)))
+    sign = 1.0 - 2.0 * bit
+    return True, wrap(math.atan2(dy, dx) - sign * alpha)
+
+
 @njit(cache=True)
 def ik_pose(x, y, phi, elbow_bits, M, l1, l2, b, q):
     """Inverse kinematics of one pose into ``q`` (3,); False (``q`` partly written) if a leg cannot reach.
@@ -69,18 +125,10 @@ def ik_pose(x, y, phi, elbow_bits, M, l1, l2, b, q):
     """
     c, s = math.cos(phi), math.sin(phi)
     for i in range(3):
-        dx = x + c * b[i, 0] - s * b[i, 1] - M[i, 0]
-        dy = y + s * b[i, 0] + c * b[i, 1] - M[i, 1]
-        rho2 = dx * dx + dy * dy
-        rho = math.sqrt(rho2)
-        if rho == 0.0:
+        ok, qi = ik_leg(x, y, c, s, M[i, 0], M[i, 1], l1[i], l2[i], b[i, 0], b[i, 1], (elbow_bits >> i) & 1)
+        if not ok:
             return False
-        ca = (l1[i] * l1[i] + rho2 - l2[i] * l2[i]) / (2.0 * l1[i] * rho)
-        if not abs(ca) <= 1.0 + 1e-12:
-            return False
-        alpha = math.acos(min(1.0, max(-1.0, ca)))
-        sign = 1.0 - 2.0 * ((elbow_bits >> i) & 1)
-        q[i] = wrap(math.atan2(dy, dx) - sign * alpha)
+        q[i] = qi
     return True
 
 
@@ -100,13 +148,12 @@ def jacobian(X, q, M, l1, l2sq, b, J, kd):
     (a revolute leg's joint moves its circle's centre, a prismatic leg's its radius)."""
     c, s = math.cos(X[2]), math.sin(X[2])
     for i in range(3):
-        cq, sq = math.cos(q[i]), math.sin(q[i])
-        _rbx, _rby, lx, ly, lr = loop_row(X[0], X[1], c, s, b[i, 0], b[i, 1], M[i, 0], M[i, 1], l1[i] * cq,
-                                          l1[i] * sq)
+        _cq, _sq, _rbx, _rby, lx, ly, lr, den = leg_row(X[0], X[1], c, s, q[i], M[i, 0], M[i, 1], l1[i], b[i, 0],
+                                                        b[i, 1])
         J[i, 0] = 2.0 * lx
         J[i, 1] = 2.0 * ly
         J[i, 2] = 2.0 * lr
-        kd[i] = -2.0 * l1[i] * (ly * cq - lx * sq) - radius_sq_dq(l2sq[i], q[i])
+        kd[i] = -2.0 * den - radius_sq_dq(l2sq[i], q[i])
 
 
 @njit(cache=True)

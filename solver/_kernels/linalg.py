@@ -1,4 +1,5 @@
-"""Scalar helpers of every kernel: angle wrapping and 3x3 linear algebra by cofactors."""
+"""Scalar helpers of every kernel (the solver's and the dynamics'): the one angle wrap and the one
+family of 3x3 linear algebra, by cofactors (determinant, Cramer's rule, the adjugate inverse)."""
 from __future__ import annotations
 
 import math
@@ -53,3 +54,27 @@ def row_ratio(A, det):
 def hadamard(A):
     """The Hadamard ratio ``|det A| / prod |rows of A|`` (0 at a singularity, 1 at best)."""
     return row_ratio(A, det3(A))
+
+
+@njit(cache=True)
+def inverse3(A, out):
+    """``out = A^-1`` (3, 3) by the adjugate over ``det3(A)``; False if ``A`` is singular or the
+    inverse not finite (``out`` then partly written)."""
+    det = det3(A)
+    if det == 0.0 or not math.isfinite(det):
+        return False
+    r = 1.0 / det
+    out[0, 0] = (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]) * r
+    out[0, 1] = (A[0, 2] * A[2, 1] - A[0, 1] * A[2, 2]) * r
+    out[0, 2] = (A[0, 1] * A[1, 2] - A[0, 2] * A[1, 1]) * r
+    out[1, 0] = (A[1, 2] * A[2, 0] - A[1, 0] * A[2, 2]) * r
+    out[1, 1] = (A[0, 0] * A[2, 2] - A[0, 2] * A[2, 0]) * r
+    out[1, 2] = (A[0, 2] * A[1, 0] - A[0, 0] * A[1, 2]) * r
+    out[2, 0] = (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]) * r
+    out[2, 1] = (A[0, 1] * A[2, 0] - A[0, 0] * A[2, 1]) * r
+    out[2, 2] = (A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]) * r
+    for i in range(3):
+        for j in range(3):
+            if not math.isfinite(out[i, j]):
+                return False
+    return True
