@@ -15,7 +15,7 @@ sensors
     stream is scored against.
 figures
     The paper's Figs 13-18 (cross-sections of the basic regions, the circle experiment)
-    and slices of a map tensor file, as PNG (``python -m solver figures`` / ``plot``).
+    and slices of a map tensor file, as PNG (``python -m experiments figures`` / ``plot``).
 rpr_scan
     An independent reference DK of the 3-RPR (dense scan in phi, no polynomial) and Newton
     along a joint path.

@@ -7,13 +7,11 @@ ik X Y PHI         the motor angles in each of the 8 postures
 example            the paper's Fig. 11 experiment: a pose, its joints, all DK solutions back
 build              procedure 1: map tensors into the map cache (built, or reused if there)
 inspect FILE...    what map tensor files hold (regions, counts, size)
-plot FILE          slices of a map tensor file as PNG
-figures            the paper's Figs 13-18 as PNG (cross-sections with singular curves, the circle)
 
 The map cache is ``$RRR_DK_CACHE/maps``, else ``~/.cache/rrr-dk/maps`` (``$XDG_CACHE_HOME``
 replaces ``~/.cache``); ``build --out`` puts maps elsewhere.  Long work reports its phases and
-a progress bar on stderr; ``RRR_DK_PROGRESS=0`` silences them.  ``plot`` and ``figures`` use
-the package ``experiments`` (in the source tree, beside ``solver``) and matplotlib.
+a progress bar on stderr; ``RRR_DK_PROGRESS=0`` silences them.  The paper's figures and plots of
+a map file are experiments on the library: ``python -m experiments --help``.
 """
 from __future__ import annotations
 
@@ -25,12 +23,13 @@ from pathlib import Path
 import numpy as np
 
 from . import (DEFAULT_RULE, DEFAULT_STEP, ORDERING_RULES, Manipulator, MapTensor, MapTensorFileError, cached_map,
-               circle_path, dk_all, ik, posture_of, singularity_measures)
+               dk_all, ik, posture_of, singularity_measures)
 from .mapcache import default_cache_dir, warm_up
 
 DESCRIPTION = """\
 Direct kinematics of the planar 3-RRR with basic regions: the kinematics of one pose or
-joint vector, procedure 1's map tensors (build, inspect, plot) and the paper's figures."""
+joint vector, procedure 1's map tensors (build, inspect).  The paper's figures and plots of a
+map file: python -m experiments."""
 EPILOG = """\
 maps are cached in $RRR_DK_CACHE/maps, else $XDG_CACHE_HOME/rrr-dk/maps, else ~/.cache/rrr-dk/maps
 (build --out puts them elsewhere); long work reports its phases and a progress bar on stderr
@@ -89,17 +88,6 @@ def _parser() -> argparse.ArgumentParser:
                                                f"file names: see solver.mapcache)")
     p = sub.add_parser("inspect", help="describe map tensor files")
     p.add_argument("file", nargs="+", help="map tensor files (.npz); each is described in turn")
-    p = sub.add_parser("plot", help="plot slices of a map tensor file")
-    p.add_argument("file", help="a map tensor file (.npz)")
-    p.add_argument("--phi", type=float, nargs="+", default=[-60.0, 0.0, 60.0],
-                   help="orientations of the slices, degrees; the nearest stored slice is drawn "
-                        "(default -60 0 60)")
-    p.add_argument("--out", default="results/figures", help="folder of the PNG files (default %(default)s)")
-    p = sub.add_parser("figures", help="the paper's Figs 13-18")
-    p.add_argument("--posture", type=int, default=1, help="posture of Figs 13-15 (default 1)")
-    p.add_argument("--step-mm", type=float, default=4.0,
-                   help="node spacing of Figs 13-15's cross-sections, mm (default %(default)g)")
-    p.add_argument("--out", default="results/figures", help="folder of the PNG files (default %(default)s)")
     return parser
 
 
@@ -127,29 +115,6 @@ def _inspect(model, args) -> int:
     return 2 if failed else 0
 
 
-def _plot(model, args) -> None:
-    from experiments.figures import plot_map_slice
-    mt = MapTensor.load(args.file)
-    for phd in args.phi:
-        print(plot_map_slice(mt, phd, args.out))
-
-
-def _figures(model, args) -> None:
-    from experiments.figures import plot_circle_experiment, plot_cross_sections
-    from experiments.suite import NEAR_SINGULAR_SEEDS, make_path, near_singular_circle
-    for phd, (path, st) in plot_cross_sections(model, args.posture, out_dir=args.out,
-                                               step=args.step_mm / 1e3, rule=args.rule).items():
-        print(f"{path}: singular nodes within one cell of a border {100 * st['singular_near_border']:.1f} %, "
-              f"border nodes singular {100 * st['border_singular']:.1f} %")
-    mt = cached_map(model, 1, args.rule)
-    post, centre, phd = NEAR_SINGULAR_SEEDS[0]
-    radius, _ = near_singular_circle(model, post, centre, phd, 0.005)
-    hard = make_path(model, f"p{post}-near-sing-5mm", post, circle_path(300, centre, radius, float(np.deg2rad(phd))))
-    hard_map = mt if post == 1 else cached_map(model, post, args.rule)
-    for path in plot_circle_experiment(model, mt, args.out, hard_path=hard, hard_map=hard_map):
-        print(path)
-
-
 def _ik(model, args) -> None:
     X = np.array(args.X)
     for j in range(1, 9):
@@ -169,7 +134,7 @@ def _example(model, args) -> int:
 
 
 COMMANDS = {"dk": lambda model, args: print_solutions(model, np.array(args.q), args.rule), "ik": _ik,
-            "build": _build, "inspect": _inspect, "plot": _plot, "figures": _figures, "example": _example}
+            "build": _build, "inspect": _inspect, "example": _example}
 
 
 def main(argv=None) -> int:
@@ -179,7 +144,7 @@ def main(argv=None) -> int:
     model = Manipulator.paper()
     try:
         if args.cmd not in ("build", "inspect"):            # build: cached_map does it when it builds
-            warm_up(model, getattr(args, "posture", 1) if args.cmd in ("example", "figures") else 1, args.rule)
+            warm_up(model, getattr(args, "posture", 1) if args.cmd == "example" else 1, args.rule)
         return COMMANDS.get(args.cmd, _example)(model, args) or 0
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -296,4 +296,4 @@ def test_the_fmu_bundles_only_what_its_slave_imports(fmu):
         names = set(z.namelist())
     assert packages == {"fmu_src", "maps", "pythonfmu", "solver"}    # no dynamics
     assert "resources/fmu_src/table_slave.py" in names and "resources/cosim/fmus/packaging.py" not in names
-    assert not {"resources/solver/suite.py", "resources/solver/figures.py", "resources/solver/__main__.py"} & names
+    assert not {"resources/solver/__main__.py"} & names

@@ -183,15 +183,15 @@ def test_label_poses_outside_is_zero(model):
 
 def test_cli_build_inspect_plot(tmp_path):
     out = tmp_path / "maps"
-    run = lambda *a: subprocess.run([sys.executable, "-m", "solver", *a], capture_output=True, text=True,
-                                    timeout=300)
+    run = lambda *a, pkg="solver": subprocess.run([sys.executable, "-m", pkg, *a], capture_output=True,
+                                                  text=True, timeout=300)
     r = run("build", "--posture", "2", "--step-mm", "60", "--step-deg", "15", "--out", str(out))
     assert r.returncode == 0, r.stderr
     f = map_path(Manipulator.paper(), 2, step=(0.06, 0.06, np.deg2rad(15.0)), cache_dir=out)
     assert f.exists()
     r = run("inspect", str(f))
     assert r.returncode == 0 and "posture 2" in r.stdout and "reachable nodes" in r.stdout
-    r = run("plot", str(f), "--phi", "0", "--out", str(tmp_path / "png"))
+    r = run("plot", str(f), "--phi", "0", "--out", str(tmp_path / "png"), pkg="experiments")
     assert r.returncode == 0, r.stderr
     assert list((tmp_path / "png").glob("*.png"))
     r = run("inspect", str(tmp_path / "nothing.npz"))
