@@ -172,13 +172,13 @@ def tracker_pass(tracker, res, h: float) -> tuple[float, float]:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--build-dir", default=str(ROOT / "build"))
+    ap.add_argument("--build-dir", default=str(ROOT / "build"), help="folder of the FMUs (built there if stale)")
     ap.add_argument("--rebuild", action="store_true", help="rebuild the three FMUs")
     ap.add_argument("--repeat", type=int, default=7, help="timed runs of the default scenario")
-    ap.add_argument("--t-end", type=float, default=Scenario.t_end)
+    ap.add_argument("--t-end", type=float, default=Scenario.t_end, help="simulated time of each run, s")
     args = ap.parse_args(argv)
 
-    paths = build_fmus(args.build_dir, force=args.rebuild, log=lambda m: print(m, flush=True))
+    paths = build_fmus(args.build_dir, force=args.rebuild)
     sc = Scenario(t_end=args.t_end)
     print(f"python {platform.python_version()}, numpy {np.__version__}, {os.cpu_count()} cores, "
           f"load average {os.getloadavg()[0]:.2f}")
@@ -190,53 +190,56 @@ def main(argv=None):
         t0 = time.perf_counter()
         loop.run(Scenario(t_end=0.05))                       # numba caches loaded, first calls done
         print(f"warm-up (instantiate + first steps): {time.perf_counter() - t0:.2f} s")
-        dk_dir = loop.units["RRRDirectKinematics"].unzip_dir
-        tracker = Tracker(Manipulator.paper(), MapTensor.load(Path(dk_dir) / "resources" / "maps" / "posture1.npz"))
-        print(f"\n1. the master's loop (ClosedLoop.run, as `python -m cosim`), {args.repeat} runs each, "
-              f"alternating with the in-process tracker on each run's joints:")
-        per = {(key, clock): [] for key in ("flags", "no flags", "tracker") for clock in ("wall", "cpu")}
-        for r in range(args.repeat):
-            for key, kw in (("flags", {}), ("no flags", {"flags": False})):
-                res = loop.run(sc, **kw)
-                per[key, "wall"].append(res.wall_seconds / sc.n_steps)
-                per[key, "cpu"].append(res.cpu_seconds / sc.n_steps)
-                wall, cpu = tracker_pass(tracker, res, sc.h)
-                per["tracker", "wall"].append(wall)
-                per["tracker", "cpu"].append(cpu)
-            m = res.metrics()
-            print(f"   run {r + 1}: wall per step {1e6 * per['flags', 'wall'][-1]:.1f} us with flags, "
-                  f"{1e6 * per['no flags', 'wall'][-1]:.1f} without, tracker {1e6 * per['tracker', 'wall'][-1]:.1f} us"
-                  f"  (RMS joint error after 0.5 s {m['rms_joint_error_after_0.5s']:.3e} rad, "
-                  f"max |DK - true| {m['max_dk_vs_true']:.1e})")
-        med = {k: float(np.median(v)) for k, v in per.items()}
-        for clock_name in ("wall", "cpu"):
-            trk = med["tracker", clock_name]
-            print(f"   {clock_name} time (median of the runs' mean per step), one in-process tracker step "
-                  f"{1e6 * trk:.1f} us:")
-            for key in ("flags", "no flags"):
-                v = med[key, clock_name]
-                ratio = v / trk
-                print(f"     {key:8s}: {1e6 * v:6.1f} us per step = {sc.h / v:5.2f}x real time, {ratio:.2f}x the "
-                      f"tracker step  [target <= 4x and >= 10x real time: "
-                      f"{'meets' if ratio <= 4 and sc.h / v >= 10 else 'MISSES'}]")
-        print("   (CPU time leaves out what other processes took; on an idle machine the two agree)")
-
+        med, m = _timed_runs(loop, sc, args.repeat)
         clock = _SlaveClock(loop)
         try:
             instrumented_run(loop, Scenario(t_end=0.05))
             calls, step = instrumented_run(loop, sc, on_start=clock.clear)
         finally:
             clock.restore()
+    parts, total = _breakdown(calls, step, clock)
+    _report(sc, med, m, parts, total, args)
 
-    us = 1e6
-    calls, step = calls * us, step * us
-    inner = {k: np.array(v) * us for k, v in clock.times.items()}
-    print(f"\n2. one instrumented run: {step.sum() / us:.3f} s of steps, per step median {np.median(step):.0f} us, "
-          f"mean {step.mean():.0f} us, p90 {np.percentile(step, 90):.0f} us, max {step.max():.0f} us")
-    print(f"\n   {'fmpy call':30s} {'median':>8s} {'mean':>8s}   {'slave Python':>12s} {'(mean)':>8s}   "
-          f"{'call overhead':>13s}")
-    counted = {}
-    rows = []
+
+def _timed_runs(loop, sc, repeat: int):
+    """Part 1: the master's loop with and without flags, alternating with the in-process tracker on
+    each run's joints; returns the medians per step {(kind, clock): s} and the last run's metrics."""
+    dk_dir = loop.units["RRRDirectKinematics"].unzip_dir
+    tracker = Tracker(Manipulator.paper(), MapTensor.load(Path(dk_dir) / "resources" / "maps" / "posture1.npz"))
+    print(f"\n1. the master's loop (ClosedLoop.run, as `python -m cosim`), {repeat} runs each, "
+          f"alternating with the in-process tracker on each run's joints:")
+    per = {(key, clock): [] for key in ("flags", "no flags", "tracker") for clock in ("wall", "cpu")}
+    for r in range(repeat):
+        for key, kw in (("flags", {}), ("no flags", {"flags": False})):
+            res = loop.run(sc, **kw)
+            per[key, "wall"].append(res.wall_seconds / sc.n_steps)
+            per[key, "cpu"].append(res.cpu_seconds / sc.n_steps)
+            wall, cpu = tracker_pass(tracker, res, sc.h)
+            per["tracker", "wall"].append(wall)
+            per["tracker", "cpu"].append(cpu)
+        m = res.metrics()
+        print(f"   run {r + 1}: wall per step {1e6 * per['flags', 'wall'][-1]:.1f} us with flags, "
+              f"{1e6 * per['no flags', 'wall'][-1]:.1f} without, tracker {1e6 * per['tracker', 'wall'][-1]:.1f} us"
+              f"  (RMS joint error after 0.5 s {m['rms_joint_error_after_0.5s']:.3e} rad, "
+              f"max |DK - true| {m['max_dk_vs_true']:.1e})")
+    med = {k: float(np.median(v)) for k, v in per.items()}
+    for clock_name in ("wall", "cpu"):
+        trk = med["tracker", clock_name]
+        print(f"   {clock_name} time (median of the runs' mean per step), one in-process tracker step "
+              f"{1e6 * trk:.1f} us:")
+        for key in ("flags", "no flags"):
+            v = med[key, clock_name]
+            ratio = v / trk
+            print(f"     {key:8s}: {1e6 * v:6.1f} us per step = {sc.h / v:5.2f}x real time, {ratio:.2f}x the "
+                  f"tracker step  [target <= 4x and >= 10x real time: "
+                  f"{'meets' if ratio <= 4 and sc.h / v >= 10 else 'MISSES'}]")
+    print("   (CPU time leaves out what other processes took; on an idle machine the two agree)")
+    return med, m
+
+
+def _call_rows(calls, inner) -> list:
+    """Per fmpy call of a step: (label, fmu, method, call time, the slave's own time, overhead), us."""
+    counted, rows = {}, []
     for j, (label, fmu, meth) in enumerate(CALLS):
         # per-call slave time: the k-th slave call of this (fmu, meth) in step order
         key = (fmu, meth)
@@ -247,41 +250,48 @@ def main(argv=None):
         mine = times[i0::per_step][:len(calls)] if per_step and len(times) else np.zeros(len(calls))
         if len(mine) < len(calls):
             mine = np.zeros(len(calls))
-        over = calls[:, j] - mine
-        rows.append((label, fmu, meth, calls[:, j], mine, over))
-        print(f"   {label:30s} {np.median(calls[:, j]):7.1f}  {calls[:, j].mean():7.1f}   {np.median(mine):11.1f} "
+        rows.append((label, fmu, meth, calls[:, j], mine, calls[:, j] - mine))
+    return rows
+
+
+def _breakdown(calls, step, clock):
+    """Part 2: one instrumented run, per fmpy call and per part of a step; returns the parts (name,
+    us per step) and the mean step, us."""
+    us = 1e6
+    calls, step = calls * us, step * us
+    rows = _call_rows(calls, {k: np.array(v) * us for k, v in clock.times.items()})
+    print(f"\n2. one instrumented run: {step.sum() / us:.3f} s of steps, per step median {np.median(step):.0f} us, "
+          f"mean {step.mean():.0f} us, p90 {np.percentile(step, 90):.0f} us, max {step.max():.0f} us")
+    print(f"\n   {'fmpy call':30s} {'median':>8s} {'mean':>8s}   {'slave Python':>12s} {'(mean)':>8s}   "
+          f"{'call overhead':>13s}")
+    for label, _, _, c, mine, over in rows:
+        print(f"   {label:30s} {np.median(c):7.1f}  {c.mean():7.1f}   {np.median(mine):11.1f} "
               f"{mine.mean():8.1f}   {np.median(over):12.1f}")
     master = step - calls.sum(axis=1)
     print(f"   {'master (copies, rows)':30s} {np.median(master):7.1f}  {master.mean():7.1f}")
-
     print("\n   per-step median of each FMU's doStep (the whole fmpy call):")
     for label, fmu, meth, c, mine, over in rows:
         if meth == "do_step":
             print(f"     {SHORT[fmu]:10s} {np.median(c):6.1f} us   (slave's do_step {np.median(mine):5.1f} us, "
                   f"fmpy + C wrapper {np.median(over):4.1f} us)")
-
     # where the time goes (means: they add up to the wall time)
     total = step.mean()
-    groups = [("DK doStep: slave (tracker, checks, snapshot)", [r for r in rows if r[2] == "do_step" and r[1] == FMU_NAMES[0]], 4),
-              ("controller doStep: slave (compiled law + reference)", [r for r in rows if r[2] == "do_step" and r[1] == FMU_NAMES[1]], 4),
-              ("plant doStep: slave (compiled RK4 + outputs)", [r for r in rows if r[2] == "do_step" and r[1] == FMU_NAMES[2]], 4),
+    step_of = lambda k: [r for r in rows if r[2] == "do_step" and r[1] == FMU_NAMES[k]]   # noqa: E731
+    groups = [("DK doStep: slave (tracker, checks, snapshot)", step_of(0), 4),
+              ("controller doStep: slave (compiled law + reference)", step_of(1), 4),
+              ("plant doStep: slave (compiled RK4 + outputs)", step_of(2), 4),
               ("8 get/set calls: slave Python", [r for r in rows if r[2] != "do_step"], 4),
               ("11 fmpy calls: fmpy + ctypes + pythonfmu C wrapper", rows, 5)]
     print("\n   where the time goes (mean per 1 ms step; wall budget for 10x real time: 100 us)")
     print(f"   | {'part':55s} | {'us/step':>7s} | {'share':>6s} |")
     print(f"   |{'-' * 57}|{'-' * 9}|{'-' * 8}|")
-    acc = 0.0
-    parts = []
-    for name, sel, col in groups:
-        v = float(sum(r[col].mean() for r in sel))
-        acc += v
-        parts.append((name, v))
+    parts = [(name, float(sum(r[col].mean() for r in sel))) for name, sel, col in groups]
+    parts.append(("master: input copies, kept rows, bookkeeping", float(master.mean())))
+    for name, v in parts:
         print(f"   | {name:55s} | {v:7.1f} | {100 * v / total:5.1f}% |")
-    v = float(master.mean())
-    acc += v
-    print(f"   | {'master: input copies, kept rows, bookkeeping':55s} | {v:7.1f} | {100 * v / total:5.1f}% |")
+    acc = sum(v for _, v in parts)
     print(f"   | {'total (instrumented; clocks add ~2 us)':55s} | {total:7.1f} | {100 * acc / total:5.1f}% |")
-    _report(sc, med, m, [*parts, ("master: input copies, kept rows, bookkeeping", v)], total, args)
+    return parts, total
 
 
 def _report(sc, med, metrics, parts, total, args):

@@ -44,10 +44,33 @@ def _median_us(fn, n, repeat):
     return 1e6 * float(np.median(times))
 
 
+def _warm_up(params, model, gains, traj, dk, f, q, dq, ddq, X, dX, states, tau, t) -> None:
+    """Compile (first run) or load from numba's cache every kernel before timing."""
+    dk(q[0])
+    forward_dynamics(params, model, q[0], dq[0], X[0], tau)
+    computed_torque(params, model, gains, q[0], dq[0], X[0], q[0], dq[0], ddq[0])
+    forward_dynamics_task(params, model, X[0], dX[0], tau)
+    rk4(task_space_rhs(params, model, traj.posture), 0.0, np.concatenate([X[0], dX[0]]), 1e-3, 1)
+    rk4_step(f, t[0], states[0], 1e-3)
+
+
+def _task_loop_us(params, model, traj, steps: int, repeat: int) -> float:
+    """rk4 of free motion from the circle's centre (0.1 m/s, 0.5 rad/s; clear of singularities for
+    2 s), us per step, median of ``repeat`` runs."""
+    free = task_space_rhs(params, model, traj.posture)
+    x_start = np.array([0.45, 0.30, np.deg2rad(-45.0), 0.10, 0.0, 0.5])
+    runs = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        rk4(free, 0.0, x_start, 1e-3, steps)
+        runs.append((time.perf_counter() - t0) / steps)
+    return 1e6 * float(np.median(runs))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--steps", type=int, default=2000)
-    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--steps", type=int, default=2000, help="states along the circle (1 ms apart)")
+    ap.add_argument("--repeat", type=int, default=5, help="timed runs of each; the median is reported")
     args = ap.parse_args(argv)
     model, params = Manipulator.paper(), DynamicParameters()
     gains = ComputedTorqueGains.design(50.0, 1.0)
@@ -58,78 +81,42 @@ def main(argv=None):
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"python {platform.python_version()}, numpy {np.__version__}")
     dk = NearestPoseDK(model, X[0])
-    dk(q[0])                                                   # compile / load the DK kernel
     tau = np.array([0.1, -0.2, 0.05])
     f = joint_space_rhs(params, model, dk, tau)
-    states = np.concatenate([q, dq], axis=1)
-    # compile (first run) or load from numba's cache every kernel before timing
-    forward_dynamics(params, model, q[0], dq[0], X[0], tau)
-    computed_torque(params, model, gains, q[0], dq[0], X[0], q[0], dq[0], ddq[0])
-    forward_dynamics_task(params, model, X[0], dX[0], tau)
-    rk4(task_space_rhs(params, model, traj.posture), 0.0, np.concatenate([X[0], dX[0]]), 1e-3, 1)
-    rk4_step(f, t[0], states[0], 1e-3)
-
-    def step(k):
-        dk.pose = X[k]
-        rk4_step(f, t[k], states[k], 1e-3)
-
-    def dk_call(k):
-        dk.pose = X[k]
-        dk(q[k])
-
-    us_step = _median_us(step, args.steps, args.repeat)
-    us_dk = _median_us(dk_call, args.steps, args.repeat)
-    us_fd = _median_us(lambda k: forward_dynamics(params, model, q[k], dq[k], X[k], tau), args.steps, args.repeat)
+    states, task_states = np.concatenate([q, dq], axis=1), np.concatenate([X, dX], axis=1)
+    _warm_up(params, model, gains, traj, dk, f, q, dq, ddq, X, dX, states, tau, t)
     q_des = q + 1e-4                                           # a small tracking error
-    us_ct = _median_us(lambda k: computed_torque(params, model, gains, q[k], dq[k], X[k], q_des[k], dq[k], ddq[k]),
-                       args.steps, args.repeat)
-
-    def ct_with_dk(k):
-        dk.pose = X[k]
-        computed_torque(params, model, gains, q[k], dq[k], dk(q[k]), q_des[k], dq[k], ddq[k])
-
-    us_ct_dk = _median_us(ct_with_dk, args.steps, args.repeat)
-    us_fdt = _median_us(lambda k: forward_dynamics_task(params, model, X[k], dX[k], tau), args.steps, args.repeat)
     ft = task_space_rhs(params, model, traj.posture, tau)
-    task_states = np.concatenate([X, dX], axis=1)
-    us_task_step = _median_us(lambda k: rk4_step(ft, t[k], task_states[k], 1e-3), args.steps, args.repeat)
-    # free motion from the circle's centre (0.1 m/s, 0.5 rad/s): stays clear of singularities for 2 s
-    free = task_space_rhs(params, model, traj.posture)
-    x_start = np.array([0.45, 0.30, np.deg2rad(-45.0), 0.10, 0.0, 0.5])
-    runs = []
-    for _ in range(args.repeat):
-        t0 = time.perf_counter()
-        rk4(free, 0.0, x_start, 1e-3, args.steps)
-        runs.append((time.perf_counter() - t0) / args.steps)
-    us_task_loop = 1e6 * float(np.median(runs))
     # the FMU slaves' steps: the plant from the circle's states, the controller on the reference
     plant, controller = PlantStepper(params, model, traj.posture), ControllerStepper(params, model, gains, traj)
     out_p, out_c = np.empty(PlantStepper.OUT_SIZE), np.empty(ControllerStepper.OUT_SIZE)
-    us_plant = _median_us(lambda k: plant.step(0.1, -0.2, 0.05, 1e-3, 1, task_states[k], out_p), args.steps,
-                          args.repeat)
     inputs = np.concatenate([t[:, None], q_des, dq, X], axis=1).tolist()    # Python floats, as a slave passes
-    us_ctrl = _median_us(lambda k: controller.step(*inputs[k], out_c), args.steps, args.repeat)
+
+    def at(k, fn):                                             # the DK continues from the circle's pose
+        dk.pose = X[k]
+        return fn()
+
+    cases = [
+        ("RK4 step, joint-space dynamics with the DK at 4 stages", lambda k: at(k, lambda: rk4_step(f, t[k], states[k], 1e-3))),
+        ("DK pose supplier call (dk_all + nearest)", lambda k: at(k, lambda: dk(q[k]))),
+        ("forward_dynamics (eq. 7), pose given", lambda k: forward_dynamics(params, model, q[k], dq[k], X[k], tau)),
+        ("computed-torque evaluation, pose given",
+         lambda k: computed_torque(params, model, gains, q[k], dq[k], X[k], q_des[k], dq[k], ddq[k])),
+        ("computed-torque evaluation with the DK call", lambda k: at(k, lambda: computed_torque(
+            params, model, gains, q[k], dq[k], dk(q[k]), q_des[k], dq[k], ddq[k]))),
+        ("task space: forward_dynamics_task, q by IK", lambda k: forward_dynamics_task(params, model, X[k], dX[k], tau)),
+        ("task space: rk4_step of task_space_rhs", lambda k: rk4_step(ft, t[k], task_states[k], 1e-3)),
+        ("task space: rk4, per step", None),
+        ("plant FMU's step: PlantStepper.step (one RK4 step)",
+         lambda k: plant.step(0.1, -0.2, 0.05, 1e-3, 1, task_states[k], out_p)),
+        ("controller FMU's step: ControllerStepper.step", lambda k: controller.step(*inputs[k], out_c)),
+    ]
+    rows = [(label, _task_loop_us(params, model, traj, args.steps, args.repeat) if fn is None
+             else _median_us(fn, args.steps, args.repeat)) for label, fn in cases]
     print(f"states: {args.steps} along the circle, median of {args.repeat} runs")
-    print(f"RK4 step, joint-space dynamics with DK at 4 stages : {us_step:8.1f} us")
-    print(f"  DK pose supplier call (dk_all + nearest)        : {us_dk:8.1f} us")
-    print(f"  forward_dynamics (eq. 7), pose given            : {us_fd:8.1f} us")
-    print(f"computed-torque evaluation, pose given            : {us_ct:8.1f} us")
-    print(f"computed-torque evaluation incl. DK call          : {us_ct_dk:8.1f} us")
-    print(f"task space: forward_dynamics_task, q by IK        : {us_fdt:8.1f} us")
-    print(f"task space: rk4_step of task_space_rhs            : {us_task_step:8.1f} us")
-    print(f"task space: rk4, per step (of {args.steps:5d} steps)      : {us_task_loop:8.1f} us")
-    print(f"FMU plant step: PlantStepper.step (1 RK4 step)    : {us_plant:8.1f} us")
-    print(f"FMU controller step: ControllerStepper.step       : {us_ctrl:8.1f} us")
-    _report(args, [("RK4 step, joint-space dynamics with the DK at 4 stages", us_step),
-                   ("DK pose supplier call (dk_all + nearest)", us_dk),
-                   ("forward_dynamics (eq. 7), pose given", us_fd),
-                   ("computed-torque evaluation, pose given", us_ct),
-                   ("computed-torque evaluation with the DK call", us_ct_dk),
-                   ("task space: forward_dynamics_task, q by IK", us_fdt),
-                   ("task space: rk4_step of task_space_rhs", us_task_step),
-                   ("task space: rk4, per step", us_task_loop),
-                   ("plant FMU's step: PlantStepper.step (one RK4 step)", us_plant),
-                   ("controller FMU's step: ControllerStepper.step", us_ctrl)])
+    for label, us in rows:
+        print(f"{label:56s}: {us:8.1f} us")
+    _report(args, rows)
 
 
 def _report(args, rows):

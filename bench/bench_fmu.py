@@ -53,72 +53,73 @@ def _median_us(times) -> float:
 
 def bench_dk(unit: FMUUnit, n: int, passes: int) -> dict:
     """DK: the FMU cycles and the in-process tracker, alternating passes over the circle."""
-    from fmpy.fmi2 import fmi2Boolean, fmi2Integer, fmi2Real, fmi2True
+    from fmpy.fmi2 import fmi2Boolean, fmi2Integer, fmi2Real
 
     model = Manipulator.paper()
     X = circle_path(n)
     Q = solver.ik(model, X, 1)
     rows = [tuple(map(float, q)) for q in Q]
     start = {"x0": X[0][0], "y0": X[0][1], "phi0": X[0][2], "q1": Q[0][0], "q2": Q[0][1], "q3": Q[0][2]}
-    fmu = unit.fmu
-    q_vr, q_buf = _arrays(unit, ("q1", "q2", "q3"), fmi2Real)
-    x_vr, x_buf = _arrays(unit, ("x", "y", "phi"), fmi2Real)
-    r_vr, r_buf = _arrays(unit, ("x", "y", "phi", "cond", "uncertain_since"), fmi2Real)
-    i_vr, i_buf = _arrays(unit, ("region", "n_real", "status"), fmi2Integer)
-    b_vr, b_buf = _arrays(unit, ("near_border", "ambiguous", "certain"), fmi2Boolean)
-    mt = MapTensor.load(Path(unit.unzip_dir) / "resources" / "maps" / "posture1.npz")
-    tracker = Tracker(model, mt)
-    pc = time.perf_counter
+    io = {"q": _arrays(unit, ("q1", "q2", "q3"), fmi2Real), "x": _arrays(unit, ("x", "y", "phi"), fmi2Real),
+          "real": _arrays(unit, ("x", "y", "phi", "cond", "uncertain_since"), fmi2Real),
+          "int": _arrays(unit, ("region", "n_real", "status"), fmi2Integer),
+          "bool": _arrays(unit, ("near_border", "ambiguous", "certain"), fmi2Boolean)}
+    tracker = Tracker(model, MapTensor.load(Path(unit.unzip_dir) / "resources" / "maps" / "posture1.npz"))
     t = {"minimal": [], "all": [], "convenience": [], "tracker": []}
     poses_fmu, poses_tr = np.empty((n, 3)), np.empty((n, 3))
 
     def fresh():
         unit.reset()
         unit.initialize(0.0, start)
-        return fmu.component
+        return unit.fmu.component
 
     for _ in range(passes):
-        c = fresh()
-        set_real, do_step, get_real = fmu.fmi2SetReal, fmu.fmi2DoStep, fmu.fmi2GetReal
-        for k, q in enumerate(rows):
-            tk = k * H
-            t0 = pc()
-            q_buf[:] = q
-            set_real(c, q_vr, 3, q_buf)
-            do_step(c, tk, H, fmi2True)
-            get_real(c, x_vr, 3, x_buf)
-            t["minimal"].append(pc() - t0)
-            poses_fmu[k] = x_buf
+        _fmu_pass(unit.fmu, fresh(), rows, io, t["minimal"], poses_fmu, everything=False)
         tracker.reset(X[0], Q[0])
-        step = tracker.step
+        step, pc = tracker.step, time.perf_counter
         for k in range(n):
-            q = Q[k]
             t0 = pc()
-            Xk, _ = step(q, H)
+            Xk, _ = step(Q[k], H)
             t["tracker"].append(pc() - t0)
             poses_tr[k] = Xk
-        c = fresh()
-        get_int, get_bool = fmu.fmi2GetInteger, fmu.fmi2GetBoolean
-        for k, q in enumerate(rows):
-            t0 = pc()
-            q_buf[:] = q
-            set_real(c, q_vr, 3, q_buf)
-            do_step(c, k * H, H, fmi2True)
-            get_real(c, r_vr, 5, r_buf)
-            get_int(c, i_vr, 3, i_buf)
-            get_bool(c, b_vr, 3, b_buf)
-            t["all"].append(pc() - t0)
+        _fmu_pass(unit.fmu, fresh(), rows, io, t["all"], None, everything=True)
         fresh()
-        q_list, x_list = list(q_vr), list(x_vr)
+        q_list, x_list = list(io["q"][0]), list(io["x"][0])
         for k, q in enumerate(rows):
             t0 = pc()
-            fmu.setReal(q_list, q)
-            fmu.doStep(k * H, H)
-            fmu.getReal(x_list)
+            unit.fmu.setReal(q_list, q)
+            unit.fmu.doStep(k * H, H)
+            unit.fmu.getReal(x_list)
             t["convenience"].append(pc() - t0)
     out = {k: _median_us(v) for k, v in t.items()}
     out["identical"] = bool(np.array_equal(poses_fmu, poses_tr))
     return out
+
+
+def _fmu_pass(fmu, c, rows, io, times: list, poses, everything: bool) -> None:
+    """One pass of raw fmi2 calls over ``rows``: set the joints, doStep, get the pose (``everything``:
+    every Real, Integer and Boolean output); each cycle's time appended to ``times``."""
+    from fmpy.fmi2 import fmi2True
+
+    pc = time.perf_counter
+    set_real, do_step, get_real = fmu.fmi2SetReal, fmu.fmi2DoStep, fmu.fmi2GetReal
+    get_int, get_bool = fmu.fmi2GetInteger, fmu.fmi2GetBoolean
+    (q_vr, q_buf), (x_vr, x_buf) = io["q"], io["x"]
+    (r_vr, r_buf), (i_vr, i_buf), (b_vr, b_buf) = io["real"], io["int"], io["bool"]
+    for k, q in enumerate(rows):
+        t0 = pc()
+        q_buf[:] = q
+        set_real(c, q_vr, 3, q_buf)
+        do_step(c, k * H, H, fmi2True)
+        if everything:
+            get_real(c, r_vr, 5, r_buf)
+            get_int(c, i_vr, 3, i_buf)
+            get_bool(c, b_vr, 3, b_buf)
+        else:
+            get_real(c, x_vr, 3, x_buf)
+        times.append(pc() - t0)
+        if poses is not None:
+            poses[k] = x_buf
 
 
 def _closed_loop_inputs(paths) -> dict:
@@ -248,7 +249,7 @@ def main(argv=None):
     ap.add_argument("--passes", type=int, default=7, help="alternating FMU / in-process passes")
     ap.add_argument("--instances", type=int, default=6, help="instantiations timed")
     args = ap.parse_args(argv)
-    paths = build_fmus(args.build_dir, log=lambda m: print(m, flush=True))
+    paths = build_fmus(args.build_dir)
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} cores, python "
           f"{platform.python_version()}, numpy {np.__version__}, load average {os.getloadavg()[0]:.2f}")
     dk_path = paths["RRRDirectKinematics"]

@@ -104,13 +104,15 @@ def score(X, certain, refused, truth, counted, glitch, vouching):
                 refused=int(refused.sum()), recovery=recovery)
 
 
-def main(argv=None):
+def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--suite", choices=("all", "default", "hard"), default="all")
+    ap.add_argument("--suite", choices=("all", "default", "hard"), default="all", help="which paths (default all)")
     ap.add_argument("--rate", type=int, default=1000, help="samples per revolution (1000: 1 kHz, 1 rev/s)")
     ap.add_argument("--coarse", action="store_true", help="also the suites at their own samplings")
-    ap.add_argument("--grades", nargs="+", default=[s.name for s in SENSOR_GRADES])
-    ap.add_argument("--methods", nargs="+", default=["default", "paper", "newton"])
+    ap.add_argument("--grades", nargs="+", default=[s.name for s in SENSOR_GRADES],
+                    help="sensor grades (experiments.sensors.SENSOR_GRADES; default all)")
+    ap.add_argument("--methods", nargs="+", default=["default", "paper", "newton"],
+                    help="trackers and baselines to run (default: default paper newton)")
     ap.add_argument("--limit", type=int, default=0, help="only the first N paths (quick looks)")
     ap.add_argument("--no-tolerance", dest="tolerance", action="store_false",
                     help="run the trackers without the sensor's joint_tolerance (as for exact joints)")
@@ -120,9 +122,12 @@ def main(argv=None):
     ap.add_argument("--no-stuck", dest="stuck", action="store_false",
                     help="run the trackers without the stuck-joint detector (solver.stuck)")
     ap.add_argument("--sigmas", type=float, default=3.0, help="joint_tolerance = this many noise sigmas + half a step")
-    ap.add_argument("--out", default="results")
-    args = ap.parse_args(argv)
-    model = Manipulator.paper()
+    ap.add_argument("--out", default="results", help="folder of sensor_suite.csv (default results)")
+    return ap
+
+
+def _suite_and_speed(model, args, dt: float):
+    """The paths of ``--suite`` and the trackers' speed bound (None: none)."""
     suite = []
     if args.suite in ("all", "default"):
         suite += default_suite(model, samplings=(args.rate,) + ((1000, 300, 100, 30) if args.coarse else ()))
@@ -130,47 +135,61 @@ def main(argv=None):
         suite += hard_suite(model, samplings=(args.rate,) + ((30, 50, 100, 200) if args.coarse else ()))
     if args.limit:
         suite = suite[:args.limit]
-    grades = {s.name: s for s in SENSOR_GRADES}
-    dt = 1e-3
     if args.speed is None and not args.no_speed:
         v = max(float(np.max(np.hypot(*np.diff(p.X[:, :2], axis=0).T))) for p in suite) / dt
         w = max(float(np.max(np.abs(wrap_angle(np.diff(p.X[:, 2]))))) for p in suite) / dt
         args.speed = (1.25 * v, max(1.25 * w, 0.5))
-    speed = None if args.no_speed else tuple(args.speed)
+    return suite, None if args.no_speed else tuple(args.speed)
+
+
+def _run_grade(model, maps, suite, sensor, args, speed, dt, secs, worst, per_path) -> dict:
+    """Every method on every path's stream of ``sensor``; the totals per method."""
+    makers = make_methods(model, maps, args.methods, sensor.tolerance(args.sigmas) if args.tolerance else 0.0,
+                          speed, sensor.stuck_after() if args.stuck else 0)
+    tot = {m: dict(counted=0, errors=0, silent=0, alarms=0, refused=0, recovery=0) for m in makers}
+    for i, path in enumerate(suite):
+        stream = sensor.measure(path.q, seed=1000 + i)
+        q = stream.q.copy()
+        q[0] = path.q[0]                                      # the tracker starts from a known configuration
+        truth, counted = sensor_truth(model, q, path.X, stream.glitch)
+        for m, make in makers.items():
+            X, certain, refused, s = run_stream(make(path.posture), q, path.X[0], dt)
+            sc = score(X, certain, refused, truth, counted, stream.glitch, m in VOUCHING)
+            secs[m].append(s[1:])
+            for key in tot[m]:
+                tot[m][key] = max(tot[m][key], sc[key]) if key == "recovery" else tot[m][key] + sc[key]
+            if sc["silent"] or (m == "default" and sc["errors"] > 0):
+                worst.setdefault((sensor.name, m), []).append((path.name, sc["errors"], sc["silent"], sc["alarms"]))
+            per_path[sensor.name, path.name, m] = sc["errors"]
+    return tot
+
+
+def main(argv=None):
+    args = _parser().parse_args(argv)
+    model = Manipulator.paper()
+    dt = 1e-3
+    suite, speed = _suite_and_speed(model, args, dt)
+    grades = {s.name: s for s in SENSOR_GRADES}
     maps = {p: cached_map(model, p, DEFAULT_RULE, DEFAULT_STEP) for p in sorted({s.posture for s in suite})}
-    rows = {}
-    per_path = {}
+    rows, per_path, worst = {}, {}, {}
     secs = {m: [] for m in args.methods}
-    worst = {}
     warm = make_methods(model, maps, args.methods, 1e-3, speed, 5)     # compile (or load) the kernels first
     for make in warm.values():
         run_stream(make(suite[0].posture), suite[0].q[:20], suite[0].X[0], dt)
     t_start = time.perf_counter()
     for gname in args.grades:
-        sensor = grades[gname]
-        makers = make_methods(model, maps, args.methods, sensor.tolerance(args.sigmas) if args.tolerance else 0.0,
-                              speed, sensor.stuck_after() if args.stuck else 0)
-        tot = {m: dict(counted=0, errors=0, silent=0, alarms=0, refused=0, recovery=0) for m in makers}
-        for i, path in enumerate(suite):
-            stream = sensor.measure(path.q, seed=1000 + i)
-            q = stream.q.copy()
-            q[0] = path.q[0]                                      # the tracker starts from a known configuration
-            truth, counted = sensor_truth(model, q, path.X, stream.glitch)
-            for m, make in makers.items():
-                X, certain, refused, s = run_stream(make(path.posture), q, path.X[0], dt)
-                sc = score(X, certain, refused, truth, counted, stream.glitch, m in VOUCHING)
-                secs[m].append(s[1:])
-                for key in tot[m]:
-                    tot[m][key] = max(tot[m][key], sc[key]) if key == "recovery" else tot[m][key] + sc[key]
-                if sc["silent"] or (m == "default" and sc["errors"] > 0):
-                    worst.setdefault((gname, m), []).append((path.name, sc["errors"], sc["silent"], sc["alarms"]))
-                per_path[gname, path.name, m] = sc["errors"]
-        rows[gname] = tot
+        rows[gname] = _run_grade(model, maps, suite, grades[gname], args, speed, dt, secs, worst, per_path)
     elapsed = time.perf_counter() - t_start
     tol = ", ".join(f"{g} {grades[g].tolerance(args.sigmas) * 1e3:.3g} mrad" for g in args.grades)
     print(f"{len(suite)} paths at {args.rate} samples per revolution, dt = 1 ms, {elapsed:.0f} s; joint_tolerance "
           f"{args.sigmas:g} sigma + half a step ({tol if args.tolerance else 'off'}); speed_bound "
           f"{'none' if speed is None else f'{speed[0]:.2f} m/s, {speed[1]:.2f} rad/s'}")
+    _print_tables(rows, grades, secs, suite, args.grades, per_path, worst)
+    _write_csv(rows, Path(args.out) / "sensor_suite.csv")
+    _report(rows, grades, secs, len(suite), elapsed, per_path, [p.name for p in suite])
+
+
+def _print_tables(rows, grades, secs, suite, grade_names, per_path, worst) -> None:
     print("\n| sensor | method | counted steps | errors | silent errors | false alarms | refused | recovery (samples) |")
     print("|---|---|---|---|---|---|---|---|")
     for gname, tot in rows.items():
@@ -186,7 +205,7 @@ def main(argv=None):
         print(f"| {m} | {v:.1f} | {np.percentile(a, 99):.0f} | {np.percentile(a, 99.9):.0f} | {a.max() / 1e3:.1f} |")
     if "newton" in med and "default" in med:
         print(f"\nstep time default / newton: {med['default'] / med['newton']:.2f}x (<= 3x)")
-        for gname in args.grades:
+        for gname in grade_names:
             worse = [p.name for p in suite if per_path[gname, p.name, "default"] > per_path[gname, p.name, "newton"]]
             print(f"{gname}: paths where the default mode errs more often than newton: {len(worse)} of {len(suite)}"
                   + (f" ({', '.join(worse[:6])}{' ...' if len(worse) > 6 else ''})" if worse else ""))
@@ -195,15 +214,16 @@ def main(argv=None):
         for (g, m), lst in worst.items():
             print(f"  {g} {m}: " + "; ".join(f"{p} {e}/{s}/{a}" for p, e, s, a in lst[:8])
                   + (f" ... ({len(lst)} paths)" if len(lst) > 8 else ""))
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with open(out / "sensor_suite.csv", "w") as f:
+
+
+def _write_csv(rows, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w") as f:
         f.write("sensor,method,counted,errors,silent_errors,false_alarms,refused,recovery\n")
         for gname, tot in rows.items():
             for m, t in tot.items():
                 f.write(f"{gname},{m},{t['counted']},{t['errors']},{t['silent']},{t['alarms']},{t['refused']},"
                         f"{t['recovery']}\n")
-    _report(rows, grades, secs, len(suite), elapsed, per_path, [p.name for p in suite])
 
 
 def _report(rows, grades, secs, n_paths, elapsed, per_path, names):

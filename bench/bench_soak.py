@@ -132,7 +132,7 @@ def main(argv=None) -> int:
 
     print(f"machine: {os.uname().machine}, {os.cpu_count()} cores, python {sys.version.split()[0]}, "
           f"load average {os.getloadavg()[0]:.2f}")
-    fmus = build_fmus(Path(args.build_dir), log=lambda *a: None)
+    fmus = build_fmus(Path(args.build_dir), progress=False)
     print(f"RSS after loading: {rss_mb():.1f} MB")
     s = soak(fmus, args.steps, args.budget)
     per_million = s["wall"] / max(s["steps"], 1) * 1e6

@@ -84,7 +84,7 @@ from cosim.__main__ import main          # the command's imports
 from cosim import ClosedLoop, Scenario, build_fmus
 from cosim.loop.results import plot_closed_loop, write_csv
 mark("imports")
-paths = build_fmus(sys.argv[1], log=lambda m: None)
+paths = build_fmus(sys.argv[1], progress=False)
 loop = ClosedLoop(paths)                           # extract and instantiate
 mark("fmu")
 res = loop.run(Scenario())                         # initialize, then the loop (res.wall_seconds)
@@ -117,7 +117,7 @@ from cosim.batch.worker import run_task
 from cosim.batch.fmu_files import fmu_spec
 from cosim import build_fmus
 t_import = time.perf_counter() - t0
-spec = fmu_spec(build_fmus(sys.argv[1], log=lambda m: None))
+spec = fmu_spec(build_fmus(sys.argv[1], progress=False))
 rows = [run_task(i, {"t_end": 0.05}, spec) for i in range(2)]
 assert all(r["status"] == "ok" for r in rows), rows
 print("WORKER " + json.dumps({"imports": t_import, "load": rows[0]["load_seconds"], "init1": rows[0]["init_seconds"],
@@ -224,7 +224,7 @@ def _command(build_dir, out_dir, plots: bool) -> float:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--build-dir", default=str(ROOT / "build"))
+    ap.add_argument("--build-dir", default=str(ROOT / "build"), help="folder of the FMUs (built there if stale)")
     ap.add_argument("--repeat", type=int, default=5, help="fresh processes per measurement")
     ap.add_argument("--skip-compile", action="store_true", help="skip the cold kernel compilation (4.)")
     ap.add_argument("--skip-hosts", action="store_true", help="skip the fmpy and C host start-up (5.)")
@@ -239,13 +239,22 @@ def main(argv=None) -> int:
     print(f"python {platform.python_version()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}; "
           f"FMUs in {build}; {args.repeat} fresh processes per figure (medians)")
     tmp = Path(tempfile.mkdtemp(prefix="bench_startup_"))
-    if args.only_hosts:
+    if not args.only_hosts:
+        _command_walls(build, tmp, args.repeat)
+        _cold_split(build, tmp, args.repeat)
+        _worker_start(build, args.repeat)
+        if not args.skip_compile:
+            _bare_host_compile(build, tmp)
+    if args.only_hosts or not args.skip_hosts:
         _host_starts(build, tmp, dict(os.environ))
-        shutil.rmtree(tmp, ignore_errors=True)
-        return 0
-    # the command, process start to exit (alternating with and without plots)
+    shutil.rmtree(tmp, ignore_errors=True)
+    return 0
+
+
+def _command_walls(build: Path, tmp: Path, repeat: int) -> None:
+    """1. ``python -m cosim``, process start to exit (alternating with and without plots)."""
     walls = {"with plots": [], "--no-plots": []}
-    for _ in range(args.repeat):
+    for _ in range(repeat):
         walls["with plots"].append(_command(build, tmp / "a", True))
         walls["--no-plots"].append(_command(build, tmp / "b", False))
     print(f"\n1. `python -m cosim` ({SIMULATED:g} s simulated), process start to exit:")
@@ -254,19 +263,21 @@ def main(argv=None) -> int:
         print(f"   {key:10s}: {med:5.2f} s wall = {med / SIMULATED:.2f}x the simulated time "
               f"[target < 1: {'meets' if med < SIMULATED else 'MISSES'}]  (runs: {', '.join(f'{w:.2f}' for w in v)})")
 
-    probes = [_python(PROBE, str(build), str(tmp / "p"), marker="PROBE") for _ in range(args.repeat)]
+
+def _cold_split(build: Path, tmp: Path, repeat: int) -> None:
+    """2. Where that command's time goes, one fresh process each."""
+    probes = [_python(PROBE, str(build), str(tmp / "p"), marker="PROBE") for _ in range(repeat)]
     split = {k: float(np.median([p[k] for p, _ in probes])) for k in probes[0][0]}
     whole = float(np.median([w for _, w in probes]))
-    print(f"\n2. cold-start split of that command (one process each, median of {args.repeat}; whole process "
+    print(f"\n2. cold-start split of that command (one process each, median of {repeat}; whole process "
           f"{whole:.2f} s):")
+    phases = ("imports", "fmu", "run", "csv", "plots")
     rows = [("interpreter start and exit (python, site, os._exit)", whole - split["total"]),
             ("import numba", split["numba"]),
             ("the command's imports (dynamics, solver, fmu_src, fmpy)", split["imports"]),
             ("FMU load: extract, instantiate, initialize (3 FMUs)", split["fmu"]),
-            ("kernel load: numba cache, all kernels of the process",
-             sum(split[k + "_kernels"] for k in ("imports", "fmu", "run", "csv", "plots"))),
-            ("kernel compilation (0: every cache warm)",
-             sum(split[k + "_compile"] for k in ("imports", "fmu", "run", "csv", "plots"))),
+            ("kernel load: numba cache, all kernels of the process", sum(split[k + "_kernels"] for k in phases)),
+            ("kernel compilation (0: every cache warm)", sum(split[k + "_compile"] for k in phases)),
             ("simulation: the loop of 2500 steps (wall_seconds)", split["run"]),
             ("CSV", split["csv"]),
             ("plots (matplotlib import + 3 figures)", split["plots"])]
@@ -275,8 +286,10 @@ def main(argv=None) -> int:
     print(f"   (of the kernel load: during the FMU load {split['fmu_kernels']:.3f} s, during the run's "
           f"initialization and loop {split['run_kernels']:.3f} s)")
 
-    env = dict(os.environ)
-    workers = [_python(WORKER, str(build), marker="WORKER") for _ in range(args.repeat)]
+
+def _worker_start(build: Path, repeat: int) -> None:
+    """3. A batch worker's start-up before its first step, fresh processes."""
+    workers = [_python(WORKER, str(build), marker="WORKER") for _ in range(repeat)]
     w = {k: float(np.median([p[k] for p, _ in workers])) for k in workers[0][0]}
     print("\n3. batch worker, fresh process (as bench/bench_batch.py splits it):")
     print(f"   imports {w['imports']:.3f} s; FMU load (extract + instantiate, once per process) {w['load']:.3f} s; "
@@ -285,20 +298,18 @@ def main(argv=None) -> int:
     print(f"   the process's start-up before its first step, all in: "
           f"{w['imports'] + w['load'] + w['init1']:.2f} s (+ interpreter start)")
 
-    if not args.skip_compile:
-        cache = tmp / "numba-cache"
-        env["NUMBA_CACHE_DIR"] = str(cache)
-        dk = str(build / "RRRDirectKinematics.fmu")
-        runs = [_python(BARE_HOST, dk, env=env, marker="BARE") for _ in range(3)]
-        print(f"\n4. the DK FMU's bundled kernels, host without `solver` (fmpy.simulate_fmu, 10 steps, fresh "
-              f"processes, NUMBA_CACHE_DIR={cache}):")
-        for (r, wall), what in zip(runs, ("empty cache (compiles)", "second process", "third process")):
-            print(f"   {what:24s}: simulate_fmu {r['seconds']:6.2f} s, process {wall:6.2f} s"
-                  f"{'' if r['bundled'] else '  (the FMU did not use its bundled solver!)'}")
-    if not args.skip_hosts:
-        _host_starts(build, tmp, dict(os.environ))
-    shutil.rmtree(tmp, ignore_errors=True)
-    return 0
+
+def _bare_host_compile(build: Path, tmp: Path) -> None:
+    """4. The DK FMU's bundled kernels in a host without ``solver``: an empty numba cache, then warm."""
+    cache = tmp / "numba-cache"
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
+    dk = str(build / "RRRDirectKinematics.fmu")
+    runs = [_python(BARE_HOST, dk, env=env, marker="BARE") for _ in range(3)]
+    print(f"\n4. the DK FMU's bundled kernels, host without `solver` (fmpy.simulate_fmu, 10 steps, fresh "
+          f"processes, NUMBA_CACHE_DIR={cache}):")
+    for (r, wall), what in zip(runs, ("empty cache (compiles)", "second process", "third process")):
+        print(f"   {what:24s}: simulate_fmu {r['seconds']:6.2f} s, process {wall:6.2f} s"
+              f"{'' if r['bundled'] else '  (the FMU did not use its bundled solver!)'}")
 
 
 if __name__ == "__main__":

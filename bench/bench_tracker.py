@@ -121,12 +121,13 @@ def print_totals(title, tot, names):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--suite", choices=("all", "default", "hard"), default="all")
-    ap.add_argument("--rule", default=DEFAULT_RULE)
-    ap.add_argument("--step-mm", type=float, default=DEFAULT_STEP[0] * 1e3)
-    ap.add_argument("--step-deg", type=float, default=float(np.rad2deg(DEFAULT_STEP[2])))
-    ap.add_argument("--out", default="results")
-    ap.add_argument("--no-plot", action="store_true")
+    ap.add_argument("--suite", choices=("all", "default", "hard"), default="all", help="which paths (default all)")
+    ap.add_argument("--rule", default=DEFAULT_RULE, help="ordering rule of the maps (default %(default)s)")
+    ap.add_argument("--step-mm", type=float, default=DEFAULT_STEP[0] * 1e3, help="map node spacing in x, y, mm")
+    ap.add_argument("--step-deg", type=float, default=float(np.rad2deg(DEFAULT_STEP[2])),
+                    help="map node spacing in phi, degrees")
+    ap.add_argument("--out", default="results", help="folder of tracker_suite.csv and figures/ (default results)")
+    ap.add_argument("--no-plot", action="store_true", help="no tracker_errors.png")
     args = ap.parse_args(argv)
     model = Manipulator.paper()
     step = (args.step_mm / 1e3, args.step_mm / 1e3, np.deg2rad(args.step_deg))
@@ -169,8 +170,15 @@ def main(argv=None):
           f"(<= 3 %); step time {times['default'] / times['newton']:.2f}x newton (<= 3x)")
     _report(suites, all_tot, names, times, args)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with open(out / "tracker_suite.csv", "w", newline="") as f:
+    write_table(suite, table, names, out / "tracker_suite.csv")
+    if not args.no_plot:
+        plot(suite, table, names, out / "figures" / "tracker_errors.png", args.rule)
+
+
+def write_table(suite, table, names, path: Path) -> None:
+    """The per-path counts of every method as CSV."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["path", "posture", "points", "ratio", "resolvable", "method", "errors", "silent_errors",
                     "false_alarms", "max_error", "steps"])
@@ -179,8 +187,6 @@ def main(argv=None):
                 e, silent, alarms, big, steps = table[p.name, n]
                 w.writerow([p.name, p.posture, len(p.X), f"{p.ratio:.6g}", int(p.resolvable), n, e, silent, alarms,
                             f"{big:.6g}", steps])
-    if not args.no_plot:
-        plot(suite, table, names, out / "figures" / "tracker_errors.png", args.rule)
 
 
 def _report(suites, all_tot, names, times, args):
