@@ -131,7 +131,7 @@ def _row_gravity(bodies, r):
 # ----------------------------------------------------------------------------- task-space terms
 @njit(cache=True, error_model="numpy")
 def _mass_task(bodies, V, MX):
-    """``M_X = V^T W V``."""
+    """``M_X = V^T W V``: the weighted Gram matrix of ``V``'s columns, W the bodies' row weights."""
     for a in range(3):
         for b in range(3):
             s = 0.0
@@ -281,16 +281,11 @@ def task_rhs_batch(arm, bodies, x, tau, bits, out):
 
 @njit(cache=True, error_model="numpy")
 def _mass_joint(bodies, V, Jx, VJ, M):
-    """``M = (V J_x)^T W (V J_x)``, with ``V J_x`` into ``VJ`` (21, 3)."""
+    """``M = (V J_x)^T W (V J_x)``, with ``V J_x`` into ``VJ`` (21, 3): :func:`_mass_task` of ``V J_x``."""
     for r in range(N_ROWS):
         for b in range(3):
             VJ[r, b] = V[r, 0] * Jx[0, b] + V[r, 1] * Jx[1, b] + V[r, 2] * Jx[2, b]
-    for a in range(3):
-        for b in range(3):
-            s = 0.0
-            for r in range(N_ROWS):
-                s += VJ[r, a] * (bodies[BODY_WEIGHTS + r] * VJ[r, b])
-            M[a, b] = s
+    _mass_task(bodies, VJ, M)
 
 
 @njit(cache=True, inline="always")
