@@ -99,7 +99,7 @@ and ``certain`` means a proof for every joint path within that tolerance:
   the measured joints crossed a fold that the robot did not.  If exactly one
   real solution is within that reach it is taken (not vouched for, the chain
   ends); otherwise the previous pose is held (status ``unreachable``), at most
-  ``MAX_HELD`` samples in a row (:mod:`solver.tracking`).  The gate leaves alone
+  ``MAX_HELD`` samples in a row (:data:`solver.tracker_state.MAX_HELD`).  The gate leaves alone
   a solution that a chain of Krawczyk boxes joins to a previous candidate along
   the measured joints (the segment between the samples crossed no fold: a
   choice, not a proof) or that was re-acquired: on an ill-conditioned path the
