@@ -202,14 +202,15 @@ class TrackerState:
             The stuck-joint detector's fields of the next state (:func:`solver.stuck.reading_fields`;
             empty when the detector is off).
         """
-        status = int(out_int[I_STATUS])
+        i = out_int.tolist()
+        status = i[I_STATUS]
         if status == STATUS_REJECTED:                       # an outlier: only the counts of refusals move
             return replace(self, refused=self.refused + 1, skipped=self.skipped + 1, **extra)
         if status == STATUS_UNREACHABLE:                    # pose held: only the count of skipped samples
             return replace(self, skipped=self.skipped + 1, **extra)
-        fi = out_real[OUT_INFO:]
-        certain, n_cand = bool(out_int[I_CERTAIN]), int(out_int[I_N_CAND])
-        dqn, innov = float(fi[F_DQ]), float(fi[F_INNOV])
+        certain, n_cand = bool(i[I_CERTAIN]), i[I_N_CAND]
+        f = out_real[OUT_INFO:OUT_INFO + F_INNOV + 1].tolist()
+        dqn, innov = f[F_DQ], f[F_INNOV]
         scale = dqn if self.steps == 0 else 0.8 * self.dq_scale + 0.2 * dqn
         cands = out_real[OUT_CANDS:OUT_CANDS + 3 * n_cand].reshape(n_cand, 3).copy()
         X = out_real[OUT_X:OUT_X + 3].copy()
@@ -218,8 +219,8 @@ class TrackerState:
         anchor = None if self.refused >= MAX_REFUSED else self.anchor
         return TrackerState(X, q.copy(), self.X, scale, self.steps + 1,
                             float("nan") if dt is None else float(dt) * (self.skipped + 1), self.q, cands,
-                            int(out_int[I_CERTIFICATE]) in (CERT_CONTINUATION, CERT_REACQUIRED), self.since(certain),
-                            bool(out_int[I_INTACT]),
+                            i[I_CERTIFICATE] in (CERT_CONTINUATION, CERT_REACQUIRED), self.since(certain),
+                            bool(i[I_INTACT]),
                             innov if self.steps < 2 else max(innov, 0.8 * self.a_scale + 0.2 * innov), 0,
                             X if certain else anchor, 0.0 if certain else self._anchor_age(dt), **extra)
 
@@ -346,11 +347,10 @@ class StepInfo(NamedTuple):
     @classmethod
     def from_result(cls, out_real: np.ndarray, out_int: np.ndarray, uncertain_since: int) -> "StepInfo":
         """The step's information from its result pack (:mod:`solver._kernels.layout` ``OUT_*``, ``F_*``, ``I_*``)."""
-        fi = out_real[OUT_INFO:]
-        return cls(int(out_int[I_LABEL]), bool(out_int[I_NEAR_BORDER]), out_real[OUT_X_PRED:OUT_X_PRED + 3].copy(),
-                   int(out_int[I_N_REAL]), float(fi[F_COND]), bool(out_int[I_AMBIGUOUS]), int(out_int[I_STATUS]),
-                   bool(out_int[I_JUMP]), float(fi[F_D_BEST]), float(fi[F_D_SECOND]), bool(out_int[I_CERTAIN]),
-                   int(out_int[I_CERTIFICATE]), int(out_int[I_N_CAND]), uncertain_since)
+        i, f = out_int.tolist(), out_real[OUT_INFO:].tolist()      # Python numbers: quicker to read
+        return cls(i[I_LABEL], bool(i[I_NEAR_BORDER]), out_real[OUT_X_PRED:OUT_X_PRED + 3].copy(), i[I_N_REAL],
+                   f[F_COND], bool(i[I_AMBIGUOUS]), i[I_STATUS], bool(i[I_JUMP]), f[F_D_BEST], f[F_D_SECOND],
+                   bool(i[I_CERTAIN]), i[I_CERTIFICATE], i[I_N_CAND], uncertain_since)
 
     @property
     def status_name(self) -> str:

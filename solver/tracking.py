@@ -124,8 +124,9 @@ class _TrackerBase:
         self._kernel(q, self._state_pack)
         of, oi = self._out_real, self._out_int
         info = StepInfo.from_result(of, oi, st.since(bool(oi[I_CERTAIN])))
-        self.state = st.after(q, dt, of, oi, extra)
-        return of[OUT_X:OUT_X + 3].copy(), info
+        self.state = new = st.after(q, dt, of, oi, extra)
+        # an accepted step's pose is the new state's (one copy), a refused or held one a copy of the old
+        return (new.X if new.steps > st.steps else of[OUT_X:OUT_X + 3].copy()), info
 
     def track(self, q_stream, X0) -> TrackResult:
         """Track a whole joint stream.

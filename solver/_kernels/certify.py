@@ -183,7 +183,7 @@ def follow_branch(X0, verified, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, out)
     return tests
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def predict_piece(x, q0, d1, d2, s, sb, M, l1, b, l2sq, w, xb):
     """The solution at ``q(sb)`` continued from ``x`` (3,) at ``q(s)``, into ``xb`` (3,): an Euler
     step along ``dX/ds = -J^-1 g``, then Newton at ``q(sb)``.  Returns 1 when Newton converged,
@@ -197,7 +197,7 @@ def predict_piece(x, q0, d1, d2, s, sb, M, l1, b, l2sq, w, xb):
     return 1 if newton_on_path(xb, q0, d1, d2, sb, M, l1, b, l2sq, w, 6) < 1e-12 else 0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def prove_piece(x, xb, q0, d1, d2, s, sb, eps, M, l1, b, l2sq, w, bx):
     """The chain's link over ``s`` in [s, sb]: one Krawczyk box (grown by epsilon-inflation)
     holding the branch from ``x`` to ``xb`` (3,) over the path (the tube within ``eps`` of it),

@@ -5,10 +5,9 @@ choice, the certificates), so the per-step cost is the work, not Python overhead
 :class:`solver.Tracker` checks inputs, holds the state (which packs itself,
 :meth:`solver.tracker_state.TrackerState.pack`) and calls :func:`tracker_step`.
 
-The step runs its phases in order, each reading and writing the named packs of
-:mod:`.tracker_packs` (the constant :data:`StepConfig`, the state pack, this step's
-:data:`StepData`, the result pack's :data:`StepResult` views) and returning the decisions
-it makes:
+The step runs its phases in order, each reading and writing named fields of the packs
+of :mod:`.tracker_packs` (the options, model and map packs, the state pack, this step's
+step pack and DK solutions, the result pack) and returning the decisions it makes:
 
 1. gate (:func:`gate_phase`): the outlier gate on measured joints; a refused sample ends the step;
 2. solve (:func:`solve_phase`): all DK solutions, procedure 2 at the previous pose;
@@ -29,18 +28,20 @@ from numba import njit
 
 from .certified import certify_phase
 from .certify import CERT_NONE, comes_from
-from .choice import choose_default, choose_paper, linear_prediction, predict, wdist
+from .choice import choose_default, choose_paper, joint_step, linear_prediction, predict, wdist
 from .direct_kinematics import dk_one
 from .gates import GATE_PASS, GATE_REFUSE, outlier_gate, speed_gate
-from .kinematics import jacobian
+from .kinematics import geometry, jacobian
 from .layout import (F_D_BEST, F_D_SECOND, F_DQ, F_COND, F_INNOV, I_AMBIGUOUS, I_CERTAIN, I_CERTIFICATE, I_INTACT,
-                     I_JUMP, I_LABEL, I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, MAX_REFUSED, MODE_PAPER,
-                     PARAM_AMBIGUITY, PARAM_GATE, PARAM_JOINT_TOL, PARAM_MAX_TESTS, PARAM_SINGULAR, PARAM_SPEED,
-                     STATE_A_SCALE, STATE_CANDS, STATE_HAVE_Q2, STATE_INTACT, STATE_N_CAND, STATE_Q2, STATE_REFUSED,
-                     STATE_STEP_DT, STATUS_OK, STATUS_REJECTED, STATUS_SINGULAR, STATUS_UNREACHABLE)
+                     I_JUMP, I_LABEL, I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, INFO_F_SIZE, INFO_I_SIZE, MAP_ORIGIN,
+                     MAP_PERIODIC, MAP_R2, MAP_STEP, MAP_WEIGHTS, MAX_REFUSED, MODE_PAPER, OUT_CANDS, OUT_INFO, OUT_X,
+                     OUT_X_PRED, PARAM_AMBIGUITY, PARAM_GATE, PARAM_JOINT_TOL, PARAM_JUMP, PARAM_MAX_TESTS,
+                     PARAM_SINGULAR, PARAM_SPEED, STATE_A_SCALE, STATE_CANDS, STATE_DQ_SCALE, STATE_EXT_SCALE,
+                     STATE_HAVE_Q2, STATE_INTACT, STATE_N_CAND, STATE_Q, STATE_Q2, STATE_REFUSED, STATE_STEP_DT,
+                     STATE_X, STATUS_OK, STATUS_REJECTED, STATUS_SINGULAR, STATUS_UNREACHABLE)
 from .linalg import hadamard, wrap
 from .maptensor import near_mask_one
-from .tracker_packs import step_config, step_data, step_result
+from .tracker_packs import STEP_DQ, STEP_DQN, STEP_JUMP, STEP_QU, STEP_SIZE, STEP_X_LIN
 
 #: Before the speed gate holds the pose or takes another solution (default mode, a trusted sample, one
 #: previous candidate), the chain back to that candidate may use this many times ``max_tests`` tests.
@@ -61,118 +62,152 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
     writes the result pack ``out_real`` (OUT_SIZE,) and ``out_int`` (INFO_I_SIZE,).  The
     phases: see the module docstring.
     """
-    cfg = step_config(mode, rule, model_pack, sample_to_sextic, labels, map_pack, stencil, params)
-    st = step_data(q, state, params)
-    res = step_result(out_real, out_int)
-    refused, untrusted = gate_phase(cfg, st, state, res)
+    work = step_pack(q, state, params, out_real, out_int)
+    refused, untrusted = gate_phase(state, work, params, model_pack, out_real, out_int)
     if refused:
         return
-    n_real, n_near, single = solve_phase(cfg, st, state, res)
-    cond_prev = linear_prediction(cfg, st, res)
+    poses = np.empty((6, 3), dtype=np.complex128)
+    real = np.empty(6, dtype=np.bool_)
+    near_prev = np.zeros(7, dtype=np.bool_)
+    n_real, n_near, single = solve_phase(q, rule, state, work, model_pack, sample_to_sextic, labels, map_pack,
+                                         stencil, poses, real, near_prev, out_int)
+    cond_prev = linear_prediction(state, work, model_pack, out_real)
     if n_real == 0:
-        res.X_pred[:] = st.X_lin
-        hold(st, state, res, STATUS_UNREACHABLE)
+        out_real[OUT_X_PRED:OUT_X_PRED + 3] = work[STEP_X_LIN:STEP_X_LIN + 3]
+        hold(state, out_real, out_int, STATUS_UNREACHABLE)
         return
-    ok, worst = predict(cfg, st, res, cond_prev)
+    ok, worst = predict(mode, state, work, params, model_pack, out_real, cond_prev)
     if mode == MODE_PAPER:
-        chosen, ambiguous = choose_paper(cfg, st, res, n_near, single)
+        chosen, ambiguous = choose_paper(poses, real, near_prev, work, labels, map_pack, n_near, single, out_int)
     else:
-        chosen, ambiguous = choose_default(cfg, st, state, res, n_near, ok, worst)
-    chosen, linked = certify_phase(cfg, st, state, res, chosen, untrusted)
-    if margins(cfg, st, res, chosen):
+        chosen, ambiguous = choose_default(poses, real, near_prev, work, state, params, labels, map_pack, stencil,
+                                           n_near, ok, worst, out_real, out_int)
+    chosen, linked = certify_phase(mode, chosen, untrusted, state, work, poses, real, params, model_pack, map_pack,
+                                   out_real, out_int)
+    if margins(mode, chosen, poses, real, work, params, map_pack, out_real):
         ambiguous = True
-    taken = speed_gate_phase(cfg, st, state, res, chosen, linked, untrusted)
+    taken = speed_gate_phase(mode, chosen, linked, untrusted, state, work, poses, real, params, model_pack,
+                             out_real, out_int)
     if taken < 0:
         return
-    publish(cfg, st, res, taken, ambiguous or taken != chosen)
+    publish(taken, ambiguous or taken != chosen, poses, work, params, model_pack, out_real, out_int)
 
 
-@njit(cache=True)
-def hold(st, state, res, status):
+@njit(cache=True, inline="always")
+def step_pack(q, state, params, out_real, out_int):
+    """The step pack (STEP_SIZE,, :mod:`.tracker_packs`) of joints ``q`` (3,): the joint step, its
+    size, the unwrapped joints and the jump flag (the predictions are filled by the predict
+    phase); the result pack's info fields zeroed."""
+    for i in range(INFO_I_SIZE):
+        out_int[i] = 0
+    for i in range(INFO_F_SIZE):
+        out_real[OUT_INFO + i] = 0.0
+    work = np.empty(STEP_SIZE)
+    qp = state[STATE_Q:STATE_Q + 3]
+    dqn = joint_step(q, qp, work[STEP_DQ:STEP_DQ + 3])
+    for i in range(3):
+        work[STEP_QU + i] = qp[i] + work[STEP_DQ + i]
+    dq_scale = state[STATE_DQ_SCALE]
+    work[STEP_DQN] = dqn
+    work[STEP_JUMP] = 1.0 if dq_scale > 0.0 and dqn > params[PARAM_JUMP] * dq_scale else 0.0
+    return work
+
+
+@njit(cache=True, inline="always")
+def hold(state, out_real, out_int, status):
     """The previous pose held (a refused or unreachable sample): the pose, the status, and the
     candidates and chain as they were."""
-    res.X[:] = st.Xp
-    res.info_i[I_STATUS] = status
-    res.info_i[I_N_CAND] = int(state[STATE_N_CAND])
-    res.info_i[I_INTACT] = 1 if state[STATE_INTACT] > 0.0 else 0
+    out_real[OUT_X:OUT_X + 3] = state[STATE_X:STATE_X + 3]
+    out_int[I_STATUS] = status
+    out_int[I_N_CAND] = int(state[STATE_N_CAND])
+    out_int[I_INTACT] = 1 if state[STATE_INTACT] > 0.0 else 0
 
 
-@njit(cache=True)
-def gate_phase(cfg, st, state, res):
+@njit(cache=True, inline="always")
+def gate_phase(state, work, params, model_pack, out_real, out_int):
     """Gate phase (measured joints): the joint step against the one expected from the last two
     samples (:func:`.gates.outlier_gate`).  Writes F_INNOV and F_DQ, and a refused sample's
     result (pose held, status rejected).  Returns (refused, untrusted): an untrusted sample
     (taken after refusals, or off the expected step by more than noise can be: a fast joint
     the gate lets through, or a serial singularity's swing) may be a glitch, so it is vouched
     for by nothing and ends the chain."""
-    params, info_f = cfg.params, res.info_f
+    Xp, qp, dq = state[STATE_X:STATE_X + 3], state[STATE_Q:STATE_Q + 3], work[STEP_DQ:STEP_DQ + 3]
+    ext_scale = state[STATE_EXT_SCALE]
     innov = np.zeros(3)
     if state[STATE_HAVE_Q2] > 0.0:
         for i in range(3):
-            innov[i] = st.dq[i] - st.ext_scale * wrap(st.qp[i] - state[STATE_Q2 + i])
-    info_f[F_INNOV] = max(abs(innov[0]), max(abs(innov[1]), abs(innov[2])))
-    info_f[F_DQ] = st.dqn
+            innov[i] = dq[i] - ext_scale * wrap(qp[i] - state[STATE_Q2 + i])
+    worst = max(abs(innov[0]), max(abs(innov[1]), abs(innov[2])))
+    out_real[OUT_INFO + F_INNOV] = worst
+    out_real[OUT_INFO + F_DQ] = work[STEP_DQN]
     tol = params[PARAM_JOINT_TOL]
     forced = state[STATE_REFUSED] >= MAX_REFUSED
     gated = tol > 0.0 and params[PARAM_GATE] > 0.0 and state[STATE_HAVE_Q2] > 0.0 and not forced
-    noise = 2.0 * tol * (1.0 + st.ext_scale)
-    verdict = outlier_gate(innov, noise + params[PARAM_GATE] * state[STATE_A_SCALE], noise, st.Xp, st.qp, cfg.M,
-                           cfg.l1, cfg.l2sq, cfg.b) if gated else GATE_PASS
-    untrusted = forced or (gated and info_f[F_INNOV] > noise)
+    noise = 2.0 * tol * (1.0 + ext_scale)
+    verdict = GATE_PASS
+    if gated:
+        M, l1, l2sq, b = geometry(model_pack)
+        verdict = outlier_gate(innov, noise + params[PARAM_GATE] * state[STATE_A_SCALE], noise, Xp, qp, M, l1, l2sq,
+                               b)
+    untrusted = forced or (gated and worst > noise)
     if verdict == GATE_REFUSE:
-        res.X_pred[:] = st.Xp
-        hold(st, state, res, STATUS_REJECTED)
+        out_real[OUT_X_PRED:OUT_X_PRED + 3] = Xp
+        hold(state, out_real, out_int, STATUS_REJECTED)
         return True, untrusted
     return False, untrusted
 
 
-@njit(cache=True)
-def solve_phase(cfg, st, state, res):
-    """Solve phase: the DK solutions at ``st.q`` (``st.poses``, ``st.real``, numbered by the
-    rule) and procedure 2 at the previous pose (``st.near_prev``).  Writes I_N_REAL,
-    I_NEAR_BORDER, I_JUMP.  Returns (real solutions, labels seen near the previous pose, the
-    last of them)."""
-    dk_one(st.q, cfg.model_pack, cfg.sample_to_sextic, cfg.rule, st.poses, st.real)
-    near_mask_one(cfg.labels, cfg.origin, cfg.step, cfg.periodic, st.Xp, cfg.r2, cfg.w, cfg.stencil, st.near_prev)
+@njit(cache=True, inline="always")
+def solve_phase(q, rule, state, work, model_pack, sample_to_sextic, labels, map_pack, stencil, poses, real,
+                near_prev, out_int):
+    """Solve phase: the DK solutions at ``q`` into ``poses`` (6, 3) complex / ``real`` (6,), numbered
+    by the ordering ``rule``, and procedure 2 at the previous pose into ``near_prev`` (7,).
+    Writes I_N_REAL, I_NEAR_BORDER, I_JUMP.  Returns (real solutions, labels seen near the
+    previous pose, the last of them)."""
+    dk_one(q, model_pack, sample_to_sextic, rule, poses, real)
+    near_mask_one(labels, map_pack[MAP_ORIGIN:MAP_ORIGIN + 3], map_pack[MAP_STEP:MAP_STEP + 3],
+                  map_pack[MAP_PERIODIC] > 0.0, state[STATE_X:STATE_X + 3], map_pack[MAP_R2],
+                  map_pack[MAP_WEIGHTS:MAP_WEIGHTS + 3], stencil, near_prev)
     n_near = 0
     single = 0
     for lab in range(1, 7):
-        if st.near_prev[lab]:
+        if near_prev[lab]:
             n_near += 1
             single = lab
     n_real = 0
     for k in range(6):
-        if st.real[k]:
+        if real[k]:
             n_real += 1
-    res.info_i[I_NEAR_BORDER] = 1 if n_near > 1 else 0
-    res.info_i[I_N_REAL] = n_real
-    res.info_i[I_JUMP] = 1 if st.jump else 0
+    out_int[I_NEAR_BORDER] = 1 if n_near > 1 else 0
+    out_int[I_N_REAL] = n_real
+    out_int[I_JUMP] = 1 if work[STEP_JUMP] > 0.0 else 0
     return n_real, n_near, single
 
 
-@njit(cache=True)
-def margins(cfg, st, res, chosen):
+@njit(cache=True, inline="always")
+def margins(mode, chosen, poses, real, work, params, map_pack, out_real):
     """Choose phase, the margin: weighted distances (m) from the prediction to the chosen and to
     the nearest other real solution (F_D_BEST, F_D_SECOND).  Returns whether the choice is
     ambiguous for it (default mode: d_best > ambiguity_ratio d_second; or a jump)."""
-    w, X_pred = cfg.w, res.X_pred
+    w, X_pred = map_pack[MAP_WEIGHTS:MAP_WEIGHTS + 3], out_real[OUT_X_PRED:OUT_X_PRED + 3]
     Xr = np.empty(3)
     for i in range(3):
-        Xr[i] = st.poses[chosen, i].real
+        Xr[i] = poses[chosen, i].real
     d_best = wdist(Xr, X_pred, w)
     d_second = np.inf
     for k in range(6):
-        if st.real[k] and k != chosen:
+        if real[k] and k != chosen:
             for i in range(3):
-                Xr[i] = st.poses[k, i].real
+                Xr[i] = poses[k, i].real
             d_second = min(d_second, wdist(Xr, X_pred, w))
-    res.info_f[F_D_BEST] = d_best
-    res.info_f[F_D_SECOND] = d_second
-    return (cfg.mode != MODE_PAPER and d_best > cfg.params[PARAM_AMBIGUITY] * d_second) or st.jump
+    out_real[OUT_INFO + F_D_BEST] = d_best
+    out_real[OUT_INFO + F_D_SECOND] = d_second
+    return (mode != MODE_PAPER and d_best > params[PARAM_AMBIGUITY] * d_second) or work[STEP_JUMP] > 0.0
 
 
-@njit(cache=True)
-def speed_gate_phase(cfg, st, state, res, chosen, linked, untrusted):
+@njit(cache=True, inline="always")
+def speed_gate_phase(mode, chosen, linked, untrusted, state, work, poses, real, params, model_pack, out_real,
+                     out_int):
     """Speed gate phase (measured joints, a speed bound): a pose the platform cannot have reached
     since the last sample (the measured joints crossed a fold the robot did not) is not taken.
 
@@ -183,45 +218,46 @@ def speed_gate_phase(cfg, st, state, res, chosen, linked, untrusted):
     (its result written: one candidate, no certificate, not vouched for); or -1 when the pose
     is held (result written: status unreachable).
     """
-    params = cfg.params
     step_dt = state[STATE_STEP_DT]
     if not (params[PARAM_JOINT_TOL] > 0.0 and params[PARAM_SPEED] > 0.0 and math.isfinite(step_dt)) or linked:
         return chosen
-    taken = speed_gate(st.poses, st.real, chosen, st.Xp, params, step_dt)
-    if taken != chosen and cfg.mode != MODE_PAPER and not untrusted and st.ext_scale <= LINK_GAP and \
+    taken = speed_gate(poses, real, chosen, state[STATE_X:STATE_X + 3], params, step_dt)
+    if taken != chosen and mode != MODE_PAPER and not untrusted and state[STATE_EXT_SCALE] <= LINK_GAP and \
             state[STATE_N_CAND] == 1.0:
         Xr = np.empty(3)
         for i in range(3):
-            Xr[i] = st.poses[chosen, i].real
-        if comes_from(Xr, st.qu, st.dq, state[STATE_CANDS:STATE_CANDS + 18].reshape((6, 3)),
-                      int(state[STATE_N_CAND]), LINK_TESTS * int(params[PARAM_MAX_TESTS]), cfg.model_pack):
+            Xr[i] = poses[chosen, i].real
+        if comes_from(Xr, work[STEP_QU:STEP_QU + 3], work[STEP_DQ:STEP_DQ + 3],
+                      state[STATE_CANDS:STATE_CANDS + 18].reshape((6, 3)), int(state[STATE_N_CAND]),
+                      LINK_TESTS * int(params[PARAM_MAX_TESTS]), model_pack):
             taken = chosen
-    info_i = res.info_i
     if taken >= 0 and taken != chosen:
         for i in range(3):
-            res.cands[0, i] = st.poses[taken, i].real
-        info_i[I_N_CAND] = 1
-        info_i[I_CERTIFICATE] = CERT_NONE
-        info_i[I_CERTAIN] = 0
-        info_i[I_INTACT] = 0
+            out_real[OUT_CANDS + i] = poses[taken, i].real
+        out_int[I_N_CAND] = 1
+        out_int[I_CERTIFICATE] = CERT_NONE
+        out_int[I_CERTAIN] = 0
+        out_int[I_INTACT] = 0
     elif taken < 0:
-        hold(st, state, res, STATUS_UNREACHABLE)
-        info_i[I_CERTAIN] = 0
-        info_i[I_AMBIGUOUS] = 1
+        hold(state, out_real, out_int, STATUS_UNREACHABLE)
+        out_int[I_CERTAIN] = 0
+        out_int[I_AMBIGUOUS] = 1
     return taken
 
 
-@njit(cache=True)
-def publish(cfg, st, res, chosen, ambiguous):
-    """Publish phase: the pose of solution ``chosen`` (res.X), the Hadamard ratio of J there
+@njit(cache=True, inline="always")
+def publish(chosen, ambiguous, poses, work, params, model_pack, out_real, out_int):
+    """Publish phase: the pose of solution ``chosen`` (OUT_X), the Hadamard ratio of J there
     (F_COND), the label, the ambiguity and the status (singular below ``singular_tol``)."""
+    M, l1, l2sq, b = geometry(model_pack)
+    X = out_real[OUT_X:OUT_X + 3]
     for i in range(3):
-        res.X[i] = st.poses[chosen, i].real
+        X[i] = poses[chosen, i].real
     J = np.empty((3, 3))
     kd = np.empty(3)
-    jacobian(res.X, st.qu, cfg.M, cfg.l1, cfg.l2sq, cfg.b, J, kd)
+    jacobian(X, work[STEP_QU:STEP_QU + 3], M, l1, l2sq, b, J, kd)
     cond = hadamard(J)
-    res.info_f[F_COND] = cond
-    res.info_i[I_LABEL] = chosen + 1
-    res.info_i[I_AMBIGUOUS] = 1 if ambiguous else 0
-    res.info_i[I_STATUS] = STATUS_SINGULAR if cond < cfg.params[PARAM_SINGULAR] else STATUS_OK
+    out_real[OUT_INFO + F_COND] = cond
+    out_int[I_LABEL] = chosen + 1
+    out_int[I_AMBIGUOUS] = 1 if ambiguous else 0
+    out_int[I_STATUS] = STATUS_SINGULAR if cond < params[PARAM_SINGULAR] else STATUS_OK
