@@ -43,7 +43,8 @@ A certificate is about a joint path between samples: the straight segment
 between the previous and the current joints, or, where that segment meets a
 singularity, the parabola through the last three samples (time-scaled).  The
 tracker keeps a *candidate set*, the DK solutions the true branch can be, in
-its state, and narrows it with three certificates (:mod:`._kernels.certify`):
+its state, and narrows it with three certificates (:mod:`._kernels.candidates`;
+the chains of boxes: :mod:`._kernels.certify`):
 
 1. *continuation*: a chain of Krawczyk boxes along the path from the single
    candidate, each box proved to hold exactly one solution for every joint value
