@@ -43,7 +43,8 @@ A certificate is about a joint path between samples: the straight segment
 between the previous and the current joints, or, where that segment meets a
 singularity, the parabola through the last three samples (time-scaled).  The
 tracker keeps a *candidate set*, the DK solutions the true branch can be, in
-its state, and narrows it with three certificates (:mod:`._kernels.certify`):
+its state, and narrows it with three certificates (:mod:`._kernels.candidates`;
+the chains of boxes: :mod:`._kernels.certify`):
 
 1. *continuation*: a chain of Krawczyk boxes along the path from the single
    candidate, each box proved to hold exactly one solution for every joint value
@@ -99,7 +100,7 @@ and ``certain`` means a proof for every joint path within that tolerance:
   the measured joints crossed a fold that the robot did not.  If exactly one
   real solution is within that reach it is taken (not vouched for, the chain
   ends); otherwise the previous pose is held (status ``unreachable``), at most
-  ``MAX_HELD`` samples in a row (:mod:`solver.tracking`).  The gate leaves alone
+  ``MAX_HELD`` samples in a row (:data:`solver.tracker_state.MAX_HELD`).  The gate leaves alone
   a solution that a chain of Krawczyk boxes joins to a previous candidate along
   the measured joints (the segment between the samples crossed no fold: a
   choice, not a proof) or that was re-acquired: on an ill-conditioned path the

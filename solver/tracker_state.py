@@ -5,6 +5,11 @@ writes is a :class:`TrackerState`, replaced as a whole at every accepted step,
 so a rejected step leaves it untouched and a caller (an FMU rolling back a
 step) can keep a reference and restore it.  :meth:`TrackerState.as_array` is
 its serialised form (a fixed number of floats, :data:`STATE_FLOATS`).
+
+A state packs itself for the compiled step (:meth:`TrackerState.pack`, the state
+pack of :mod:`solver._kernels.layout`) and makes the next state from the step's
+result pack (:meth:`TrackerState.after`); :meth:`StepInfo.from_result` reads the
+same result pack.
 """
 from __future__ import annotations
 
@@ -14,6 +19,13 @@ from typing import NamedTuple
 import numpy as np
 
 from ._kernels import layout as _lay
+from ._kernels.certify import CERT_CONTINUATION, CERT_REACQUIRED
+from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, F_DQ, F_INNOV, I_AMBIGUOUS, I_CERTAIN, I_CERTIFICATE,
+                              I_INTACT, I_JUMP, I_LABEL, I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, MAX_REFUSED,
+                              OUT_CANDS, OUT_INFO, OUT_X, OUT_X_PRED, STATE_A_SCALE, STATE_ANCHOR, STATE_ANCHOR_AGE,
+                              STATE_CANDS, STATE_DQ_SCALE, STATE_EXT_SCALE, STATE_HAVE_Q2, STATE_HISTORY,
+                              STATE_INTACT, STATE_N_CAND, STATE_Q, STATE_Q2, STATE_REFUSED, STATE_STEP_DT,
+                              STATE_VERIFIED, STATE_X, STATE_X2, STATUS_REJECTED, STATUS_UNREACHABLE)
 
 __all__ = ["TrackerState", "StepInfo", "TrackResult", "TrackerError", "STATUS", "CERTIFICATES", "STATE_FLOATS"]
 
@@ -22,6 +34,11 @@ STATUS = _lay.STATUS
 
 #: Certificates by code (``StepInfo.certificate``), see :mod:`solver.tracker`.
 CERTIFICATES = {0: "none", 1: "continuation", 2: "elimination", 3: "posture", 4: "reacquired"}
+
+
+#: With measured joints and a speed bound: samples held in a row (a pose the platform cannot have
+#: reached) after which the next pose is taken whatever its distance (see "Sensors", :mod:`solver.tracker`).
+MAX_HELD = 10
 
 
 class TrackerError(ValueError):
@@ -116,6 +133,96 @@ class TrackerState:
     def certain(self) -> bool:
         """The tracker vouches for ``X`` (no step since the last certificate was uncertain)."""
         return self.uncertain_since < 0
+
+    def pack(self, pk: np.ndarray, dt: float | None, stuck_after: int = 0) -> None:
+        """Write the state pack (:mod:`solver._kernels.layout` ``STATE_*``) a step from this state reads.
+
+        Parameters
+        ----------
+        pk : ndarray, shape (STATE_SIZE,)
+            The pack, overwritten.
+        dt : float or None
+            Time since the previous sample (s), or None (uniformly spaced samples).
+        stuck_after : int
+            The tracker's stuck-joint detector (0: off): samples refused as a stuck joint's keep
+            the speed gate on.
+        """
+        gap = self.skipped + 1                               # samples since the last accepted one
+        pk[STATE_X:STATE_X + 3], pk[STATE_Q:STATE_Q + 3] = self.X, self.q
+        pk[STATE_X2:STATE_X2 + 3] = self.X if self.X2 is None else self.X2
+        pk[STATE_HISTORY], pk[STATE_DQ_SCALE] = self.history, self.dq_scale
+        pk[STATE_EXT_SCALE] = (dt / self.dt if dt is not None and np.isfinite(self.dt) else 1.0) * gap
+        # the speed gate (measured joints): not after the sensor broke its tolerance (a forced sample)
+        # nor after MAX_HELD samples held in a row (the robot moved on: follow the joints again)
+        # (samples refused as a stuck joint's are known not to be the robot's: the gate stays on)
+        stuck = stuck_after > 0 and self.clean is not None and int(self.repeats.max()) >= stuck_after - 1
+        gate_on = dt is not None and self.refused < MAX_REFUSED and (self.skipped < MAX_HELD or stuck)
+        pk[STATE_STEP_DT] = dt * gap if gate_on else float("nan")
+        if self.q2 is None:
+            pk[STATE_HAVE_Q2] = 0.0
+        else:
+            pk[STATE_Q2:STATE_Q2 + 3], pk[STATE_HAVE_Q2] = self.q2, 1.0
+        n = len(self.candidates)
+        if n == 0:                                           # right after a reset: the initial pose
+            pk[STATE_CANDS:STATE_CANDS + 3], pk[STATE_N_CAND] = self.X, 1.0
+        else:
+            pk[STATE_CANDS:STATE_CANDS + 3 * n], pk[STATE_N_CAND] = self.candidates.ravel(), n
+        pk[STATE_VERIFIED] = 1.0 if self.verified else 0.0
+        pk[STATE_INTACT] = 1.0 if self.intact else 0.0
+        pk[STATE_A_SCALE], pk[STATE_REFUSED] = self.a_scale, self.refused
+        if self.anchor is None:
+            pk[STATE_ANCHOR:STATE_ANCHOR + 3], pk[STATE_ANCHOR_AGE] = self.X, float("nan")
+        else:
+            pk[STATE_ANCHOR:STATE_ANCHOR + 3], pk[STATE_ANCHOR_AGE] = self.anchor, self._anchor_age(dt)
+
+    def _anchor_age(self, dt: float | None) -> float:
+        """Seconds from the last certain step to a sample ``dt`` after the last one read (NaN: unknown)."""
+        return self.anchor_age + dt * (self.skipped + 1) if dt is not None else float("nan")
+
+    def since(self, certain: bool) -> int:
+        """``uncertain_since`` of the next step, reported ``certain`` or not."""
+        return -1 if certain else (self.uncertain_since if self.uncertain_since >= 0 else self.steps + 1)
+
+    def after(self, q: np.ndarray, dt: float | None, out_real: np.ndarray, out_int: np.ndarray,
+              extra: dict) -> "TrackerState":
+        """The state after a step from this one to joints ``q`` (3,), read from its result pack.
+
+        A rejected sample moves only the counts of refusals and skipped samples, a held one
+        (unreachable) only the count of skipped samples; an accepted one makes a new state.
+
+        Parameters
+        ----------
+        q : ndarray, shape (3,)
+            The joints of the step (rad).
+        dt : float or None
+            Time since the previous sample (s), as given to :meth:`pack`.
+        out_real, out_int : ndarray
+            The step's result pack (:mod:`solver._kernels.layout` ``OUT_*``, ``F_*``, ``I_*``).
+        extra : dict
+            The stuck-joint detector's fields of the next state (:func:`solver.stuck.reading_fields`;
+            empty when the detector is off).
+        """
+        i = out_int.tolist()
+        status = i[I_STATUS]
+        if status == STATUS_REJECTED:                       # an outlier: only the counts of refusals move
+            return replace(self, refused=self.refused + 1, skipped=self.skipped + 1, **extra)
+        if status == STATUS_UNREACHABLE:                    # pose held: only the count of skipped samples
+            return replace(self, skipped=self.skipped + 1, **extra)
+        certain, n_cand = bool(i[I_CERTAIN]), i[I_N_CAND]
+        f = out_real[OUT_INFO:OUT_INFO + F_INNOV + 1].tolist()
+        dqn, innov = f[F_DQ], f[F_INNOV]
+        scale = dqn if self.steps == 0 else 0.8 * self.dq_scale + 0.2 * dqn
+        cands = out_real[OUT_CANDS:OUT_CANDS + 3 * n_cand].reshape(n_cand, 3).copy()
+        X = out_real[OUT_X:OUT_X + 3].copy()
+        # a sample taken after refusals (the joints jumped and stayed): the sensor broke its
+        # tolerance, so the last certain pose no longer bounds where the robot is
+        anchor = None if self.refused >= MAX_REFUSED else self.anchor
+        return TrackerState(X, q.copy(), self.X, scale, self.steps + 1,
+                            float("nan") if dt is None else float(dt) * (self.skipped + 1), self.q, cands,
+                            i[I_CERTIFICATE] in (CERT_CONTINUATION, CERT_REACQUIRED), self.since(certain),
+                            bool(i[I_INTACT]),
+                            innov if self.steps < 2 else max(innov, 0.8 * self.a_scale + 0.2 * innov), 0,
+                            X if certain else anchor, 0.0 if certain else self._anchor_age(dt), **extra)
 
     def as_array(self) -> np.ndarray:
         """The state as :data:`STATE_FLOATS` floats (see :data:`_SAVED_FIELDS`): what an FMU serialises."""
@@ -236,6 +343,14 @@ class StepInfo(NamedTuple):
     certificate: int = 0
     n_candidates: int = 0
     uncertain_since: int = -1
+
+    @classmethod
+    def from_result(cls, out_real: np.ndarray, out_int: np.ndarray, uncertain_since: int) -> "StepInfo":
+        """The step's information from its result pack (:mod:`solver._kernels.layout` ``OUT_*``, ``F_*``, ``I_*``)."""
+        i, f = out_int.tolist(), out_real[OUT_INFO:].tolist()      # Python numbers: quicker to read
+        return cls(i[I_LABEL], bool(i[I_NEAR_BORDER]), out_real[OUT_X_PRED:OUT_X_PRED + 3].copy(), i[I_N_REAL],
+                   f[F_COND], bool(i[I_AMBIGUOUS]), i[I_STATUS], bool(i[I_JUMP]), f[F_D_BEST], f[F_D_SECOND],
+                   bool(i[I_CERTAIN]), i[I_CERTIFICATE], i[I_N_CAND], uncertain_since)
 
     @property
     def status_name(self) -> str:

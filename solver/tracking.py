@@ -1,9 +1,10 @@
 """The tracking loop shared by the tracker and the baselines: reset, step, track.
 
-A tracker is constant; :meth:`_TrackerBase.step` packs its :class:`TrackerState`
-for the compiled step (``_kernel``), reads the outputs back and makes the next
-state (a rejected or held sample moves only its counts), with the stuck-joint
-detector's bookkeeping (:mod:`solver.stuck`).  The tracker's options and the
+A tracker is constant; :meth:`_TrackerBase.step` checks the inputs, lets its
+:class:`TrackerState` pack itself for the compiled step (``_kernel``), and makes
+the next state from the step's result pack (:meth:`TrackerState.after`: a rejected
+or held sample moves only its counts), with the stuck-joint detector's
+bookkeeping (:mod:`solver.stuck`).  The tracker's options and the
 meaning of ``certain``: :mod:`solver.tracker`.
 """
 from __future__ import annotations
@@ -13,24 +14,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from ._kernels.certify import CERT_CONTINUATION, CERT_REACQUIRED
-from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, F_DQ, F_INNOV, I_AMBIGUOUS, I_CERTAIN, I_CERTIFICATE,
-                              I_INTACT, I_JUMP, I_LABEL, I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, INFO_I_SIZE,
-                              MAX_REFUSED, OUT_CANDS, OUT_INFO, OUT_SIZE, OUT_X, OUT_X_PRED, STATE_A_SCALE,
-                              STATE_ANCHOR, STATE_ANCHOR_AGE, STATE_CANDS, STATE_DQ_SCALE, STATE_EXT_SCALE,
-                              STATE_HAVE_Q2, STATE_HISTORY, STATE_INTACT, STATE_N_CAND, STATE_Q, STATE_Q2,
-                              STATE_REFUSED, STATE_SIZE, STATE_STEP_DT, STATE_VERIFIED, STATE_X, STATE_X2,
-                              STATUS_REJECTED, STATUS_UNREACHABLE)
+from ._kernels.layout import I_CERTAIN, INFO_I_SIZE, OUT_SIZE, OUT_X, STATE_SIZE, STATUS_REJECTED
 from .checks import SolverInputError, as_array
 from .direct_kinematics import kernel_constants
 from .kinematics import wrap_angle
 from .manipulators import MANIPULATOR_TYPES
 from .stuck import reading_fields, repeat_counts, stuck_refusal
 from .tracker_state import STEP_FIELDS, StepInfo, TrackerError, TrackerState, TrackResult
-
-#: With measured joints and a speed bound: samples held in a row (a pose the platform cannot have
-#: reached) after which the next pose is taken whatever its distance (see "Sensors").
-MAX_HELD = 10
 
 
 def _check_q(q) -> np.ndarray:
@@ -121,74 +111,22 @@ class _TrackerBase:
             raise TrackerError(f"{self.name}: no state; call reset(X0, q0) first")
         if dt is not None and not (np.isfinite(dt) and dt > 0):
             raise SolverInputError(f"dt: expected a positive time step in s, got {dt!r}")
+        extra = {}
         if self.stuck_after:
             repeats = repeat_counts(st, q)
             held = stuck_refusal(st, q, repeats, self.stuck_after)
             if held is not None:                             # a stuck joint: back to the clean state, refused
                 self.state = held
-                since = held.uncertain_since if held.uncertain_since >= 0 else held.steps + 1
                 return held.X.copy(), StepInfo(0, False, held.X.copy(), 0, 0.0, False, STATUS_REJECTED, False,
-                                               0.0, 0.0, False, 0, max(len(held.candidates), 1), since)
+                                               0.0, 0.0, False, 0, max(len(held.candidates), 1), held.since(False))
             extra = reading_fields(st, q, repeats)
-        else:
-            extra = {}
-        pk = self._state_pack
-        pk[STATE_X:STATE_X + 3], pk[STATE_Q:STATE_Q + 3] = st.X, st.q
-        pk[STATE_X2:STATE_X2 + 3] = st.X if st.X2 is None else st.X2
-        pk[STATE_HISTORY], pk[STATE_DQ_SCALE] = st.history, st.dq_scale
-        pk[STATE_EXT_SCALE] = (dt / st.dt if dt is not None and np.isfinite(st.dt) else 1.0) * (st.skipped + 1)
-        # the speed gate (measured joints): not after the sensor broke its tolerance (a forced sample)
-        # nor after MAX_HELD samples held in a row (the robot moved on: follow the joints again)
-        # (samples refused as a stuck joint's are known not to be the robot's: the gate stays on)
-        stuck = self.stuck_after > 0 and st.clean is not None and int(st.repeats.max()) >= self.stuck_after - 1
-        gate_on = dt is not None and st.refused < MAX_REFUSED and (st.skipped < MAX_HELD or stuck)
-        pk[STATE_STEP_DT] = dt * (st.skipped + 1) if gate_on else float("nan")
-        if st.q2 is None:
-            pk[STATE_HAVE_Q2] = 0.0
-        else:
-            pk[STATE_Q2:STATE_Q2 + 3], pk[STATE_HAVE_Q2] = st.q2, 1.0
-        n = len(st.candidates)
-        if n == 0:                                           # right after a reset: the initial pose
-            pk[STATE_CANDS:STATE_CANDS + 3], pk[STATE_N_CAND] = st.X, 1.0
-        else:
-            pk[STATE_CANDS:STATE_CANDS + 3 * n], pk[STATE_N_CAND] = st.candidates.ravel(), n
-        pk[STATE_VERIFIED] = 1.0 if st.verified else 0.0
-        pk[STATE_INTACT] = 1.0 if st.intact else 0.0
-        pk[STATE_A_SCALE], pk[STATE_REFUSED] = st.a_scale, st.refused
-        age = st.anchor_age + dt * (st.skipped + 1) if dt is not None else float("nan")
-        if st.anchor is None:
-            pk[STATE_ANCHOR:STATE_ANCHOR + 3], pk[STATE_ANCHOR_AGE] = st.X, float("nan")
-        else:
-            pk[STATE_ANCHOR:STATE_ANCHOR + 3], pk[STATE_ANCHOR_AGE] = st.anchor, age
-        self._kernel(q, pk)
-        ii, of = self._out_int, self._out_real
-        status = int(ii[I_STATUS])
-        X = of[OUT_X:OUT_X + 3].copy()
-        fi = of[OUT_INFO:]
-        certain, n_cand = bool(ii[I_CERTAIN]), int(ii[I_N_CAND])
-        since = -1 if certain else (st.uncertain_since if st.uncertain_since >= 0 else st.steps + 1)
-        info = StepInfo(int(ii[I_LABEL]), bool(ii[I_NEAR_BORDER]), of[OUT_X_PRED:OUT_X_PRED + 3].copy(),
-                        int(ii[I_N_REAL]), float(fi[F_COND]), bool(ii[I_AMBIGUOUS]), status,
-                        bool(ii[I_JUMP]), float(fi[F_D_BEST]), float(fi[F_D_SECOND]), certain,
-                        int(ii[I_CERTIFICATE]), n_cand, since)
-        if status == STATUS_REJECTED:                       # an outlier: only the counts of refusals move
-            self.state = replace(st, refused=st.refused + 1, skipped=st.skipped + 1, **extra)
-        elif status == STATUS_UNREACHABLE:                  # pose held: only the count of skipped samples
-            self.state = replace(st, skipped=st.skipped + 1, **extra)
-        else:
-            dqn, innov = float(fi[F_DQ]), float(fi[F_INNOV])
-            scale = dqn if st.steps == 0 else 0.8 * st.dq_scale + 0.2 * dqn
-            cands = of[OUT_CANDS:OUT_CANDS + 3 * n_cand].reshape(n_cand, 3).copy()
-            cert = int(ii[I_CERTIFICATE])
-            # a sample taken after refusals (the joints jumped and stayed): the sensor broke its
-            # tolerance, so the last certain pose no longer bounds where the robot is
-            anchor = None if st.refused >= MAX_REFUSED else st.anchor
-            self.state = TrackerState(X, q.copy(), st.X, scale, st.steps + 1,
-                                      float("nan") if dt is None else float(dt) * (st.skipped + 1), st.q, cands,
-                                      cert in (CERT_CONTINUATION, CERT_REACQUIRED), since, bool(ii[I_INTACT]),
-                                      innov if st.steps < 2 else max(innov, 0.8 * st.a_scale + 0.2 * innov), 0,
-                                      X if certain else anchor, 0.0 if certain else age, **extra)
-        return X, info
+        st.pack(self._state_pack, dt, self.stuck_after)
+        self._kernel(q, self._state_pack)
+        of, oi = self._out_real, self._out_int
+        info = StepInfo.from_result(of, oi, st.since(bool(oi[I_CERTAIN])))
+        self.state = new = st.after(q, dt, of, oi, extra)
+        # an accepted step's pose is the new state's (one copy), a refused or held one a copy of the old
+        return (new.X if new.steps > st.steps else of[OUT_X:OUT_X + 3].copy()), info
 
     def track(self, q_stream, X0) -> TrackResult:
         """Track a whole joint stream.

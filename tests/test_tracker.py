@@ -262,3 +262,38 @@ def test_time_steps_scale_the_extrapolation(model, maps):
         else:
             Xk, _ = c.step(q[k], dt=0.01)
         assert errors(Xk[None], X[k][None])[0] < 1e-9
+
+
+def test_state_packs_itself_and_reads_the_result_pack(model, maps):
+    """TrackerState.pack writes the fields the step reads at their offsets; TrackerState.after makes the
+    next state from the result pack (an accepted step a new state, a refused one only the counts)."""
+    from solver._kernels import layout as lay
+
+    X = circle_path(200)
+    q = ik(model, X, 1)
+    tr = Tracker(model, maps[1])
+    tr.reset(X[0], q[0])
+    for k in range(1, 6):
+        tr.step(q[k], 1e-3 * k)
+    st = tr.state
+    pk = np.full(lay.STATE_SIZE, -1.0)
+    st.pack(pk, 2e-3)
+    np.testing.assert_array_equal(pk[lay.STATE_X:lay.STATE_X + 3], st.X)
+    np.testing.assert_array_equal(pk[lay.STATE_Q:lay.STATE_Q + 3], st.q)
+    np.testing.assert_array_equal(pk[lay.STATE_X2:lay.STATE_X2 + 3], st.X2)
+    np.testing.assert_array_equal(pk[lay.STATE_Q2:lay.STATE_Q2 + 3], st.q2)
+    n = len(st.candidates)
+    assert pk[lay.STATE_N_CAND] == n >= 1 and pk[lay.STATE_HAVE_Q2] == 1.0 and pk[lay.STATE_HISTORY] == 2
+    np.testing.assert_array_equal(pk[lay.STATE_CANDS:lay.STATE_CANDS + 3 * n], st.candidates.ravel())
+    assert pk[lay.STATE_EXT_SCALE] == pytest.approx(2e-3 / 5e-3)      # this time step over the last one
+    assert pk[lay.STATE_DQ_SCALE] == st.dq_scale > 0
+    out_real, out_int = tr._out_real.copy(), tr._out_int.copy()       # the result pack of the last step
+    out_int[lay.I_STATUS] = lay.STATUS_REJECTED
+    refused = st.after(q[6], 2e-3, out_real, out_int, {})
+    assert refused.X is st.X and (refused.refused, refused.skipped, refused.steps) == (1, 1, st.steps)
+    out_int[lay.I_STATUS] = lay.STATUS_OK
+    out_real[lay.OUT_X:lay.OUT_X + 3] = X[6]
+    taken = st.after(q[6], 2e-3, out_real, out_int, {})
+    np.testing.assert_array_equal(taken.X, X[6])
+    assert taken.X2 is st.X and taken.q2 is st.q and taken.steps == st.steps + 1 and taken.dt == 2e-3
+    assert len(taken.candidates) == out_int[lay.I_N_CAND]

@@ -48,9 +48,7 @@ def baseline_step(kind, rule, q, state, model_pack, sample_to_sextic, baseline_p
     """One step of a baseline (``kind``, a BASELINE_* code): Newton from the previous pose, Newton
     from the eq. 22 predictor, CLDK (feed-forward + damped closed-loop correction), or the
     nearest real solution.  Arguments and outputs as :func:`.tracker.tracker_step`."""
-    M, l1, l2sq, b = geometry(model_pack)
     Xp, qp = state[STATE_X:STATE_X + 3], state[STATE_Q:STATE_Q + 3]
-    w, tol = baseline_params[BASELINE_WEIGHTS:BASELINE_WEIGHTS + 3], baseline_params[BASELINE_TOL]
     X_out, X_pred = out_real[OUT_X:OUT_X + 3], out_real[OUT_X_PRED:OUT_X_PRED + 3]
     info_f, info_i = out_real[OUT_INFO:OUT_INFO + INFO_F_SIZE], out_int
     for i in range(INFO_I_SIZE):
@@ -61,23 +59,10 @@ def baseline_step(kind, rule, q, state, model_pack, sample_to_sextic, baseline_p
     info_f[F_DQ] = joint_step(q, qp, dq)
     info_i[I_N_REAL] = -1
     if kind == BASELINE_NEAREST:
-        poses = np.empty((6, 3), dtype=np.complex128)
-        real = np.empty(6, dtype=np.bool_)
-        dk_one(q, model_pack, sample_to_sextic, rule, poses, real)
-        X_pred[:] = Xp
-        info_i[I_N_REAL] = np.count_nonzero(real)
-        nothing = np.zeros(7, dtype=np.bool_)
-        kbest, _ = nearest(poses, real, Xp, w, nothing, nothing, nothing, False)
-        if kbest < 0:
-            X_out[:] = Xp
-            info_i[I_STATUS] = STATUS_UNREACHABLE
-            return
-        for i in range(3):
-            X_out[i] = poses[kbest, i].real
-        info_i[I_LABEL] = kbest + 1
-        info_f[F_D_BEST] = wdist(X_out, Xp, w)
-        info_i[I_STATUS] = STATUS_OK
+        nearest_step(q, Xp, rule, model_pack, sample_to_sextic, baseline_params, X_out, X_pred, info_f, info_i)
         return
+    M, l1, l2sq, b = geometry(model_pack)
+    tol = baseline_params[BASELINE_TOL]
     if kind == BASELINE_NEWTON or kind == BASELINE_NEWTON_SEPARATION:
         X_pred[:] = Xp
     else:
@@ -92,21 +77,51 @@ def baseline_step(kind, rule, q, state, model_pack, sample_to_sextic, baseline_p
     info_f[F_COND] = had
     info_i[I_STATUS] = STATUS_OK if res <= tol * 10.0 else STATUS_DIVERGED
     if kind == BASELINE_NEWTON_SEPARATION and info_i[I_STATUS] == STATUS_OK:
-        # a separation flag: certain when every other real DK solution is far (relative to the step)
-        poses = np.empty((6, 3), dtype=np.complex128)
-        real = np.empty(6, dtype=np.bool_)
-        dk_one(q, model_pack, sample_to_sextic, rule, poses, real)
-        info_i[I_N_REAL] = np.count_nonzero(real)
-        d_step = wdist(X_out, Xp, w)
-        d_other = np.inf
-        Xr = np.empty(3)
-        for k in range(6):
-            if real[k]:
-                for i in range(3):
-                    Xr[i] = poses[k, i].real
-                d = wdist(Xr, X_out, w)
-                if d > 1e-9:                            # not the solution Newton found
-                    d_other = min(d_other, d)
-        info_f[F_D_BEST] = d_step
-        info_f[F_D_SECOND] = d_other
-        info_i[I_CERTAIN] = 1 if d_other > baseline_params[BASELINE_SEPARATION] * d_step else 0
+        separation_flag(q, Xp, rule, model_pack, sample_to_sextic, baseline_params, X_out, info_f, info_i)
+
+
+@njit(cache=True)
+def nearest_step(q, Xp, rule, model_pack, sample_to_sextic, baseline_params, X_out, X_pred, info_f, info_i):
+    """The nearest baseline: all DK solutions at ``q`` (3,), the real one nearest (eq. 19) the
+    previous pose ``Xp`` (3,); the previous pose held (unreachable) when none is real."""
+    w = baseline_params[BASELINE_WEIGHTS:BASELINE_WEIGHTS + 3]
+    poses = np.empty((6, 3), dtype=np.complex128)
+    real = np.empty(6, dtype=np.bool_)
+    dk_one(q, model_pack, sample_to_sextic, rule, poses, real)
+    X_pred[:] = Xp
+    info_i[I_N_REAL] = np.count_nonzero(real)
+    nothing = np.zeros(7, dtype=np.bool_)
+    kbest, _ = nearest(poses, real, Xp, w, nothing, nothing, nothing, False)
+    if kbest < 0:
+        X_out[:] = Xp
+        info_i[I_STATUS] = STATUS_UNREACHABLE
+        return
+    for i in range(3):
+        X_out[i] = poses[kbest, i].real
+    info_i[I_LABEL] = kbest + 1
+    info_f[F_D_BEST] = wdist(X_out, Xp, w)
+    info_i[I_STATUS] = STATUS_OK
+
+
+@njit(cache=True)
+def separation_flag(q, Xp, rule, model_pack, sample_to_sextic, baseline_params, X_out, info_f, info_i):
+    """The separation flag of Newton's answer ``X_out`` (3,): certain when every other real DK solution
+    at ``q`` is more than BASELINE_SEPARATION times farther from it than the step from ``Xp``."""
+    w = baseline_params[BASELINE_WEIGHTS:BASELINE_WEIGHTS + 3]
+    poses = np.empty((6, 3), dtype=np.complex128)
+    real = np.empty(6, dtype=np.bool_)
+    dk_one(q, model_pack, sample_to_sextic, rule, poses, real)
+    info_i[I_N_REAL] = np.count_nonzero(real)
+    d_step = wdist(X_out, Xp, w)
+    d_other = np.inf
+    Xr = np.empty(3)
+    for k in range(6):
+        if real[k]:
+            for i in range(3):
+                Xr[i] = poses[k, i].real
+            d = wdist(Xr, X_out, w)
+            if d > 1e-9:                            # not the solution Newton found
+                d_other = min(d_other, d)
+    info_f[F_D_BEST] = d_step
+    info_f[F_D_SECOND] = d_other
+    info_i[I_CERTAIN] = 1 if d_other > baseline_params[BASELINE_SEPARATION] * d_step else 0

@@ -9,17 +9,13 @@ within ``eps`` of the segment (an inner piece at least ``2 eps`` long, so that
 only neighbouring pieces meet), and a piece one box cannot cover is split in
 parts (:func:`split_tube`).
 
-:func:`certify` turns chains into the tracker's candidate set: the DK solutions
-that the true branch can be.  One candidate: a forward chain from it names its
-continuation (with measured joints, first along the tube: the proof that keeps
-the chain of certificates intact).  Otherwise each real solution of the new
-joints is followed backwards; one that provably comes from a non-candidate is
-dropped.  Finally, if several remain and the tracker knows its posture, those of
-another posture are dropped.  The answer is vouched for when one candidate remains.
+:func:`.candidates.certify` turns chains into the tracker's candidate set (the
+DK solutions that the true branch can be); the certificate codes are here.
 """
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
@@ -36,6 +32,11 @@ INFLATE = 3
 RHO_CAP = 0.05
 #: Two poses are the same solution when they differ by less than this (m, m, rad).
 MATCH = 1e-7
+
+#: The boxes of one chain's links (:func:`follow_branch`): the tiny half-widths ``tiny`` (3,), a zero
+#: tube ``none`` (3,), the joint tube ``tube`` (3,) rad, and a box's centre ``c`` and half-widths ``rho``
+#: (3,) (m, m, rad), allocated once per chain.
+LinkBoxes = namedtuple("LinkBoxes", ("tiny", "none", "tube", "c", "rho"))
 
 #: Certificates (the tracker's ``certificate`` output).
 CERT_NONE, CERT_CONTINUATION, CERT_ELIMINATION, CERT_POSTURE, CERT_REACQUIRED = 0, 1, 2, 3, 4
@@ -146,9 +147,7 @@ def follow_branch(X0, verified, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, out)
     Returns ``-tests`` when the chain could not be closed within ``max_tests``.
     """
     w = np.empty(W_SIZE)
-    tiny = np.full(3, TINY)
-    none = np.zeros(3)
-    tube = np.full(3, eps)
+    bx = LinkBoxes(np.full(3, TINY), np.zeros(3), np.full(3, eps), np.empty(3), np.empty(3))
     x = X0.copy()
     tests = 0
     dq_max = 0.0
@@ -156,48 +155,24 @@ def follow_branch(X0, verified, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, out)
         dq_max = max(dq_max, abs(d1[i]))
     if not verified:
         tests = 1
-        if not krawczyk(x, tiny, q0, d1, d2, 0.0, 0.0, none, M, l1, b, l2sq, w):
+        if not krawczyk(x, bx.tiny, q0, d1, d2, 0.0, 0.0, bx.none, M, l1, b, l2sq, w):
             return -1
     s, h = 0.0, 1.0
-    xb, c, rho = np.empty(3), np.empty(3), np.empty(3)
+    xb = np.empty(3)
     while s < 1.0:
         if tests >= max_tests:
             return -tests
         sb = min(1.0, s + h)
         if eps > 0.0 and s > 0.0 and sb < 1.0 and (sb - s) * dq_max <= 2.0 * eps * (1.0 + 1e-9):
             return -max(tests, 1)                     # an inner piece shorter than the tube's width
-        # predictor: Euler along dX/ds = -J^-1 g, then Newton at q(sb)
-        point_terms(x[0], x[1], x[2], q0, d1, d2, s, M, l1, b, l2sq, w)
-        if not inverse3(w, W_J, W_Y):
+        got = predict_piece(x, q0, d1, d2, s, sb, M, l1, b, l2sq, w, xb)
+        if got < 0:
             return -max(tests, 1)
-        for r in range(3):
-            xb[r] = x[r] - (sb - s) * (w[W_Y + 3 * r] * w[W_G] + w[W_Y + 3 * r + 1] * w[W_G + 1]
-                                       + w[W_Y + 3 * r + 2] * w[W_G + 2])
-        ok = newton_on_path(xb, q0, d1, d2, sb, M, l1, b, l2sq, w, 6) < 1e-12
         tests += 1
+        ok = got == 1
         if ok:
-            dmax = 0.0
-            for i in range(3):
-                dmax = max(dmax, abs(xb[i] - x[i]))
-            for i in range(3):
-                c[i] = 0.5 * (x[i] + xb[i])
-                rho[i] = 0.5 * abs(xb[i] - x[i]) + 0.25 * dmax + 2.0 * TINY
-            ok = False
-            for _ in range(INFLATE):                  # epsilon-inflation towards the Krawczyk image
-                tests += 1
-                if (eps == 0.0 or max(rho[0], max(rho[1], rho[2])) <= RHO_CAP) and \
-                        krawczyk(c, rho, q0, d1, d2, s, sb, tube, M, l1, b, l2sq, w):
-                    ok = True
-                    break
-                if not inflate(rho, w):
-                    break
-            if ok:
-                tests += 1
-                ok = krawczyk(xb, tiny, q0, d1, d2, sb, sb, none, M, l1, b, l2sq, w)
-            if not ok and eps > 0.0 and krawczyk(xb, tiny, q0, d1, d2, sb, sb, none, M, l1, b, l2sq, w):
-                used = split_tube(x, xb, q0, d1, s, sb, eps, M, l1, b, l2sq, w)
-                tests += abs(used)
-                ok = used > 0
+            ok, used = prove_piece(x, xb, q0, d1, d2, s, sb, eps, M, l1, b, l2sq, w, bx)
+            tests += used
         if ok:
             s = sb
             x[:] = xb
@@ -206,6 +181,54 @@ def follow_branch(X0, verified, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, out)
             h *= 0.5
     out[:] = x
     return tests
+
+
+@njit(cache=True, inline="always")
+def predict_piece(x, q0, d1, d2, s, sb, M, l1, b, l2sq, w, xb):
+    """The solution at ``q(sb)`` continued from ``x`` (3,) at ``q(s)``, into ``xb`` (3,): an Euler
+    step along ``dX/ds = -J^-1 g``, then Newton at ``q(sb)``.  Returns 1 when Newton converged,
+    0 when not, -1 when J is singular at ``x``."""
+    point_terms(x[0], x[1], x[2], q0, d1, d2, s, M, l1, b, l2sq, w)
+    if not inverse3(w, W_J, W_Y):
+        return -1
+    for r in range(3):
+        xb[r] = x[r] - (sb - s) * (w[W_Y + 3 * r] * w[W_G] + w[W_Y + 3 * r + 1] * w[W_G + 1]
+                                   + w[W_Y + 3 * r + 2] * w[W_G + 2])
+    return 1 if newton_on_path(xb, q0, d1, d2, sb, M, l1, b, l2sq, w, 6) < 1e-12 else 0
+
+
+@njit(cache=True, inline="always")
+def prove_piece(x, xb, q0, d1, d2, s, sb, eps, M, l1, b, l2sq, w, bx):
+    """The chain's link over ``s`` in [s, sb]: one Krawczyk box (grown by epsilon-inflation)
+    holding the branch from ``x`` to ``xb`` (3,) over the path (the tube within ``eps`` of it),
+    then the tiny box at ``xb``; with measured joints, where one box fails, the tube in parts
+    (:func:`split_tube`).  ``bx``: the chain's :data:`LinkBoxes`.  Returns (proved, Krawczyk
+    tests used)."""
+    tiny, none, tube, c, rho = bx.tiny, bx.none, bx.tube, bx.c, bx.rho
+    tests = 0
+    dmax = 0.0
+    for i in range(3):
+        dmax = max(dmax, abs(xb[i] - x[i]))
+    for i in range(3):
+        c[i] = 0.5 * (x[i] + xb[i])
+        rho[i] = 0.5 * abs(xb[i] - x[i]) + 0.25 * dmax + 2.0 * TINY
+    ok = False
+    for _ in range(INFLATE):                  # epsilon-inflation towards the Krawczyk image
+        tests += 1
+        if (eps == 0.0 or max(rho[0], max(rho[1], rho[2])) <= RHO_CAP) and \
+                krawczyk(c, rho, q0, d1, d2, s, sb, tube, M, l1, b, l2sq, w):
+            ok = True
+            break
+        if not inflate(rho, w):
+            break
+    if ok:
+        tests += 1
+        ok = krawczyk(xb, tiny, q0, d1, d2, sb, sb, none, M, l1, b, l2sq, w)
+    if not ok and eps > 0.0 and krawczyk(xb, tiny, q0, d1, d2, sb, sb, none, M, l1, b, l2sq, w):
+        used = split_tube(x, xb, q0, d1, s, sb, eps, M, l1, b, l2sq, w)
+        tests += abs(used)
+        ok = used > 0
+    return ok, tests
 
 
 @njit(cache=True)
@@ -256,106 +279,3 @@ def elbow_bits(X, q, M, l1, b):
         if ex * ay - ey * ax < 0.0:
             bits |= 1 << i
     return bits
-
-
-@njit(cache=True)
-def certify(cands, n_cand, verified, intact, qp, dq, d2_par, have_par, eps, poses, real, posture_bits, max_tests,
-            model_pack, new_cands, keep):
-    """The candidate set after one step (see the module docstring).
-
-    cands (6, 3): the candidates at ``qp`` (``n_cand`` of them; ``verified``: the
-    single one is the end of a chain).  dq (3,): the wrapped joint step;
-    d2_par (3,): the parabola's quadratic term (used when ``have_par``).
-    poses (6, 3) complex / real (6,): the DK solutions at ``qp + dq``.
-    posture_bits: the tracker's posture - 1, or -1 for no posture certificate.
-    Writes the new candidates to ``new_cands`` (6, 3) (verified chain ends when
-    one remains by continuation) and, in ``keep`` (6,), which solutions they are.
-    Returns (number of candidates, certificate code, chain intact, linked): ``linked``
-    when the one candidate left is joined to a previous candidate by a chain of boxes
-    along the measured joints (forwards, or backwards in elimination), so that the
-    segment between the samples crossed no fold on its way.
-    """
-    M, l1, l2sq, b = geometry(model_pack)
-    zero = np.zeros(3)
-    d1_par = np.empty(3)
-    qu = np.empty(3)
-    for i in range(3):
-        d1_par[i] = dq[i] - d2_par[i]
-        qu[i] = qp[i] + dq[i]
-    end = np.empty(3)
-    Xr = np.empty(3)
-    n_paths = 2 if have_par else 1
-    for k in range(6):
-        keep[k] = False
-    if n_cand == 1:
-        # with measured joints (eps > 0), first the tube: the proof that keeps the chain intact
-        first = 0 if eps > 0.0 and intact else 1
-        for p in range(first, n_paths + 1):
-            d1 = dq if p <= 1 else d1_par
-            d2 = zero if p <= 1 else d2_par
-            if follow_branch(cands[0], verified, qp, d1, d2, eps if p == 0 else 0.0, M, l1, b, l2sq, max_tests,
-                             end) > 0:
-                hit = -1
-                for k in range(6):
-                    if real[k]:
-                        for i in range(3):
-                            Xr[i] = poses[k, i].real
-                        if same_pose(Xr, end):
-                            hit = k if hit < 0 else 6          # 6: two solutions match (cannot tell)
-                if 0 <= hit < 6:
-                    keep[hit] = True
-                    new_cands[0, :] = end
-                    return 1, CERT_CONTINUATION, eps == 0.0 or p == 0, True
-    # elimination: follow every real solution back; drop those that come from a non-candidate
-    n_new = 0
-    linked = np.zeros(6, dtype=np.bool_)      # followed back to a candidate
-    for k in range(6):
-        if not real[k]:
-            continue
-        for i in range(3):
-            Xr[i] = poses[k, i].real
-        kept = True
-        followed = False
-        for p in range(n_paths):
-            # the same path backwards (the segment, then the parabola)
-            came = follow_back(Xr, qu, dq if p == 0 else d1_par, zero if p == 0 else d2_par, cands, n_cand,
-                               max_tests, M, l1, b, l2sq)
-            if came >= 0:
-                kept = followed = came == 1
-                break
-        if kept:
-            linked[k] = followed
-            keep[k] = True
-            new_cands[n_new, :] = Xr
-            n_new += 1
-    code = CERT_ELIMINATION
-    if n_new > 1 and posture_bits >= 0:
-        in_posture = np.zeros(6, dtype=np.bool_)      # kept candidates in the tracker's posture
-        n_post = 0
-        for k in range(6):
-            if keep[k]:
-                for i in range(3):
-                    Xr[i] = poses[k, i].real
-                in_posture[k] = elbow_bits(Xr, qu, M, l1, b) == posture_bits
-                n_post += in_posture[k]
-        if n_post >= 1:
-            n_new = 0
-            for k in range(6):
-                keep[k] = in_posture[k]
-                if keep[k]:
-                    for i in range(3):
-                        new_cands[n_new, i] = poses[k, i].real
-                    n_new += 1
-            code = CERT_POSTURE
-    if n_new == 0:                                  # nothing consistent (cannot happen in exact arithmetic)
-        for k in range(6):
-            if real[k]:
-                keep[k] = True
-                for i in range(3):
-                    new_cands[n_new, i] = poses[k, i].real
-                n_new += 1
-    sole_linked = False
-    if n_new == 1:
-        for k in range(6):
-            sole_linked = sole_linked or (keep[k] and linked[k])
-    return n_new, code if n_new == 1 else CERT_NONE, eps == 0.0, sole_linked

@@ -128,16 +128,7 @@ def krawczyk(m, rho, q0, d1, d2, s_lo, s_hi, eps, M, l1, b, l2sq, w):
     slo, shi = isin(m[2] - rho[2], m[2] + rho[2])
     cm, sm = math.cos(m[2]), math.sin(m[2])
     for i in range(3):
-        # q_i and dq_i/ds over [s_lo, s_hi]
-        qa, qb = _path(q0, d1, d2, i, s_lo), _path(q0, d1, d2, i, s_hi)
-        qlo, qhi = min(qa, qb), max(qa, qb)
-        if d2[i] != 0.0:
-            sv = -d1[i] / (2.0 * d2[i])
-            if s_lo < sv < s_hi:
-                qx = _path(q0, d1, d2, i, sv)
-                qlo, qhi = min(qlo, qx), max(qhi, qx)
-        va, vb = d1[i] + 2.0 * s_lo * d2[i], d1[i] + 2.0 * s_hi * d2[i]
-        vlo, vhi = min(va, vb) - PAD, max(va, vb) + PAD
+        qlo, qhi, vlo, vhi = _joint_range(q0, d1, d2, i, s_lo, s_hi)
         cqlo, cqhi = icos(qlo - eps[i] - PAD, qhi + eps[i] + PAD)
         sqlo, sqhi = isin(qlo - eps[i] - PAD, qhi + eps[i] + PAD)
         bx, by = b[i, 0], b[i, 1]
@@ -170,6 +161,29 @@ def krawczyk(m, rho, q0, d1, d2, s_lo, s_hi, eps, M, l1, b, l2sq, w):
             fqlo, fqhi = fqlo - 2.0 * (qhi + eps[i]) - PAD, fqhi - 2.0 * (qlo - eps[i]) + PAD
         w[W_GLO + i], w[W_GHI + i] = _mul(fqlo, fqhi, vlo, vhi)
         w[W_FQ + i] = max(abs(fqlo), abs(fqhi)) * eps[i]
+    return _image_inside(w, rho, hs)
+
+
+@njit(cache=True, inline="always")
+def _joint_range(q0, d1, d2, i, s_lo, s_hi):
+    """Joint ``i``'s range (qlo, qhi) over s in [s_lo, s_hi] and that of its speed dq_i/ds (vlo, vhi,
+    padded)."""
+    qa, qb = _path(q0, d1, d2, i, s_lo), _path(q0, d1, d2, i, s_hi)
+    qlo, qhi = min(qa, qb), max(qa, qb)
+    if d2[i] != 0.0:
+        sv = -d1[i] / (2.0 * d2[i])
+        if s_lo < sv < s_hi:
+            qx = _path(q0, d1, d2, i, sv)
+            qlo, qhi = min(qlo, qx), max(qhi, qx)
+    va, vb = d1[i] + 2.0 * s_lo * d2[i], d1[i] + 2.0 * s_hi * d2[i]
+    return qlo, qhi, min(va, vb) - PAD, max(va, vb) + PAD
+
+
+@njit(cache=True, inline="always")
+def _image_inside(w, rho, hs):
+    """The half-widths of the Krawczyk image about the centre into ``w[W_TOT:W_TOT + 3]`` from the
+    terms :func:`krawczyk` left in ``w`` (the interval of s has half-width ``hs``); True when
+    they are inside ``rho`` (3,)."""
     ok = True
     for r in range(3):
         yf = 0.0

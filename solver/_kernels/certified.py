@@ -1,0 +1,119 @@
+"""The certify phase of a tracker step (:mod:`.tracker`), compiled: the certificates
+(:func:`.candidates.certify`), re-acquisition (:func:`.exclusion.reacquire`), and what they change
+in the choice.
+
+The phase reads the state pack (the candidates, whether the chain is verified and intact),
+the step pack (the joint step; :mod:`.tracker_packs`) and the DK solutions, and writes the
+new candidates (OUT_CANDS) and the I_CERTAIN, I_CERTIFICATE, I_N_CAND, I_INTACT fields of the
+result pack.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .candidates import certify
+from .certify import CERT_NONE, CERT_REACQUIRED
+from .choice import nearest
+from .exclusion import reacquire
+from .gates import reacquire_region
+from .layout import (I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, MAP_WEIGHTS, MODE_PAPER, OUT_CANDS, OUT_X_PRED,
+                     PARAM_JOINT_TOL, PARAM_MAX_TESTS, PARAM_POSTURE_BITS, PARAM_REACQUIRE, STATE_CANDS,
+                     STATE_EXT_SCALE, STATE_HAVE_Q2, STATE_INTACT, STATE_N_CAND, STATE_Q, STATE_Q2, STATE_VERIFIED)
+from .linalg import wrap
+from .tracker_packs import STEP_DQ, STEP_QU
+
+
+@njit(cache=True, inline="always")
+def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, model_pack, map_pack, out_real,
+                  out_int):
+    """The certificates of a step and what they change in the choice.
+
+    Updates the candidate set (OUT_CANDS) and writes I_CERTAIN, I_CERTIFICATE, I_N_CAND and
+    I_INTACT.  In default mode a choice the certificates rule out is replaced: by the one
+    candidate left, or by the candidate nearest the prediction.  Paper mode keeps its answer
+    and is certain only when it is the one candidate left.  Without a certificate over the
+    joint tolerance, measured joints re-acquire the branch from this sample alone.  An
+    ``untrusted`` sample (its joints may be a glitch) is not re-acquired from, vouched for
+    nothing and ends the chain.  Returns the (possibly new) chosen solution index, and whether
+    a chain of boxes along the measured joints joins it to a previous candidate or it was
+    re-acquired (the speed gate then leaves it alone).
+    """
+    new_cands = out_real[OUT_CANDS:OUT_CANDS + 18].reshape((6, 3))
+    keep = np.empty(6, dtype=np.bool_)
+    n_new, cert, intact, linked = chains(state, work, poses, real, params, model_pack, new_cands, keep)
+    if not (cert != CERT_NONE and intact) and params[PARAM_JOINT_TOL] > 0.0 and params[PARAM_REACQUIRE] > 0.0 \
+            and int(params[PARAM_POSTURE_BITS]) >= 0 and not untrusted:
+        if reacquired(chosen, cert != CERT_NONE, state, work, poses, params, model_pack, new_cands, keep):
+            n_new, cert, intact, linked = 1, CERT_REACQUIRED, True, True
+    certain = False
+    if cert != CERT_NONE:        # the choice follows the certificates; vouched only with the chain intact
+        sole = 0
+        for k in range(6):
+            if keep[k]:
+                sole = k
+        if mode != MODE_PAPER:
+            chosen = sole
+        certain = chosen == sole and intact
+        linked = linked and chosen == sole
+    elif mode != MODE_PAPER and not keep[chosen]:
+        mask = np.zeros(7, dtype=np.bool_)
+        for k in range(6):
+            mask[k + 1] = keep[k]
+        chosen, _ = nearest(poses, real, out_real[OUT_X_PRED:OUT_X_PRED + 3], map_pack[MAP_WEIGHTS:MAP_WEIGHTS + 3],
+                            mask, mask, mask, True)
+    if untrusted:
+        certain, intact, linked = False, False, False
+    out_int[I_CERTAIN] = 1 if certain else 0
+    out_int[I_CERTIFICATE] = cert
+    out_int[I_N_CAND] = n_new
+    out_int[I_INTACT] = 1 if intact else 0
+    return chosen, linked
+
+
+@njit(cache=True, inline="always")
+def chains(state, work, poses, real, params, model_pack, new_cands, keep):
+    """:func:`.candidates.certify` on the previous candidates (state pack) over the joint step and,
+    with three samples, the parabola through them (time-scaled).  Writes ``new_cands`` (6, 3) and
+    ``keep`` (6,); returns (candidates, certificate code, chain intact since the reset, linked)."""
+    qp, dq = state[STATE_Q:STATE_Q + 3], work[STEP_DQ:STEP_DQ + 3]
+    d2 = np.zeros(3)
+    have_par = state[STATE_HAVE_Q2] > 0.0
+    if have_par:
+        # the parabola through q2 (at s = -r), qp (s = 0) and q (s = 1), r = previous / this time step
+        r = 1.0 / state[STATE_EXT_SCALE]
+        for i in range(3):
+            d2[i] = (wrap(state[STATE_Q2 + i] - qp[i]) + r * dq[i]) / (r * (1.0 + r))
+    intact_before = state[STATE_INTACT] > 0.0
+    n_new, cert, intact, linked = certify(state[STATE_CANDS:STATE_CANDS + 18].reshape((6, 3)),
+                                          int(state[STATE_N_CAND]), state[STATE_VERIFIED] > 0.0, intact_before, qp,
+                                          dq, d2, have_par, params[PARAM_JOINT_TOL], poses, real,
+                                          int(params[PARAM_POSTURE_BITS]), int(params[PARAM_MAX_TESTS]), model_pack,
+                                          new_cands, keep)
+    return n_new, cert, intact and intact_before, linked
+
+
+@njit(cache=True, inline="always")
+def reacquired(chosen, certified, state, work, poses, params, model_pack, new_cands, keep):
+    """Re-acquire the branch from this sample alone (measured joints, :mod:`.exclusion`): the
+    solution the certificates kept (``certified``) or else ``chosen``, over the region the robot
+    can be in (:func:`.gates.reacquire_region`).  On success ``keep`` (6,) marks it alone and
+    ``new_cands[0]`` holds it; returns whether it succeeded."""
+    region = np.empty(6)
+    reacquire_region(params, state, region)
+    target = chosen
+    if certified:                                  # the branch along the measured joints
+        for k in range(6):
+            if keep[k]:
+                target = k
+    Xc = np.empty(3)
+    for i in range(3):
+        Xc[i] = poses[target, i].real
+    if region[0] <= region[1] and region[2] <= region[3] and \
+            reacquire(Xc, work[STEP_QU:STEP_QU + 3], params[PARAM_JOINT_TOL], int(params[PARAM_POSTURE_BITS]),
+                      region, int(params[PARAM_REACQUIRE]), model_pack):
+        for k in range(6):
+            keep[k] = k == target
+        new_cands[0, :] = Xc
+        return True
+    return False
