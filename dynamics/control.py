@@ -33,7 +33,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from solver import Manipulator, SolverInputError, as_array, wrap_angle
+from solver import Manipulator, SolverInputError, as_array, cache_dir, wrap_angle
 from solver.checks import check_instance
 
 from ._checks import broadcast, check_pair, is_single
@@ -121,7 +121,7 @@ class ComputedTorqueGains:
         -----
         Importing python-control takes ~0.8 s (it imports scipy.signal and matplotlib), more than
         a whole closed-loop run: the placed gains are kept, per python-control and numpy version,
-        in memory and in ``<cache>/rrr-dk/designed-gains.json`` (:func:`_designed_gains`), and a
+        in memory and in ``designed-gains.json`` of the cache root (:func:`_designed_gains`), and a
         process imports python-control only for a design it has never seen.
         """
         cls.requested_poles(bandwidth, damping)                  # checks the arguments
@@ -157,10 +157,9 @@ class ComputedTorqueGains:
 
 
 def gains_cache_file() -> Path:
-    """The file of designed gains: ``$XDG_CACHE_HOME/rrr-dk/designed-gains.json`` (default
-    ``~/.cache``)."""
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "rrr-dk" / "designed-gains.json"
+    """The file of designed gains: ``designed-gains.json`` under the project's one cache root
+    (:func:`solver.cache_dir`: ``$RRR_DK_CACHE``, else ``$XDG_CACHE_HOME/rrr-dk``, else ``~/.cache/rrr-dk``)."""
+    return cache_dir() / "designed-gains.json"
 
 
 def _gains_key(bandwidth, damping) -> str:
