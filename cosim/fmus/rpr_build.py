@@ -24,7 +24,7 @@ import numpy as np
 
 from experiments.rpr_suite import cusp_loop_path
 from solver import DEFAULT_RULE, MapTensor
-from solver.mapcache import labelling_digest
+from solver.mapcache import default_cache_dir, labelling_digest
 from solver.rpr import RPR_WORK_BOUNDS, RPRManipulator
 
 from .builds import BuildResult, _stage_documentation, project_packages
@@ -52,13 +52,14 @@ RPR_INTS = ("region", "n_real", "ambiguous", "status", "certain")
 
 def rpr_map(model: RPRManipulator, resolution=RPR_RESOLUTION, rule: str = DEFAULT_RULE, cache_dir=None,
             log=print) -> Path:
-    """The 3-RPR's map over :data:`RPR_WORK_BOUNDS` at ``resolution`` (m, rad), from or into the cache."""
+    """The 3-RPR's map over :data:`RPR_WORK_BOUNDS` at ``resolution`` (m, rad), from or into the map cache
+    ``cache_dir`` (None: the project's, ``solver.cache_dir("maps")``)."""
     b = np.array(RPR_WORK_BOUNDS)
     step = float(resolution[0])
     shape = (int(round((b[0, 1] - b[0, 0]) / step)) + 1, int(round((b[1, 1] - b[1, 0]) / step)) + 1,
              int(round(2 * np.pi / float(resolution[1]))))
     key = hashlib.sha256(json.dumps([model.digest(), list(shape), rule, labelling_digest()]).encode()).hexdigest()[:12]
-    path = Path(cache_dir) / f"rpr-posture1-{key}.npz"
+    path = (default_cache_dir() if cache_dir is None else Path(cache_dir)) / f"rpr-posture1-{key}.npz"
     if path.is_file():
         try:
             MapTensor.load(path, model=model, posture=1)
@@ -78,7 +79,6 @@ def build_rpr_dk(out_dir="build", resolution=RPR_RESOLUTION, rule: str = DEFAULT
     t0 = time.perf_counter()
     model = RPRManipulator.zein_wenger_chablat()
     out_dir = Path(out_dir)
-    cache_dir = None if cache_dir is None else Path(cache_dir)
     map_file = rpr_map(model, resolution, rule, cache_dir, log)
     map_seconds = time.perf_counter() - t0
     with tempfile.TemporaryDirectory(prefix="build_fmu_") as tmp:

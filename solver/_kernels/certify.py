@@ -21,7 +21,8 @@ import numpy as np
 from numba import njit
 
 from .kinematics import geometry
-from .krawczyk import PAD, W_G, W_J, W_SIZE, W_TOT, W_Y, inverse3, krawczyk, newton_on_path, point_terms
+from .krawczyk import PAD, W_G, W_J, W_SIZE, W_TOT, W_Y, krawczyk, newton_on_path, point_terms
+from .linalg import inverse3_flat as inverse3
 from .linalg import wrap
 
 #: Half-width of the tiny verified boxes that link a chain (m, m, rad).

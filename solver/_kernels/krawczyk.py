@@ -27,6 +27,7 @@ import numpy as np
 from numba import njit
 
 from .kinematics import radius_sq, radius_sq_dq
+from .linalg import inverse3_flat as inverse3
 
 #: Absolute pad of every interval end and point evaluation.
 PAD = 1e-14
@@ -91,23 +92,6 @@ def point_terms(x, y, phi, q0, d1, d2, s, M, l1, b, l2sq, w):
         w[W_J + 3 * i + 1] = 2.0 * ly
         w[W_J + 3 * i + 2] = 2.0 * (ly * rbx - lx * rby)
         w[W_G + i] = (2.0 * l1[i] * (lx * sq - ly * cq) - radius_sq_dq(l2sq[i], qi)) * (d1[i] + 2.0 * s * d2[i])
-
-
-@njit(cache=True)
-def inverse3(w, src, dst):
-    """w[dst:dst+9] = inverse of the 3x3 matrix w[src:src+9] (row-major); False if singular."""
-    a, b_, c = w[src], w[src + 1], w[src + 2]
-    d, e, f = w[src + 3], w[src + 4], w[src + 5]
-    g, h, k = w[src + 6], w[src + 7], w[src + 8]
-    A, B, C = e * k - f * h, f * g - d * k, d * h - e * g
-    det = a * A + b_ * B + c * C
-    if det == 0.0 or not math.isfinite(det):
-        return False
-    r = 1.0 / det
-    w[dst], w[dst + 1], w[dst + 2] = A * r, (c * h - b_ * k) * r, (b_ * f - c * e) * r
-    w[dst + 3], w[dst + 4], w[dst + 5] = B * r, (a * k - c * g) * r, (c * d - a * f) * r
-    w[dst + 6], w[dst + 7], w[dst + 8] = C * r, (b_ * g - a * h) * r, (a * e - b_ * d) * r
-    return True
 
 
 @njit(cache=True)

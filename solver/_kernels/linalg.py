@@ -78,3 +78,21 @@ def inverse3(A, out):
             if not math.isfinite(out[i, j]):
                 return False
     return True
+
+
+@njit(cache=True)
+def inverse3_flat(w, src, dst):
+    """``w[dst:dst+9]`` = the inverse of the 3x3 matrix ``w[src:src+9]`` (row-major, in a flat workspace:
+    the interval kernels' layout), the same adjugate as :func:`inverse3`; False if singular."""
+    a, b_, c = w[src], w[src + 1], w[src + 2]
+    d, e, f = w[src + 3], w[src + 4], w[src + 5]
+    g, h, k = w[src + 6], w[src + 7], w[src + 8]
+    A, B, C = e * k - f * h, f * g - d * k, d * h - e * g
+    det = a * A + b_ * B + c * C
+    if det == 0.0 or not math.isfinite(det):
+        return False
+    r = 1.0 / det
+    w[dst], w[dst + 1], w[dst + 2] = A * r, (c * h - b_ * k) * r, (b_ * f - c * e) * r
+    w[dst + 3], w[dst + 4], w[dst + 5] = B * r, (a * k - c * g) * r, (c * d - a * f) * r
+    w[dst + 6], w[dst + 7], w[dst + 8] = C * r, (b_ * g - a * h) * r, (a * e - b_ * d) * r
+    return True
