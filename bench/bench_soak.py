@@ -14,7 +14,7 @@ RSS after 10,000 steps and at the end, and the largest |DK pose - true pose| (x,
 Part 2, instances.  ``--cycles`` times: free and instantiate again (``FMUUnit.reset``, what the
 master does between runs) each of the three FMUs and run 10 steps; RSS before and after.  Then,
 separately, ``--fmi2-reset`` calls of fmi2Reset on one DK instance, each followed by a legal run
-(default 0; the README's known issues: three or more in a process have aborted it at exit).
+(default 0; docs/reliability.md, known issues: three or more in a process have aborted it at exit).
 
 The process exits through :func:`cosim.unit.exit_process` (os._exit once FMUs were loaded).
 """

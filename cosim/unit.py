@@ -91,7 +91,7 @@ def exit_process(code: int = 0):
     libgfortran's ``close_units``, loaded by numpy/scipy), so the corruption happened earlier.
     ``tests/test_exit.py`` reproduces it with a plain fmpy script: it needs an FMU that was
     initialized in the process, its rate depends on the FMU and on timing, and importing
-    ``solver`` and ``dynamics`` before the FMUs lowers it without removing it (README, known
+    ``solver`` and ``dynamics`` before the FMUs lowers it without removing it (docs/reliability.md, known
     issues: the counts).  Everything is written by then, but the exit status would say 134.
 
     If :func:`fmus_loaded`: remove the extracted folders, flush stdout and stderr, and

@@ -6,7 +6,8 @@ the kinematics the dynamics needs (:mod:`.geometry`), the model terms in task an
 the reference circle (:mod:`.trajectory`), computed-torque control (:mod:`.control`), the FMU
 slaves' per-step entry points (:mod:`.steppers`) and the one exception of a refused evaluation
 (:mod:`.errors`); the compiled kernels are private (:mod:`._kernels`).  It may import numpy,
-scipy, numba, python-control and :mod:`solver`'s public top-level names -- never fmpy,
+scipy, numba, python-control and :mod:`solver` (its public names; the kernels also call the
+solver's kinematics core, :mod:`solver._kernels`, and its data cache) -- never fmpy,
 pythonfmu, dask, :mod:`fmu_src` or :mod:`cosim` (the host side, where the co-simulation master
 and the batch runner live).
 

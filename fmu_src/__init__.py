@@ -14,7 +14,7 @@ the FMU's content), ``requirements`` (the packages the FMU needs from its host, 
 instantiation), ``dk_variables`` (the rows both DK FMUs share).
 
 Import direction: the slaves and the runtime import only the runtime, :mod:`solver` and the math of
-:mod:`dynamics` (its public top-level names).  Building and running FMUs from outside is the host
+:mod:`dynamics`.  Building and running FMUs from outside is the host
 package :mod:`cosim`, which imports this one and never the other way round.  This ``__init__``
 stays import-free: it is bundled into the FMUs, where fmpy and libcosimpy need not exist.
 """

@@ -6,8 +6,8 @@ direct-kinematics solutions, the Jacobians J and K, singularity measures), proce
 it must beat.  It may import numpy, scipy and numba (and tqdm, only when a progress bar
 is drawn): never fmpy, pythonfmu, dask, :mod:`dynamics` or :mod:`fmu_src`.  The
 experiments (suites, sensor streams, figures, reference oracles) live apart in the
-top-level package ``experiments``, which imports this one; only the command line
-(``python -m solver``) reaches into it, for its ``figures`` and ``plot`` subcommands.
+top-level package ``experiments``, which imports this one and never the other way round
+(the paper's figures: ``python -m experiments figures``).
 Compiled kernels live in the private :mod:`solver._kernels`; other packages use the
 names below.
 

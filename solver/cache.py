@@ -1,10 +1,12 @@
-"""The root of every disk cache of the project: one folder, one rule.
+"""The root of the project's disk caches: one folder, one rule (numba's own cache of the in-process
+kernels stays in ``__pycache__`` beside the sources).
 
 :func:`cache_dir` answers where cached files go: ``$RRR_DK_CACHE`` if set, else
 ``$XDG_CACHE_HOME/rrr-dk``, else ``~/.cache/rrr-dk`` (on every platform), with one
 subfolder per kind of file.  The map cache (:mod:`solver.mapcache`) keeps its maps in
-``cache_dir("maps")``; other caches of the project are meant to use other subfolders
-(compiled FMU kernels, built FMUs).  Nothing is created until a cache writes.
+``cache_dir("maps")``; the FMUs' compiled kernels ``fmu-kernels/`` (:mod:`fmu_src.kernel_cache`),
+a batch's FMU copies on a node ``fmus/`` (:mod:`cosim.batch.fmu_files`) and the designed gains
+``designed-gains.json`` (:mod:`dynamics.control`).  Nothing is created until a cache writes.
 """
 from __future__ import annotations
 

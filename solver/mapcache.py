@@ -46,9 +46,10 @@ NODES_PER_SECOND = 100_000
 #: measured with an empty numba cache on 2 cores shared with other jobs: 26 s and 38 s.
 COMPILE_SECONDS = 40
 #: The solver sources that decide a map's labels (geometry, IK, DK and its numbering, procedure 1).
-LABELLING_SOURCES = ("checks.py", "manipulator.py", "kinematics.py", "direct_kinematics.py", "ordering.py",
-                     "grid.py", "maptensor.py", "_kernels/layout.py", "_kernels/linalg.py",
-                     "_kernels/kinematics.py", "_kernels/direct_kinematics.py", "_kernels/ordering.py")
+LABELLING_SOURCES = ("checks.py", "manipulator.py", "manipulators.py", "rpr.py", "angles.py", "kinematics.py",
+                     "direct_kinematics.py", "ordering.py", "grid.py", "maptensor.py", "_kernels/layout.py",
+                     "_kernels/linalg.py", "_kernels/kinematics.py", "_kernels/direct_kinematics.py",
+                     "_kernels/ordering.py", "_kernels/maptensor.py")
 
 
 def default_cache_dir() -> Path:

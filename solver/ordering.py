@@ -2,7 +2,7 @@
 
 A label border of the map tensor appears wherever the number of the true solution changes,
 whether or not it is a basic-region border, so the rule that numbers the solutions decides
-how many borders there are (README: the rule table).  The rules are compiled in
+how many borders there are (docs/maptensor.md: the rule table).  The rules are compiled in
 :mod:`solver._kernels.ordering`; :func:`solver.dk_all` numbers its output with them and
 :func:`solver.order_solutions` renumbers given solution sets.
 """
@@ -27,7 +27,7 @@ ORDERING_RULES = {
                "complex alike (the paper's 'arrange all imaginary and real solutions in an "
                "arbitrary order (e.g. increasing)')",
 }
-#: The rule used when none is given (chosen by the border-volume measurement, README).
+#: The rule used when none is given (chosen by the border-volume measurement, docs/maptensor.md).
 DEFAULT_RULE = "aspect"
 #: The kernels' code of each rule.
 RULE_CODES = {"real-phi": layout.RULE_REAL_PHI, "literal": layout.RULE_LITERAL, "real-x": layout.RULE_REAL_X,

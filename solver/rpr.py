@@ -7,8 +7,8 @@ joint of length ``rho_i`` (m, > 0).  Pose ``X = (x, y, phi)`` in m, m, rad, phi 
 ``K = dF/drho = diag(-2 rho_i)``; ``det J = 0`` are the DK (parallel, "type-2") singularities;
 names as for the 3-RRR in docs/CONVENTIONS.md.  Functions take a batch ``(...)`` first.
 
-The model and its basic kinematics are here; :mod:`solver.rpr_scan` holds an independent reference
-direct kinematics (a dense scan in phi, no polynomial) and :mod:`solver.rpr_cusps` the cusps of the
+The model and its basic kinematics are here; the experiments' :mod:`experiments.rpr_scan` holds an independent reference
+direct kinematics (a dense scan in phi, no polynomial) and :mod:`experiments.rpr_cusps` the cusps of the
 singular curve in a slice ``rho1 = const`` and the loops around them along which the continuously
 followed pose changes assembly mode without meeting ``det J = 0``.  The six DK solutions come from
 the same sextic kernel as the 3-RRR's (:func:`solver.dk_all`, :mod:`solver.manipulators`).
@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .angles import wrap_angle as _wrap  # noqa: F401  (the one wrap, under the name solver.rpr_scan imports)
+from .angles import wrap_angle as _wrap  # noqa: F401  (the one wrap, under the name experiments.rpr_scan imports)
 from .checks import GeometryError, SolverInputError, as_array, check_instance
 from .manipulator import GeometryIdentity, _frozen, _triangle_area
 
@@ -29,7 +29,7 @@ __all__ = ["RPRManipulator", "ZEIN_RHO1", "RPR_HOME_POSE", "RPR_WORK_BOUNDS", "i
 #: Leg 1 length (m) of the joint-space slice of Zein, Wenger & Chablat (14.98 units / 10, recalled).
 ZEIN_RHO1 = 1.498
 #: A pose of the cuspidal geometry (m, m, rad): the start of the loop around cusp 1 of that slice
-#: (:func:`solver.rpr_suite.cusp_loop_path`), the start values of the 3-RPR DK FMU.
+#: (:func:`experiments.rpr_suite.cusp_loop_path`), the start values of the 3-RPR DK FMU.
 RPR_HOME_POSE = (-1.4918043755112846, -0.1361018192581785, 0.07873145427675467)
 #: The region of the tool space (x, y in m; phi) where the suite and the cusp loops of that slice run:
 #: what the 3-RPR's map tensors cover (its joint limits allow far more).

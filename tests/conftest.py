@@ -68,7 +68,7 @@ def pose_distance(a, b):
 
 
 # A process that ran pythonfmu 0.7 FMUs may abort at exit, in the C runtime's finalizers, on a heap
-# corrupted earlier (tests/test_exit.py reproduces it with a plain fmpy script; README, known issues).
+# corrupted earlier (tests/test_exit.py reproduces it with a plain fmpy script; docs/reliability.md, known issues).
 # The session's outcome is known and printed by then: a session that loaded FMUs ends with that
 # status through cosim.unit.exit_process (no finalizers); one that loaded none exits normally.
 _SESSION = {}

@@ -2,8 +2,8 @@
 stays a landing page (at most 300 lines, with the docs index), its DK FMU interface table is the one
 generated from the slave's variable table.
 
-The blocks of one markdown file run in order in one namespace, in a temporary working directory (so a
-map cache or an output file lands there); a block whose first line is ``# not run`` is skipped.  A
+The blocks of one markdown file run in order in one namespace, in a temporary working directory (so an
+output file lands there; maps go to the project's map cache, as for a user); a block whose first line is ``# not run`` is skipped.  A
 failing block is reported with its file and line: the block is compiled with the markdown file as its
 file name and its own line numbers, so the traceback points into the markdown.
 """

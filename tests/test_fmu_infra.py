@@ -485,3 +485,25 @@ def test_ssp_system_runs_in_libcosim(fmu, tmp_path):
     assert list(result["b.steps"]) == [1, 2, 3, 4, 5]
     np.testing.assert_allclose(result["a.force"], 0.0)   # torque starts at 0
     np.testing.assert_allclose(result["b.angle"], 0.0)
+
+
+def test_an_fmu_is_stale_when_any_module_it_bundles_changes(tmp_path):
+    """``build_fmus`` rebuilds an FMU older than any module it carries (of fmu_src, solver or dynamics)
+    or than the build code, and keeps a newer one."""
+    import os
+
+    from cosim.fmus.builds import is_stale, project_packages
+    from cosim.fmus.packaging import bundled_files
+    from cosim.fmus.sources import SLAVE_DIR, slave_script
+
+    fmu = tmp_path / "RRRPlant.fmu"
+    assert is_stale("RRRPlant", fmu)                                     # missing
+    fmu.write_bytes(b"")
+    packages = {SLAVE_DIR.name: SLAVE_DIR, **{p.name: p for p in project_packages()}}
+    sources = list(bundled_files(slave_script("RRRPlant"), packages).values())
+    newest = max(p.stat().st_mtime for p in sources)
+    os.utime(fmu, (newest + 1e6, newest + 1e6))
+    assert not is_stale("RRRPlant", fmu)
+    kernel = next(p for p in sources if p.parent.name == "_kernels" and p.parent.parent.name == "dynamics")
+    os.utime(fmu, (kernel.stat().st_mtime - 1, kernel.stat().st_mtime - 1))
+    assert is_stale("RRRPlant", fmu)                                     # a dynamics kernel is newer

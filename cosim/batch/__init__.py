@@ -3,8 +3,7 @@
 Sweeps over the fields of :class:`cosim.Scenario` (trajectory, gains, communication step,
 plant parameter errors, tracker mode, master algorithm, ...); every run is one
 :meth:`cosim.ClosedLoop.run` of the three FMUs through fmpy.  The operational manual (the
-command line, the config file, the table, a multi-node dask cluster) is the README's section
-"Batch runs on dask".
+command line, the config file, the table, a multi-node dask cluster) is docs/batch.md.
 
 Modules, one concept each: ``sweep`` (parsing values and sweeps, the config file; the field types
 come from the Scenario dataclass), ``fmu_files`` (the FMU files' identity and their copies on a

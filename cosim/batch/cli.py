@@ -4,7 +4,7 @@ Sweeps over the fields of :class:`cosim.Scenario`; every run is one
 :meth:`cosim.ClosedLoop.run` of the three FMUs through fmpy.  Results land in one table
 (``batch.csv``, ``batch.parquet``), with ``batch_meta.json`` (FMU hashes, cluster, timing) and a
 summary plot ``batch_summary.png``.  The command line, the config file, the table and running on a
-multi-node dask cluster are described in the README's section "Batch runs on dask".
+multi-node dask cluster are described in docs/batch.md.
 """
 from __future__ import annotations
 

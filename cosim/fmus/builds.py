@@ -210,15 +210,18 @@ def build_slave(name: str, out_dir="build", check: bool = True) -> Path:
 
 # ---------------------------------------------------------------------- all three, as needed
 def is_stale(name: str, fmu: Path) -> bool:
-    """Whether ``fmu`` is missing or older than its slave script, the ``fmu_src`` runtime it bundles or
-    the sources of its native binary (:mod:`cosim.fmus.native`, the loader's C source, the packaging)."""
+    """Whether ``fmu`` is missing or older than any source it is made of: its slave script, every module
+    it bundles (of ``fmu_src``, ``solver`` and ``dynamics``), its readme, or the build code (the loader's
+    C source, :mod:`cosim.fmus.native`, ``packaging``, ``model_description``, this module)."""
     if not fmu.exists():
         return True
     script = slave_script(name)
-    runtime = bundled_files(script, {SLAVE_DIR.name: SLAVE_DIR}).values()
+    packages = {SLAVE_DIR.name: SLAVE_DIR, **{p.name: p for p in project_packages()}}
+    bundled = bundled_files(script, packages).values()
     here = Path(__file__).resolve().parent
-    native_sources = (LOADER_SOURCE, here / "native.py", here / "packaging.py")
-    return fmu.stat().st_mtime < max(p.stat().st_mtime for p in (script, *runtime, *native_sources))
+    build_code = (LOADER_SOURCE, slave_readme(name), *(here / f for f in ("native.py", "packaging.py",
+                                                                          "model_description.py", "builds.py")))
+    return fmu.stat().st_mtime < max(p.stat().st_mtime for p in (script, *bundled, *build_code))
 
 
 #: What a first build of each FMU does, and about how long it takes (2 cores, an empty map and kernel

@@ -21,7 +21,7 @@ from pathlib import Path
 from fmu_src.variables import Var, check_table
 
 from .builds import FMU_NAMES
-from .sources import slave_readme
+from .sources import SLAVE_DIR, slave_readme
 
 __all__ = ["HEADER", "slave_class", "interface_rows", "interface_table", "replace_table", "update_file", "main",
            "InterfaceTableError"]
@@ -119,8 +119,8 @@ def _targets(readme: Path) -> list[tuple[Path, list[str]]]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m cosim.fmus.interface_table", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--readme", default="README.md", metavar="FILE",
-                    help="the project README whose marked tables are rewritten (default: README.md here)")
+    ap.add_argument("--readme", default=str(SLAVE_DIR.parent / "README.md"), metavar="FILE",
+                    help="the project README whose marked tables are rewritten (default: the project's)")
     ap.add_argument("--check", action="store_true", help="write nothing; exit 1 if a table is out of date")
     ap.add_argument("--print", dest="show", metavar="NAME", choices=NAMES,
                     help="print the table of this FMU and exit")
@@ -128,6 +128,9 @@ def main(argv=None) -> int:
     if args.show:
         print(interface_table(slave_class(args.show)))
         return 0
+    if not Path(args.readme).is_file():
+        print(f"error: --readme {args.readme}: no such file", file=sys.stderr)
+        return 2
     stale = []
     for path, names in _targets(Path(args.readme)):
         if update_file(path, names, check=args.check):

@@ -81,7 +81,7 @@ CONTROLLER_OUT_SIZE = 9
 CONTROLLER_PHASE_REFERENCE, CONTROLLER_PHASE_MEASURED = 0, 1
 
 # ----------------------------------------------------------------------------- work arrays
-#: one configuration's work arrays (:func:`dynamics._kernels.rows.workspace`), in one buffer:
+#: one configuration's work arrays (:func:`dynamics._kernels.base.workspace`), in one buffer:
 #: per-leg table (9, 3), J_q, J_x, V (21, 3), beta (21,), M_X, M, forces (6, 3), V J_x (21, 3),
 #: a 3x3 scratch (a transposed matrix) and two 3-vectors
 WS_LEG, WS_JQ, WS_JX, WS_V, WS_BETA, WS_MX, WS_M = 0, 27, 36, 45, 108, 129, 138

@@ -1,4 +1,5 @@
-"""The compiled (numba) kernels of :mod:`solver`: private, called only by the package's modules.
+"""The compiled (numba) kernels of :mod:`solver`: private, called by the package's modules and, for the
+kinematics core (:mod:`.kinematics`, :mod:`.linalg`), by the dynamics kernels.
 
 Every kernel works on scalars and small arrays; arguments that travel together are packed
 into flat float arrays whose fields are read through the named offsets of :mod:`.layout`
@@ -15,10 +16,17 @@ into flat float arrays whose fields are read through the named offsets of :mod:`
 - :mod:`.ordering`: the numbering rules of the six solutions;
 - :mod:`.maptensor`: procedure 2 (labels near a pose) and the nearest node's label;
 - :mod:`.krawczyk`, :mod:`.certify`: Krawczyk's test, and chains and tubes of its boxes;
+- :mod:`.candidates`: the candidate set of a step (elimination of the other solutions, continuation);
 - :mod:`.exclusion`: re-acquiring the branch from one sample (a branch and bound);
 - :mod:`.gates`: the outlier and speed gates for measured joints;
 - :mod:`.choice`: the predictor along the joint step and the nearest solution to a prediction;
-- :mod:`.tracker`, :mod:`.baselines`: one step of procedure 3 and of each baseline.
+- :mod:`.tracker_packs`: the named packs of a tracker step (the step's scratch and its result);
+- :mod:`.certified`: the certify phase of a step;
+- :mod:`.tracker`, :mod:`.baselines`: one step of procedure 3, as phases (gate, solve, predict,
+  choose, certify, speed gate, publish), and one step of each baseline.
 
-All kernels are compiled on first use and cached by numba next to their source.
+All kernels are compiled on first use and cached by numba next to their source (``__pycache__``).
+numba checks only the defining file's time stamp: after editing a module whose kernels others
+inline (this core, the packs' offsets), delete ``solver/_kernels/__pycache__`` and
+``dynamics/_kernels/__pycache__``.
 """
