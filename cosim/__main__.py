@@ -1,7 +1,7 @@
 """``python -m cosim``: build the FMUs (if needed), run the closed loop, write results/.
 
-The first run builds the three FMUs (about 3 minutes on 2 cores: the DK's map tensor, then each
-FMU) and compiles their kernels; it says so, phase by phase, on stderr.  Later runs reuse both and
+The first run builds the three FMUs (the DK's map tensor, then each FMU) and compiles their kernels,
+1 to 3 minutes on 2 cores; it says so, phase by phase, on stderr.  Later runs reuse both and
 take a few seconds.
 
 Runs the default scenario (the robot starts at rest on the circle and follows it for 2.5 s at a
