@@ -5,9 +5,8 @@ A slave's ``VARIABLES`` (``fmu_src.variables.Var`` rows, checked and completed b
 modelDescription.xml from it, and this module renders it as a markdown table, one row per variable,
 in value-reference order.  The command rewrites the table between the markers
 ``<!-- interface:NAME -->`` and ``<!-- /interface:NAME -->`` in the README (the DK FMU's interface)
-and in every FMU readme ``fmu_src/<NAME>.md`` that carries the markers (the two DK FMUs'; the plant's
-and the controller's readmes embed ``cosim.fmus.references.variable_table``, which their test
-compares), so no interface table is typed by hand; ``--check`` only reports (exit status 1) the files
+and in every FMU readme ``fmu_src/<NAME>.md`` (each carries the markers), so no interface table is
+typed by hand; ``--check`` only reports (exit status 1) the files
 whose table differs.
 """
 from __future__ import annotations

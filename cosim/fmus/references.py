@@ -30,7 +30,7 @@ from .builds import DK_NAME, BuildResult, build_dk, build_slave
 from ..simulation import input_table, simulate
 
 __all__ = ["REFERENCE_DIR", "REFERENCE", "OUTPUTS", "H", "N", "RUNS", "circle_joints", "run_circle", "run",
-           "start_values", "read_csv", "write_csv", "read", "write", "read_reference_csv", "variable_table",
+           "start_values", "read_csv", "write_csv", "read", "write", "read_reference_csv",
            "write_references"]
 
 #: The configuration of the DK reference run (coarse map: quick to build in the tests).
@@ -169,18 +169,6 @@ def read(name: str, path=None) -> np.ndarray:
 def read_reference_csv(path=REFERENCE_DIR / f"{DK_NAME}.csv") -> tuple[list[str], np.ndarray]:
     """``(header lines, structured array)`` of the DK reference CSV (Boolean columns as 0/1 integers)."""
     return read_csv(path, INT_COLUMNS[DK_NAME])
-
-
-def variable_table(cls) -> str:
-    """The Markdown table of a slave class's variables (the readmes embed it; a test compares)."""
-    rows = ["| name | causality | type | variability | unit | start | depends on | description |",
-            "|---|---|---|---|---|---|---|---|"]
-    for v in getattr(cls, "_table", cls.VARIABLES):          # normalised by the base class
-        deps = "" if v.causality != "output" else (", ".join(v.depends_on) if v.depends_on else "none")
-        start = "" if v.start is None else f"{v.start:g}" if isinstance(v.start, float) else str(v.start)
-        rows.append(f"| `{v.name}` | {v.causality} | {v.type} | {v.variability or ''} | {v.unit or ''} | "
-                    f"{start} | {deps} | {v.description} |")
-    return "\n".join(rows)
 
 
 # ---------------------------------------------------------------------- all three
