@@ -42,9 +42,7 @@ H = 1e-3
 
 
 def _arrays(unit, names, ctype):
-    from fmpy.fmi2 import fmi2ValueReference
-
-    return (fmi2ValueReference * len(names))(*unit.vr(*names)), (ctype * len(names))()
+    return unit.vr_array(*names), (ctype * len(names))()
 
 
 def _median_us(times) -> float:

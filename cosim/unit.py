@@ -259,6 +259,13 @@ class FMUUnit:
         except KeyError as exc:
             raise KeyError(f"{self.name}: no variable {exc.args[0]!r} in {self.path.name}") from None
 
+    def vr_array(self, *names):
+        """The value references of ``names`` as a ctypes ``fmi2ValueReference`` array, for the fmi2Get*/
+        fmi2Set* calls of a hot loop (made once, before the loop)."""
+        from fmpy.fmi2 import fmi2ValueReference
+
+        return (fmi2ValueReference * len(names))(*self.vr(*names))
+
     def initialize(self, t0: float = 0.0, start_values: dict | None = None) -> None:
         """setupExperiment, enterInitializationMode, start values, exitInitializationMode."""
         self.fmu.setupExperiment(startTime=t0)

@@ -61,11 +61,8 @@ class Sensor(encoder.Sensor):
 
     Parameters
     ----------
-    name : str
-    bits : int or None
-        Bits per turn of the encoder; None for no quantization.
-    noise : float
-        Standard deviation of the white noise added before quantization (rad).
+    name, bits, noise
+        As in :class:`solver.sensors.Sensor`.
     glitch : {None, "outlier", "stuck", "dropout"}
     n_glitches : int
         Glitches per stream, spread over it at seeded positions.

@@ -76,11 +76,9 @@ class Port:
     """
 
     def __init__(self, instance: str, unit: FMUUnit):
-        from fmpy.fmi2 import fmi2Boolean, fmi2Integer, fmi2Real, fmi2ValueReference
+        from fmpy.fmi2 import fmi2Boolean, fmi2Integer, fmi2Real
 
-        def refs(names):
-            return (fmi2ValueReference * len(names))(*unit.vr(*names))
-
+        refs = lambda names: unit.vr_array(*names)               # noqa: E731
         self.instance, self.unit = instance, unit
         inputs = inputs_of(instance)
         if any(unit.vars[n].type != "Real" for n in inputs):
@@ -342,11 +340,10 @@ class _PoseCalls:
     """The DK FMU's calls in the Fig. 3 scheme: value references and buffers made once."""
 
     def __init__(self, unit: FMUUnit):
-        from fmpy.fmi2 import fmi2Real, fmi2True, fmi2ValueReference
+        from fmpy.fmi2 import fmi2Real, fmi2True
 
         self.fmu, self.true = unit.fmu, fmi2True
-        self.vin = (fmi2ValueReference * 3)(*unit.vr("q1", "q2", "q3"))
-        self.vout = (fmi2ValueReference * 3)(*unit.vr("x", "y", "phi"))
+        self.vin, self.vout = unit.vr_array("q1", "q2", "q3"), unit.vr_array("x", "y", "phi")
         self.q_buf, self.x_buf = (fmi2Real * 3)(), (fmi2Real * 3)()
 
     def initial_pose(self, q0) -> np.ndarray:
