@@ -1,0 +1,373 @@
+"""Tube certificates: a parametric (affine-in-q) Krawczyk test for a whole box of joints.
+
+For a box of joints ``Q = q~ +- t`` the poses consistent with it form a thin curved needle
+along ``S = -J^-1 K``.  An axis-aligned Krawczyk box must hold J regular over the needle's
+whole hull; the test here follows the needle instead.  With ``x~`` the solution at ``q~``,
+``C ~ J~^-1`` and ``S = -C K~`` it takes the unknown as the deviation ``y`` from the linear
+predictor, ``x = x~ + S (q - q~) + y``, and runs Krawczyk's test on
+``G(y, q) = F(x~ + S (q - q~) + y, q)`` over ``y`` in ``Y = [-rho, rho]`` for every ``q`` in
+``Q`` at once.  The first-order term in the joint error cancels (``J~ S + K~ ~ 0``), and the
+Jacobian's spread is evaluated as an affine form in ``(q - q~, y)`` (point matrices
+``C A_k``, ``C B_j``) plus a closed-form second-order remainder, so that cancellations are
+kept.  When the Krawczyk radius ``kappa < rho``, then for every ``q`` in ``Q`` exactly one
+pose lies in the *tube* ``T = {x~ + S (q - q~) + y : |y| <= rho}``, and it satisfies
+``|y| <= kappa``: the tube's solution is a continuous function of ``q`` on ``Q``.
+
+(Kolev's p-solutions ``x(p) in L p + a``; Rump, "Verification methods", Acta Numerica 2010,
+sec. 13; Duff and Lee, "Certified homotopy tracking using the Krawczyk method", ISSAC 2024.
+The derivation and its bounds: ``docs/noisy-joints-design.md``, section 4.)
+
+A *tube* is a flat pack (``TUBE_*``): the centre pose ``x~``, ``S`` (row-major), the centre
+joints ``q~``, ``kappa``, ``rho`` and the joint box's half-widths ``t``.  :func:`handoff`
+checks that one tube's solution lies inside another's wherever both apply (so a path of
+joints that moves from one box into the other keeps the same solution);
+:func:`tube_chain` chains tubes over the joint step between two samples (each covering a
+piece of the segment widened by the joint tolerance) from the previous step's tube, and
+:func:`pose_bound` turns a tube into a box about the returned pose.
+
+Floating point: round-to-nearest with a priori slack, as in :mod:`.krawczyk`: residuals
+and products of signed terms get an absolute pad (:data:`.krawczyk.PAD` times their scale),
+the sums of nonnegative terms a relative ``1e-12``, the final radius ``1e-9`` relative and
+``1e-15`` absolute.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .krawczyk import PAD, W_SIZE, newton_on_path
+from .linalg import inverse3, wrap
+
+# tube pack fields
+TUBE_X = 0            # (3,) centre pose x~ (m, m, rad)
+TUBE_S = 3            # (9,) S = -J~^-1 K~, row-major (m/rad, m/rad, rad/rad)
+TUBE_Q = 12           # (3,) centre joints q~ (rad)
+TUBE_K = 15           # (3,) kappa: |x - x~ - S (q - q~)| <= kappa for the tube's solution
+TUBE_R = 18           # (3,) rho: the tube's half-widths about the linear predictor
+TUBE_T = 21           # (3,) the joint box's half-widths t (rad)
+TUBE_SIZE = 24
+
+#: Epsilon-inflation rounds of one tube test.
+ROUNDS = 6
+#: Largest rho a tube test grows to (m or rad): beyond it the tube is useless as a bound.
+RHO_MAX = 0.05
+#: Relative slack of the final radius and of the hand-off check.
+SLACK = 1e-9
+
+
+@njit(cache=True)
+def tube_test(xg, qc, t, rho_min, M, l1, l2sq, b, tube):
+    """The parametric Krawczyk test of the joint box ``qc +- t`` (3,) about the solution near ``xg``.
+
+    ``xg`` (3,): a guess of the solution at ``qc`` (Newton polishes it); ``rho_min`` (3,): the
+    smallest tube half-widths wanted (0 for the tightest).  Writes the tube pack ``tube``
+    (TUBE_SIZE,) and returns True when proved: for every ``q`` with ``|q - qc| <= t`` exactly
+    one solution lies in the tube, within ``kappa`` of ``x~ + S (q - q~)``.
+    """
+    w = np.empty(W_SIZE)
+    none = np.zeros(3)
+    x = xg.copy()
+    if not newton_on_path(x, qc, none, none, 0.0, M, l1, b, l2sq, w, 8) < 1e-11:
+        return False
+    c, s = math.cos(x[2]), math.sin(x[2])
+    e = np.empty((3, 2))
+    wv = np.empty((3, 2))
+    J = np.empty((3, 3))
+    k = np.empty(3)
+    F = np.empty(3)
+    eu = np.empty((3, 2))
+    cn = np.empty(3)
+    en = np.empty(3)
+    fscale = np.empty(3)
+    for i in range(3):
+        rcx, rcy = c * b[i, 0] - s * b[i, 1], s * b[i, 0] + c * b[i, 1]
+        wv[i, 0], wv[i, 1] = -rcy, rcx
+        cq, sq = math.cos(qc[i]), math.sin(qc[i])
+        eu[i, 0], eu[i, 1] = -sq, cq
+        e[i, 0] = x[0] + rcx - M[i, 0] - l1[i] * cq
+        e[i, 1] = x[1] + rcy - M[i, 1] - l1[i] * sq
+        r2 = qc[i] * qc[i] if l2sq[i] < 0.0 else l2sq[i]
+        F[i] = e[i, 0] * e[i, 0] + e[i, 1] * e[i, 1] - r2
+        fscale[i] = e[i, 0] * e[i, 0] + e[i, 1] * e[i, 1] + r2 + 1.0
+        J[i, 0], J[i, 1] = 2.0 * e[i, 0], 2.0 * e[i, 1]
+        J[i, 2] = 2.0 * (e[i, 0] * wv[i, 0] + e[i, 1] * wv[i, 1])
+        k[i] = -2.0 * l1[i] * (e[i, 0] * eu[i, 0] + e[i, 1] * eu[i, 1])
+        if l2sq[i] < 0.0:
+            k[i] -= 2.0 * qc[i]
+        cn[i] = math.hypot(b[i, 0], b[i, 1])
+        en[i] = math.hypot(e[i, 0], e[i, 1])
+    C = np.empty((3, 3))
+    if not inverse3(J, C):
+        return False
+    S = np.empty((3, 3))
+    for r in range(3):
+        for j in range(3):
+            S[r, j] = -C[r, j] * k[j]
+    aC = np.abs(C)
+    # |I - C J~| and N = J~ S + K~ with their rounding pads
+    M0 = np.empty((3, 3))
+    aN = np.empty((3, 3))
+    for r in range(3):
+        for j in range(3):
+            acc, mag = 0.0, 0.0
+            for m in range(3):
+                acc += C[r, m] * J[m, j]
+                mag += abs(C[r, m] * J[m, j])
+            M0[r, j] = abs((1.0 if r == j else 0.0) - acc) + PAD * (mag + 1.0)
+            acc, mag = 0.0, 0.0
+            for m in range(3):
+                acc += J[r, m] * S[m, j]
+                mag += abs(J[r, m] * S[m, j])
+            acc += k[r] if r == j else 0.0
+            aN[r, j] = abs(acc) + PAD * (mag + abs(k[r]) + 1.0)
+    # G_i = H_i S - l1 E u e_i^T (2 x 3 per leg) and gamma_i = e . E w = -(e . R c)
+    G = np.empty((3, 2, 3))
+    gam = np.empty(3)
+    for i in range(3):
+        for m in range(3):
+            G[i, 0, m] = S[0, m] + wv[i, 0] * S[2, m] - (l1[i] * eu[i, 0] if m == i else 0.0)
+            G[i, 1, m] = S[1, m] + wv[i, 1] * S[2, m] - (l1[i] * eu[i, 1] if m == i else 0.0)
+        gam[i] = -(e[i, 0] * wv[i, 1] - e[i, 1] * wv[i, 0])
+    # the affine parts of C (J - J~): C A_k t_k summed, and C B_j (per j)
+    MA = np.zeros((3, 3))
+    A = np.empty((3, 3))
+    for m in range(3):
+        for i in range(3):
+            A[i, 0] = 2.0 * G[i, 0, m]
+            A[i, 1] = 2.0 * G[i, 1, m]
+            A[i, 2] = 2.0 * (G[i, 0, m] * wv[i, 0] + G[i, 1, m] * wv[i, 1] + gam[i] * S[2, m])
+        for r in range(3):
+            for j in range(3):
+                acc = C[r, 0] * A[0, j] + C[r, 1] * A[1, j] + C[r, 2] * A[2, j]
+                MA[r, j] += abs(acc) * t[m]
+    CB = np.empty((3, 3, 3))
+    for m in range(3):
+        for i in range(3):
+            hx = 1.0 if m == 0 else (0.0 if m == 1 else wv[i, 0])
+            hy = 1.0 if m == 1 else (0.0 if m == 0 else wv[i, 1])
+            A[i, 0] = 2.0 * hx
+            A[i, 1] = 2.0 * hy
+            A[i, 2] = 2.0 * (hx * wv[i, 0] + hy * wv[i, 1] + (gam[i] if m == 2 else 0.0))
+        for r in range(3):
+            for j in range(3):
+                CB[m, r, j] = abs(C[r, 0] * A[0, j] + C[r, 1] * A[1, j] + C[r, 2] * A[2, j])
+    # the parameter term: |C F~| + |C| beta + |C N| t
+    phi0 = abs(S[2, 0]) * t[0] + abs(S[2, 1]) * t[1] + abs(S[2, 2]) * t[2]
+    gt = np.empty((3, 2))
+    beta = np.empty(3)
+    for i in range(3):
+        for r in range(2):
+            gt[i, r] = abs(G[i, r, 0]) * t[0] + abs(G[i, r, 1]) * t[1] + abs(G[i, r, 2]) * t[2]
+        r0 = cn[i] * phi0 * phi0 / 2.0 + l1[i] * t[i] * t[i] / 2.0 + PAD * phi0
+        beta[i] = 2.0 * en[i] * r0 + (math.hypot(gt[i, 0], gt[i, 1]) + r0) ** 2 + PAD * fscale[i]
+        if l2sq[i] < 0.0:
+            beta[i] += t[i] * t[i]
+    a = np.empty(3)
+    for r in range(3):
+        acc = abs(C[r, 0] * F[0] + C[r, 1] * F[1] + C[r, 2] * F[2])
+        for j in range(3):
+            acc += aC[r, j] * beta[j] + aN[r, j] * t[j]
+        a[r] = acc * (1.0 + 1e-12)
+    rho = np.empty(3)
+    for r in range(3):
+        rho[r] = max(rho_min[r], 2.0 * a[r] + 1e-15)
+    kap = np.empty(3)
+    Mt = np.empty((3, 3))
+    rem = np.empty((3, 3))
+    last = np.inf
+    for _ in range(ROUNDS):
+        phi = phi0 + rho[2]
+        for i in range(3):
+            ri = cn[i] * phi * phi / 2.0 + l1[i] * t[i] * t[i] / 2.0 + PAD * phi
+            hx = rho[0] + abs(wv[i, 0]) * rho[2]
+            hy = rho[1] + abs(wv[i, 1]) * rho[2]
+            d = math.hypot(gt[i, 0] + hx, gt[i, 1] + hy) + ri
+            rem[i, 0] = 2.0 * ri
+            rem[i, 1] = 2.0 * ri
+            rem[i, 2] = 2.0 * (ri * cn[i] + d * cn[i] * phi + en[i] * cn[i] * phi * phi / 2.0)
+        grow = False
+        worst = 0.0
+        for r in range(3):
+            row = 0.0
+            for j in range(3):
+                v = M0[r, j] + MA[r, j] + CB[0, r, j] * rho[0] + CB[1, r, j] * rho[1] + CB[2, r, j] * rho[2]
+                v += aC[r, 0] * rem[0, j] + aC[r, 1] * rem[1, j] + aC[r, 2] * rem[2, j]
+                Mt[r, j] = v * (1.0 + 1e-12)
+                row += Mt[r, j]
+            worst = max(worst, row)
+            kap[r] = (a[r] + Mt[r, 0] * rho[0] + Mt[r, 1] * rho[1] + Mt[r, 2] * rho[2]) * (1.0 + SLACK) + 1e-15
+            grow = grow or not kap[r] < rho[r]
+        if not grow:
+            tube[TUBE_X:TUBE_X + 3] = x
+            tube[TUBE_S:TUBE_S + 9] = S.ravel()
+            tube[TUBE_Q:TUBE_Q + 3] = qc
+            tube[TUBE_K:TUBE_K + 3] = kap
+            tube[TUBE_R:TUBE_R + 3] = rho
+            tube[TUBE_T:TUBE_T + 3] = t
+            return True
+        if worst >= 1.0:
+            return False
+        size = max(kap[0] / max(rho[0], 1e-300), max(kap[1] / max(rho[1], 1e-300), kap[2] / max(rho[2], 1e-300)))
+        if size > last * 1.5:
+            return False
+        last = size
+        for r in range(3):
+            rho[r] = max(rho[r], 1.2 * kap[r] + 1e-15)
+            if rho[r] > RHO_MAX:
+                return False
+    return False
+
+
+@njit(cache=True)
+def handoff(old, new, qm, h, need):
+    """Does the solution of tube ``old`` lie inside tube ``new`` for every joint vector of the box
+    ``qm +- h`` (3,)?  Writes the half-widths ``new`` would need into ``need`` (3,) and returns
+    whether its own are larger (then the two tubes' solutions agree on that box: it is the one
+    solution of ``new``'s tube)."""
+    ok = True
+    for r in range(3):
+        d = old[TUBE_X + r] - new[TUBE_X + r]
+        if r == 2:
+            d = wrap(d)
+        spread = 0.0
+        for m in range(3):
+            do = wrap(qm[m] - old[TUBE_Q + m])
+            dn = wrap(qm[m] - new[TUBE_Q + m])
+            so, sn = old[TUBE_S + 3 * r + m], new[TUBE_S + 3 * r + m]
+            d += so * do - sn * dn
+            spread += abs(so - sn) * h[m]
+        need[r] = ((abs(d) + spread + old[TUBE_K + r]) * (1.0 + SLACK) + PAD * (1.0 + abs(new[TUBE_X + r]))
+                   + 1e-15)
+        ok = ok and need[r] < new[TUBE_R + r]
+    return ok
+
+
+@njit(cache=True)
+def predictor(tube, q, out):
+    """The tube's linear predictor ``x~ + S (q - q~)`` at joints ``q`` (3,) into ``out`` (3,)."""
+    for r in range(3):
+        acc = tube[TUBE_X + r]
+        for m in range(3):
+            acc += tube[TUBE_S + 3 * r + m] * wrap(q[m] - tube[TUBE_Q + m])
+        out[r] = acc
+
+
+@njit(cache=True)
+def takes_over(pieces, n, new, need):
+    """Does tube ``new`` take over from every tube of ``pieces[:n]`` (n, TUBE_SIZE) on the box where
+    their joint boxes (``q~ +- t``) meet (:func:`handoff`)?  ``need`` (3,) receives the largest
+    half-widths ``new`` would need."""
+    ok = True
+    qm, h, nd = np.empty(3), np.empty(3), np.empty(3)
+    for r in range(3):
+        need[r] = 0.0
+    for j in range(n):
+        meet = True
+        for i in range(3):
+            lo = max(pieces[j, TUBE_Q + i] - pieces[j, TUBE_T + i], new[TUBE_Q + i] - new[TUBE_T + i])
+            hi = min(pieces[j, TUBE_Q + i] + pieces[j, TUBE_T + i], new[TUBE_Q + i] + new[TUBE_T + i])
+            meet = meet and lo <= hi + PAD
+            qm[i], h[i] = 0.5 * (lo + hi), max(0.5 * (hi - lo), 0.0)
+        if meet:
+            ok = handoff(pieces[j], new, qm, h, nd) and ok
+            for r in range(3):
+                need[r] = max(need[r], nd[r])
+    return ok
+
+
+@njit(cache=True)
+def tested_takeover(pieces, n, xg, qc, t, M, l1, l2sq, b, new):
+    """A tube test of ``qc +- t`` (from the guess ``xg``) that also takes over from the tubes
+    ``pieces[:n]`` (:func:`takes_over`): when the test passes but its tube is too narrow for a
+    hand-off, it is tried once more with the half-widths the hand-offs need."""
+    need = np.zeros(3)
+    if not tube_test(xg, qc, t, need, M, l1, l2sq, b, new):
+        return False
+    if takes_over(pieces, n, new, need):
+        return True
+    for r in range(3):
+        need[r] = max(1.25 * need[r], new[TUBE_R + r])
+    return tube_test(xg, qc, t, need, M, l1, l2sq, b, new) and takes_over(pieces, n, new, need)
+
+
+#: Most tubes one step's chain may hold (the pieces of the joint step and the reading's own box).
+MAX_PIECES = 48
+
+
+@njit(cache=True)
+def tube_chain(old, qp, dq, tol, max_tests, M, l1, l2sq, b, out):
+    """Chain tubes over the joint step from ``qp`` to ``qp + dq`` (3,, unwrapped), each covering the
+    joints within ``tol`` (rad) of a piece of the segment, starting from the previous step's
+    tube ``old`` (valid over ``qp +- tol``), then a tube of the reading's own box
+    ``qp + dq +- tol``.
+
+    Assumes the robot's joints stay within ``tol`` of the segment between the samples.  Then,
+    when it returns a positive number of tests, the robot's pose at the new sample is the
+    solution of tube ``out`` (TUBE_SIZE,) at its true joints (within ``tol`` of ``qp + dq``):
+    every two tubes agree on the box where their joint boxes meet (:func:`takes_over`), so
+    their solutions make one continuous function on the union of the boxes, and a pose that
+    moves continuously along a tube's solution cannot leave it (the solution's deviation is
+    at most ``kappa < rho``).  Returns ``-tests`` when the chain did not close within
+    ``max_tests`` tube tests.
+    """
+    pieces = np.empty((MAX_PIECES, TUBE_SIZE))
+    pieces[0, :] = old
+    for i in range(3):                                 # the old tube's joints next to qp
+        pieces[0, TUBE_Q + i] = qp[i] + wrap(old[TUBE_Q + i] - qp[i])
+    n = 1
+    new = np.empty(TUBE_SIZE)
+    qc, t, xg = np.empty(3), np.empty(3), np.empty(3)
+    s, step = 0.0, 1.0
+    tests = 0
+    while s < 1.0:
+        if tests >= max_tests or n + 1 >= MAX_PIECES or step < 1.0 / 256.0:
+            return -max(tests, 1)
+        sb = min(1.0, s + step)
+        for i in range(3):
+            qc[i] = qp[i] + 0.5 * (s + sb) * dq[i]
+            t[i] = 0.5 * abs(dq[i]) * (sb - s) + tol
+        predictor(pieces[n - 1], qc, xg)
+        tests += 1
+        if tested_takeover(pieces, n, xg, qc, t, M, l1, l2sq, b, new):
+            pieces[n, :] = new
+            n += 1
+            s = sb
+            step = min(2.0 * step, 1.0)
+        else:
+            step *= 0.5
+    # the reading's own box: a tighter tube about the new joints (else the last piece's)
+    for i in range(3):
+        qc[i] = qp[i] + dq[i]
+        t[i] = tol
+    out[:] = pieces[n - 1]
+    if n > 1 and tol == 0.0 and pieces[n - 1, TUBE_T] == 0.0 and pieces[n - 1, TUBE_T + 1] == 0.0 \
+            and pieces[n - 1, TUBE_T + 2] == 0.0:
+        return tests
+    predictor(out, qc, xg)
+    tests += 1
+    if tested_takeover(pieces[n - 1:n], 1, xg, qc, t, M, l1, l2sq, b, new):
+        out[:] = new
+    return tests
+
+
+@njit(cache=True)
+def pose_bound(tube, q, tol, X, out):
+    """Half-widths (3,) into ``out`` of a box about the pose ``X`` (3,) holding the tube's solution for
+    every joint vector within ``tol`` of ``q`` (3,): ``|S| tol + |X - x~ - S (q - q~)| + kappa``.
+    Returns whether ``X`` lies in the tube at ``q`` (it is then that solution, up to its own
+    rounding)."""
+    p = np.empty(3)
+    predictor(tube, q, p)
+    inside = True
+    for r in range(3):
+        d = X[r] - p[r]
+        if r == 2:
+            d = wrap(d)
+        spread = 0.0
+        for m in range(3):
+            spread += abs(tube[TUBE_S + 3 * r + m]) * tol
+        out[r] = (spread + abs(d) + tube[TUBE_K + r]) * (1.0 + SLACK) + PAD * (1.0 + abs(X[r])) + 1e-15
+        inside = inside and abs(d) + 1e-12 < tube[TUBE_R + r]
+    return inside
