@@ -133,10 +133,11 @@ from .grid import default_bounds
 from .manipulator import Manipulator
 from .maptensor import MapTensor
 from .ordering import rule_code
+from .start import START_TOLERANCE, StartInfo, honest_start
 from .tracker_state import TrackerError
 from .tracking import _TrackerBase
 
-__all__ = ["Tracker", "MAX_TESTS"]
+__all__ = ["Tracker", "MAX_TESTS", "START_TOLERANCE", "StartInfo"]
 
 #: Default mode: joint motion per continuation substep (rad), and the most substeps of a step.
 SUBSTEP_DQ, MAX_SUBSTEPS = 0.05, 16
@@ -153,6 +154,7 @@ GATE = 4.0
 
 #: With measured joints: pose boxes one re-acquisition may examine (see "Sensors").
 REACQUIRE_BOXES = 10000
+
 
 
 _TOOL_SPACE: dict = {}
@@ -205,6 +207,10 @@ class Tracker(_TrackerBase):
     stuck_after : int
         Identical readings in a row after which a joint is taken as stuck (0: never; for noisy
         encoders, :meth:`solver.sensors.Sensor.stuck_after`).  See :mod:`solver.stuck`.
+    start_tolerance : array_like, shape (3,)
+        How far (m, m, rad) the initial pose given to :meth:`reset` may be from the robot's: the
+        tracker starts from the DK solution of the initial joints within it, certain when it is
+        proved the only pose there (see "An honest start").  Default :data:`START_TOLERANCE`.
     """
 
     def __init__(self, model: Manipulator, map_tensor: MapTensor, mode: str = "default", r=None,
@@ -212,8 +218,12 @@ class Tracker(_TrackerBase):
                  singular_tol: float = 1e-4, use_map: bool = True, strategy: int = _lay.STRATEGY_SEGMENT,
                  segment_singular: float = 0.05, posture_certificate: bool = True, max_tests: int = MAX_TESTS,
                  joint_tolerance: float = 0.0, gate: float = GATE, speed_bound=None,
-                 reacquire_boxes: int = REACQUIRE_BOXES, stuck_after: int = 0):
+                 reacquire_boxes: int = REACQUIRE_BOXES, stuck_after: int = 0, start_tolerance=START_TOLERANCE):
         super().__init__(model)
+        r0 = as_array("start_tolerance", start_tolerance, (3,))
+        if r0.shape != (3,) or not np.all(r0 > 0):
+            raise TrackerError(f"start_tolerance: expected 3 half-widths > 0 (m, m, rad), got {start_tolerance!r}")
+        self.start_tolerance = r0.copy()
         if not isinstance(map_tensor, MapTensor):
             raise TrackerError(f"map_tensor: expected a MapTensor, got {type(map_tensor).__name__}")
         if map_tensor.model.digest() != model.digest():
@@ -263,6 +273,36 @@ class Tracker(_TrackerBase):
                                                 bounds[:2].ravel(), speed, int(reacquire_boxes))
         self._mode = _lay.MODE_PAPER if mode == "paper" else _lay.MODE_DEFAULT
         self._rule = rule_code(map_tensor.rule)
+
+    def reset(self, X0, q0) -> StartInfo:
+        """Start tracking from an approximate configuration: the honest start.
+
+        The tracker starts from the DK solution of ``q0`` within ``start_tolerance`` of ``X0``
+        and is certain when it proves that solution the only pose the robot can be in (the
+        robot within ``start_tolerance`` of ``X0``, its joints within ``joint_tolerance`` of
+        ``q0``; :mod:`solver._kernels.start`).  Otherwise it starts uncertain from the DK
+        solution nearest ``X0`` (or ``X0`` itself when ``q0`` has none) and says why.
+
+        Parameters
+        ----------
+        X0 : array_like, shape (3,)
+            The initial pose, known within ``start_tolerance`` (m, m, rad).
+        q0 : array_like, shape (3,)
+            The initial joints (rad), read within ``joint_tolerance``.
+
+        Returns
+        -------
+        StartInfo
+            Also kept as :attr:`start`.
+        """
+        super().reset(X0, q0)
+        st = self.state
+        start = honest_start(self._model_pack, self.model, st.X, st.q, self.start_tolerance, self.joint_tolerance,
+                             self._w, int(self._params[_lay.PARAM_REACQUIRE]) or REACQUIRE_BOXES)
+        self.start = start
+        self.state = replace(st, X=start.X.copy(), anchor=start.X.copy(), uncertain_since=-1 if start.certain else 0,
+                             intact=start.certain, tube=start.tube)
+        return start
 
     def _kernel(self, q, state_pack):
         tracker_step(self._mode, self._rule, q, state_pack, self._model_pack, self._sample_to_sextic, self._labels,

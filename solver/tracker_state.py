@@ -22,18 +22,25 @@ from ._kernels import layout as _lay
 from ._kernels.certify import CERT_CONTINUATION, CERT_REACQUIRED
 from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, F_DQ, F_INNOV, I_AMBIGUOUS, I_CERTAIN, I_CERTIFICATE,
                               I_INTACT, I_JUMP, I_LABEL, I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, MAX_REFUSED,
-                              OUT_CANDS, OUT_INFO, OUT_X, OUT_X_PRED, STATE_A_SCALE, STATE_ANCHOR, STATE_ANCHOR_AGE,
-                              STATE_CANDS, STATE_DQ_SCALE, STATE_EXT_SCALE, STATE_HAVE_Q2, STATE_HISTORY,
-                              STATE_INTACT, STATE_N_CAND, STATE_Q, STATE_Q2, STATE_REFUSED, STATE_STEP_DT,
-                              STATE_VERIFIED, STATE_X, STATE_X2, STATUS_REJECTED, STATUS_UNREACHABLE)
+                              I_TRUST, OUT_BOUND, OUT_CANDS, OUT_INFO, OUT_TUBE, OUT_X, OUT_X_PRED, STATE_A_SCALE,
+                              STATE_ANCHOR, STATE_ANCHOR_AGE, STATE_CANDS, STATE_DQ_SCALE, STATE_EXT_SCALE,
+                              STATE_HAVE_Q2, STATE_HISTORY, STATE_INTACT, STATE_N_CAND, STATE_Q, STATE_Q2,
+                              STATE_REFUSED, STATE_STEP_DT, STATE_TUBE, STATE_TUBE_OK, STATE_VERIFIED, STATE_X,
+                              STATE_X2, STATUS_REJECTED, STATUS_UNREACHABLE, TRUST, TRUST_CERTAIN, TRUST_LOST)
+from ._kernels.tube import TUBE_SIZE
 
-__all__ = ["TrackerState", "StepInfo", "TrackResult", "TrackerError", "STATUS", "CERTIFICATES", "STATE_FLOATS"]
+__all__ = ["TrackerState", "StepInfo", "TrackResult", "TrackerError", "STATUS", "CERTIFICATES", "TRUST",
+           "STATE_FLOATS", "NO_BOUND"]
 
 #: Status codes of a step by code (also the FMU's ``status`` output; 3, rejected, is the FMU's own).
 STATUS = _lay.STATUS
 
 #: Certificates by code (``StepInfo.certificate``), see :mod:`solver.tracker`.
-CERTIFICATES = {0: "none", 1: "continuation", 2: "elimination", 3: "posture", 4: "reacquired"}
+CERTIFICATES = {0: "none", 1: "continuation", 2: "elimination", 3: "posture", 4: "reacquired", 5: "tube"}
+
+#: The pose bound of a step that is not certain: no bound (inf, inf, inf), read-only.
+NO_BOUND = np.full(3, np.inf)
+NO_BOUND.flags.writeable = False
 
 
 #: With measured joints and a speed bound: samples held in a row (a pose the platform cannot have
@@ -101,6 +108,11 @@ class TrackerState:
         detector rolls back to it; :mod:`solver.stuck`).
     clean_lag : int
         Samples read since ``clean`` was taken.
+    tube : ndarray, shape (24,) or None
+        While certain: the last step's tube (:mod:`solver._kernels.tube`: centre pose, ``S``,
+        centre joints, kappa, rho, joint half-widths) that holds the robot's pose for every
+        joint vector within the tolerance of ``q``; the next step's tube chain starts from it.
+        None when not certain.
     """
 
     X: np.ndarray
@@ -123,6 +135,7 @@ class TrackerState:
     repeats: np.ndarray = field(default_factory=lambda: np.zeros(3, dtype=np.int64))
     clean: "TrackerState | None" = None
     clean_lag: int = 0
+    tube: np.ndarray | None = None
 
     @property
     def history(self) -> int:
@@ -168,6 +181,10 @@ class TrackerState:
         else:
             pk[STATE_CANDS:STATE_CANDS + 3 * n], pk[STATE_N_CAND] = self.candidates.ravel(), n
         pk[STATE_VERIFIED] = 1.0 if self.verified else 0.0
+        if self.tube is not None and self.certain:
+            pk[STATE_TUBE:STATE_TUBE + TUBE_SIZE], pk[STATE_TUBE_OK] = self.tube, 1.0
+        else:
+            pk[STATE_TUBE_OK] = 0.0
         pk[STATE_INTACT] = 1.0 if self.intact else 0.0
         pk[STATE_A_SCALE], pk[STATE_REFUSED] = self.a_scale, self.refused
         if self.anchor is None:
@@ -222,7 +239,8 @@ class TrackerState:
                             i[I_CERTIFICATE] in (CERT_CONTINUATION, CERT_REACQUIRED), self.since(certain),
                             bool(i[I_INTACT]),
                             innov if self.steps < 2 else max(innov, 0.8 * self.a_scale + 0.2 * innov), 0,
-                            X if certain else anchor, 0.0 if certain else self._anchor_age(dt), **extra)
+                            X if certain else anchor, 0.0 if certain else self._anchor_age(dt), **extra,
+                            tube=out_real[OUT_TUBE:OUT_TUBE + TUBE_SIZE].copy() if certain else None)
 
     def as_array(self) -> np.ndarray:
         """The state as :data:`STATE_FLOATS` floats (see :data:`_SAVED_FIELDS`): what an FMU serialises."""
@@ -243,6 +261,8 @@ class TrackerState:
         if self.reading is not None:
             a[_READING:_READING + 3] = self.reading
         a[_REPEATS:_REPEATS + 3], a[_CLEAN_LAG] = self.repeats, float(self.clean_lag)
+        if self.tube is not None:
+            a[_TUBE:_TUBE + TUBE_SIZE] = self.tube
         if self.clean is not None:
             a[_BASE:] = self.clean.as_array()[:_BASE]
         return a
@@ -274,18 +294,20 @@ class TrackerState:
                    bool(a[_INTACT]), float(a[_A_SCALE]), int(a[_REFUSED]),
                    None if np.any(np.isnan(a[_ANCHOR:_ANCHOR + 3])) else a[_ANCHOR:_ANCHOR + 3].copy(), float(a[_AGE]),
                    int(a[_SKIPPED]), None if np.any(np.isnan(a[_READING:_READING + 3])) else a[_READING:_READING + 3].copy(),
-                   a[_REPEATS:_REPEATS + 3].astype(np.int64), None, int(a[_CLEAN_LAG]))
+                   a[_REPEATS:_REPEATS + 3].astype(np.int64), None, int(a[_CLEAN_LAG]),
+                   None if np.any(np.isnan(a[_TUBE:_TUBE + TUBE_SIZE])) else a[_TUBE:_TUBE + TUBE_SIZE].copy())
 
 
 #: Fields of TrackerState.as_array: X, q, X2 (NaN after a reset), dq_scale, steps, dt, q2 (NaN after a
 #: reset), number of candidates, verified, uncertain_since, candidates (6 x 3, NaN past the number), intact,
 #: a_scale, refused, anchor (NaN before the first certain step), anchor_age, skipped, reading (NaN before the
-#: first), repeats, clean_lag; then the clean state's first _BASE floats (NaN when there is none).
+#: first), repeats, clean_lag, the tube (NaN when none); then the clean state's first _BASE floats (NaN when there is none).
 _X, _Q, _X2, _DQ_SCALE, _STEPS, _DT, _Q2, _N_CAND, _VERIFIED, _SINCE, _CANDS = 0, 3, 6, 9, 10, 11, 12, 15, 16, 17, 18
 _INTACT, _A_SCALE, _REFUSED, _ANCHOR, _AGE = _CANDS + 18, _CANDS + 19, _CANDS + 20, _CANDS + 21, _CANDS + 24
 _SKIPPED = _AGE + 1
 _READING, _REPEATS, _CLEAN_LAG = _SKIPPED + 1, _SKIPPED + 4, _SKIPPED + 7
-_BASE = _CLEAN_LAG + 1
+_TUBE = _CLEAN_LAG + 1
+_BASE = _TUBE + TUBE_SIZE
 STATE_FLOATS = 2 * _BASE
 _FINITE = [*range(_X, _X + 3), *range(_Q, _Q + 3), _DQ_SCALE, _STEPS, _N_CAND, _VERIFIED, _SINCE, _INTACT, _A_SCALE,
            _REFUSED, _SKIPPED, *range(_REPEATS, _REPEATS + 3), _CLEAN_LAG]
@@ -327,6 +349,15 @@ class StepInfo(NamedTuple):
         DK solutions the true branch can be after this step (1 when known).
     uncertain_since : int
         Step index since which the tracker cannot vouch; -1 when ``certain``.
+    pose_bound : ndarray, shape (3,)
+        When ``certain``: half-widths (m, m, rad) of a box about the returned pose that holds
+        every pose consistent, on the tracked branch, with joints within ``joint_tolerance``
+        of the sample (a proof, like ``certain``; about 1e-12 with exact joints).  inf when
+        not certain (:data:`NO_BOUND`).
+    trust : int
+        What a controller can act on (:data:`TRUST`): 2 certain (the branch proved, the pose
+        within ``pose_bound``); 1 possible (the branch along the measured joints is known but
+        not proved over the joint tolerance: a fold may lie within it); 0 lost.
     """
 
     label: int
@@ -343,6 +374,8 @@ class StepInfo(NamedTuple):
     certificate: int = 0
     n_candidates: int = 0
     uncertain_since: int = -1
+    pose_bound: np.ndarray = NO_BOUND
+    trust: int = TRUST_LOST
 
     @classmethod
     def from_result(cls, out_real: np.ndarray, out_int: np.ndarray, uncertain_since: int) -> "StepInfo":
@@ -350,11 +383,17 @@ class StepInfo(NamedTuple):
         i, f = out_int.tolist(), out_real[OUT_INFO:].tolist()      # Python numbers: quicker to read
         return cls(i[I_LABEL], bool(i[I_NEAR_BORDER]), out_real[OUT_X_PRED:OUT_X_PRED + 3].copy(), i[I_N_REAL],
                    f[F_COND], bool(i[I_AMBIGUOUS]), i[I_STATUS], bool(i[I_JUMP]), f[F_D_BEST], f[F_D_SECOND],
-                   bool(i[I_CERTAIN]), i[I_CERTIFICATE], i[I_N_CAND], uncertain_since)
+                   bool(i[I_CERTAIN]), i[I_CERTIFICATE], i[I_N_CAND], uncertain_since,
+                   out_real[OUT_BOUND:OUT_BOUND + 3].copy() if i[I_CERTAIN] else NO_BOUND, i[I_TRUST])
 
     @property
     def status_name(self) -> str:
         return STATUS[self.status]
+
+    @property
+    def trust_name(self) -> str:
+        """``trust`` by name: "certain", "possible" or "lost"."""
+        return TRUST[self.trust]
 
 
 class TrackResult(NamedTuple):
@@ -363,10 +402,12 @@ class TrackResult(NamedTuple):
     Attributes
     ----------
     X : ndarray (n, 3)
-    label, n_real, status, certificate, n_candidates, uncertain_since : ndarray of int (n,)
+    label, n_real, status, certificate, n_candidates, uncertain_since, trust : ndarray of int (n,)
     near_border, ambiguous, jump, certain : ndarray of bool (n,)
     X_pred : ndarray (n, 3)
     cond, d_best, d_second : ndarray (n,)
+    pose_bound : ndarray (n, 3)
+        Half-widths of the proven pose box (m, m, rad) at certain steps, inf elsewhere; row 0 the start's.
     seconds : ndarray (n,)
         Wall time of each step (s); 0 for the initial pose (which is certain).
     """
@@ -386,10 +427,12 @@ class TrackResult(NamedTuple):
     certificate: np.ndarray
     n_candidates: np.ndarray
     uncertain_since: np.ndarray
+    trust: np.ndarray
+    pose_bound: np.ndarray
     seconds: np.ndarray
 
 
 #: Per-step fields of TrackResult (name, dtype) besides X, X_pred and seconds.
 STEP_FIELDS = (("label", int), ("near_border", bool), ("n_real", int), ("cond", float), ("ambiguous", bool),
                ("status", int), ("jump", bool), ("d_best", float), ("d_second", float), ("certain", bool),
-               ("certificate", int), ("n_candidates", int), ("uncertain_since", int))
+               ("certificate", int), ("n_candidates", int), ("uncertain_since", int), ("trust", int))

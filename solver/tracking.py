@@ -14,7 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ._kernels.layout import I_CERTAIN, INFO_I_SIZE, OUT_SIZE, OUT_X, STATE_SIZE, STATUS_REJECTED
+from ._kernels.layout import I_CERTAIN, INFO_I_SIZE, OUT_SIZE, OUT_X, STATE_SIZE, STATUS_REJECTED, TRUST_CERTAIN, TRUST_LOST
 from .checks import SolverInputError, as_array
 from .direct_kinematics import kernel_constants
 from .kinematics import wrap_angle
@@ -148,17 +148,24 @@ class _TrackerBase:
         n = len(q_stream)
         self.reset(X0, q_stream[0])
         out = {k: np.zeros(n, dtype=t) for k, t in STEP_FIELDS + (("seconds", float),)}
-        out["certain"][0], out["uncertain_since"][0] = True, -1
+        start = getattr(self, "start", None)
+        certain = start is None or start.certain                  # baselines start from X0 as given
+        out["certain"][0], out["uncertain_since"][0] = certain, -1 if certain else 0
+        out["trust"][0] = TRUST_CERTAIN if certain else TRUST_LOST
         X = np.zeros((n, 3))
         Xp = np.zeros((n, 3))
+        bound = np.full((n, 3), np.inf)
         X[0] = Xp[0] = self.state.X
+        if start is not None:
+            bound[0] = start.pose_bound
         for k in range(1, n):
             t0 = time.perf_counter()
             X[k], info = self.step(q_stream[k])
             out["seconds"][k] = time.perf_counter() - t0
             Xp[k] = info.X_pred
+            bound[k] = info.pose_bound
             for key, _ in STEP_FIELDS:
                 out[key][k] = getattr(info, key)
-        return TrackResult(X=X, X_pred=Xp, **out)
+        return TrackResult(X=X, X_pred=Xp, pose_bound=bound, **out)
 
 

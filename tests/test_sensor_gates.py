@@ -124,6 +124,6 @@ def test_reacquisition_refuses_a_solution_outside_the_region(model):
     X = np.array([0.5, 0.35, 0.1])
     q = ik(model, X, 1)
     around = np.array([X[0] - 0.05, X[0] + 0.05, X[1] - 0.05, X[1] + 0.05, X[2] - 0.2, X[2] + 0.2])
-    assert reacquire(X, q, 1e-3, 0, around, 10000, pack)
+    assert reacquire(X, q, 1e-3, 0, around, 10000, pack, np.empty(6))
     away = around + np.array([0.3, 0.3, 0.0, 0.0, 0.0, 0.0])
-    assert not reacquire(X, q, 1e-3, 0, away, 10000, pack)
+    assert not reacquire(X, q, 1e-3, 0, away, 10000, pack, np.empty(6))

@@ -13,15 +13,22 @@ import numpy as np
 from numba import njit
 
 from .candidates import certify
-from .certify import CERT_NONE, CERT_REACQUIRED
+from .certify import CERT_NONE, CERT_REACQUIRED, CERT_TUBE
 from .choice import nearest
 from .exclusion import reacquire
 from .gates import reacquire_region
-from .layout import (I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, MAP_WEIGHTS, MODE_PAPER, OUT_CANDS, OUT_X_PRED,
-                     PARAM_JOINT_TOL, PARAM_MAX_TESTS, PARAM_POSTURE_BITS, PARAM_REACQUIRE, STATE_CANDS,
-                     STATE_EXT_SCALE, STATE_HAVE_Q2, STATE_INTACT, STATE_N_CAND, STATE_Q, STATE_Q2, STATE_VERIFIED)
+from .kinematics import geometry
+from .krawczyk import PAD
+from .layout import (I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_TRUST, MAP_WEIGHTS, MODE_PAPER, OUT_BOUND,
+                     OUT_CANDS, OUT_TUBE, OUT_X_PRED, PARAM_JOINT_TOL, PARAM_MAX_TESTS, PARAM_POSTURE_BITS,
+                     PARAM_REACQUIRE, STATE_CANDS, STATE_EXT_SCALE, STATE_HAVE_Q2, STATE_INTACT, STATE_N_CAND, STATE_Q,
+                     STATE_Q2, STATE_TUBE, STATE_TUBE_OK, STATE_VERIFIED, TRUST_CERTAIN, TRUST_LOST, TRUST_POSSIBLE)
 from .linalg import wrap
 from .tracker_packs import STEP_DQ, STEP_QU
+from .tube import TUBE_K, TUBE_S, TUBE_SIZE, TUBE_X, pose_bound, tube_chain, tube_test
+
+#: Tube tests one step's tube chain may use (a step far from singularities uses two).
+TUBE_TESTS = 64
 
 
 @njit(cache=True, inline="always")
@@ -29,23 +36,42 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
                   out_int):
     """The certificates of a step and what they change in the choice.
 
-    Updates the candidate set (OUT_CANDS) and writes I_CERTAIN, I_CERTIFICATE, I_N_CAND and
-    I_INTACT.  In default mode a choice the certificates rule out is replaced: by the one
+    First the tube chain (:func:`tube_step`) from the last certain step's tube; then the
+    chains of boxes along the measured joints (:func:`chains`: continuation, elimination,
+    posture), which vouch with exact joints; with measured joints (``joint_tolerance > 0``)
+    they only steer the choice, and certainty comes back by re-acquisition from this sample
+    alone.  Updates the candidate set (OUT_CANDS) and writes I_CERTAIN, I_CERTIFICATE, I_N_CAND,
+    I_INTACT, I_TRUST, the step's tube (OUT_TUBE) and the pose bound (OUT_BOUND, inf when not
+    certain).  In default mode a choice the certificates rule out is replaced: by the one
     candidate left, or by the candidate nearest the prediction.  Paper mode keeps its answer
-    and is certain only when it is the one candidate left.  Without a certificate over the
-    joint tolerance, measured joints re-acquire the branch from this sample alone.  An
-    ``untrusted`` sample (its joints may be a glitch) is not re-acquired from, vouched for
-    nothing and ends the chain.  Returns the (possibly new) chosen solution index, and whether
-    a chain of boxes along the measured joints joins it to a previous candidate or it was
-    re-acquired (the speed gate then leaves it alone).
+    and is certain only when it is the one candidate left.  An ``untrusted`` sample (its
+    joints may be a glitch) is not re-acquired from, vouched for nothing and ends the chain.
+    Returns the (possibly new) chosen solution index, and whether a chain of boxes joins it to
+    a previous candidate or it was re-acquired (the speed gate then leaves it alone).
     """
     new_cands = out_real[OUT_CANDS:OUT_CANDS + 18].reshape((6, 3))
+    tube = out_real[OUT_TUBE:OUT_TUBE + TUBE_SIZE]
+    bound = out_real[OUT_BOUND:OUT_BOUND + 3]
+    for r in range(3):
+        bound[r] = np.inf
     keep = np.empty(6, dtype=np.bool_)
-    n_new, cert, intact, linked = chains(state, work, poses, real, params, model_pack, new_cands, keep)
-    if not (cert != CERT_NONE and intact) and params[PARAM_JOINT_TOL] > 0.0 and params[PARAM_REACQUIRE] > 0.0 \
-            and int(params[PARAM_POSTURE_BITS]) >= 0 and not untrusted:
-        if reacquired(chosen, cert != CERT_NONE, state, work, poses, params, model_pack, new_cands, keep):
-            n_new, cert, intact, linked = 1, CERT_REACQUIRED, True, True
+    tol = params[PARAM_JOINT_TOL]
+    sol = -1
+    if state[STATE_TUBE_OK] > 0.0 and not untrusted:
+        sol = tube_step(state, work, poses, real, tol, model_pack, tube)
+    if sol >= 0:
+        n_new, cert, intact, linked = 1, CERT_TUBE, True, True
+        for k in range(6):
+            keep[k] = k == sol
+        new_cands[0, :] = poses[sol].real
+    else:
+        n_new, cert, intact, linked = chains(state, work, poses, real, params, model_pack, new_cands, keep)
+        if tol > 0.0:                          # along the measured joints: a choice, not a proof
+            intact = False
+            if params[PARAM_REACQUIRE] > 0.0 and int(params[PARAM_POSTURE_BITS]) >= 0 and not untrusted and \
+                    reacquired(chosen, cert != CERT_NONE, state, work, poses, params, model_pack, new_cands, keep,
+                               tube):
+                n_new, cert, intact, linked = 1, CERT_REACQUIRED, True, True
     certain = False
     if cert != CERT_NONE:        # the choice follows the certificates; vouched only with the chain intact
         sole = 0
@@ -64,11 +90,44 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
                             mask, mask, mask, True)
     if untrusted:
         certain, intact, linked = False, False, False
+    Xc = np.empty(3)
+    for i in range(3):
+        Xc[i] = poses[chosen, i].real
+    qu = work[STEP_QU:STEP_QU + 3]
+    if certain and cert != CERT_TUBE and cert != CERT_REACQUIRED:       # exact joints: the point's tube
+        M, l1, l2sq, b = geometry(model_pack)
+        certain = tube_test(Xc, qu, np.zeros(3), np.zeros(3), M, l1, l2sq, b, tube)
+    if certain:
+        certain = pose_bound(tube, qu, tol, Xc, bound)
+        if not certain:
+            for r in range(3):
+                bound[r] = np.inf
     out_int[I_CERTAIN] = 1 if certain else 0
     out_int[I_CERTIFICATE] = cert
     out_int[I_N_CAND] = n_new
     out_int[I_INTACT] = 1 if intact else 0
+    out_int[I_TRUST] = TRUST_CERTAIN if certain else (TRUST_POSSIBLE if linked or n_new == 1 else TRUST_LOST)
     return chosen, linked
+
+
+@njit(cache=True, inline="always")
+def tube_step(state, work, poses, real, tol, model_pack, tube):
+    """The tube chain (:func:`.tube.tube_chain`) over this step's joints from the last step's tube
+    (state pack), into ``tube`` (TUBE_SIZE,).  Returns the index of the real DK solution that is
+    the tube's solution at the measured joints, or -1 when the chain did not close."""
+    M, l1, l2sq, b = geometry(model_pack)
+    if tube_chain(state[STATE_TUBE:STATE_TUBE + TUBE_SIZE], state[STATE_Q:STATE_Q + 3], work[STEP_DQ:STEP_DQ + 3],
+                  tol, TUBE_TESTS, M, l1, l2sq, b, tube) <= 0:
+        return -1
+    qu = work[STEP_QU:STEP_QU + 3]
+    Xr, h = np.empty(3), np.empty(3)
+    for k in range(6):
+        if real[k]:
+            for i in range(3):
+                Xr[i] = poses[k, i].real
+            if pose_bound(tube, qu, tol, Xr, h):
+                return k
+    return -1
 
 
 @njit(cache=True, inline="always")
@@ -87,17 +146,19 @@ def chains(state, work, poses, real, params, model_pack, new_cands, keep):
     intact_before = state[STATE_INTACT] > 0.0
     n_new, cert, intact, linked = certify(state[STATE_CANDS:STATE_CANDS + 18].reshape((6, 3)),
                                           int(state[STATE_N_CAND]), state[STATE_VERIFIED] > 0.0, intact_before, qp,
-                                          dq, d2, have_par, params[PARAM_JOINT_TOL], poses, real,
+                                          dq, d2, have_par, 0.0, poses, real,
                                           int(params[PARAM_POSTURE_BITS]), int(params[PARAM_MAX_TESTS]), model_pack,
                                           new_cands, keep)
     return n_new, cert, intact and intact_before, linked
 
 
 @njit(cache=True, inline="always")
-def reacquired(chosen, certified, state, work, poses, params, model_pack, new_cands, keep):
+def reacquired(chosen, certified, state, work, poses, params, model_pack, new_cands, keep, tube):
     """Re-acquire the branch from this sample alone (measured joints, :mod:`.exclusion`): the
     solution the certificates kept (``certified``) or else ``chosen``, over the region the robot
-    can be in (:func:`.gates.reacquire_region`).  On success ``keep`` (6,) marks it alone and
+    can be in (:func:`.gates.reacquire_region`).  The re-acquired Krawczyk box holds the robot's
+    pose; the tube of the reading's joint box (``tube``, TUBE_SIZE,) takes it over when its
+    hull lies inside that box.  On success ``keep`` (6,) marks the solution alone and
     ``new_cands[0]`` holds it; returns whether it succeeded."""
     region = np.empty(6)
     reacquire_region(params, state, region)
@@ -109,11 +170,31 @@ def reacquired(chosen, certified, state, work, poses, params, model_pack, new_ca
     Xc = np.empty(3)
     for i in range(3):
         Xc[i] = poses[target, i].real
-    if region[0] <= region[1] and region[2] <= region[3] and \
-            reacquire(Xc, work[STEP_QU:STEP_QU + 3], params[PARAM_JOINT_TOL], int(params[PARAM_POSTURE_BITS]),
-                      region, int(params[PARAM_REACQUIRE]), model_pack):
-        for k in range(6):
-            keep[k] = k == target
-        new_cands[0, :] = Xc
-        return True
-    return False
+    qu, tol = work[STEP_QU:STEP_QU + 3], params[PARAM_JOINT_TOL]
+    box = np.empty(6)
+    if not (region[0] <= region[1] and region[2] <= region[3] and
+            reacquire(Xc, qu, tol, int(params[PARAM_POSTURE_BITS]), region, int(params[PARAM_REACQUIRE]),
+                      model_pack, box)):
+        return False
+    M, l1, l2sq, b = geometry(model_pack)
+    if not tube_test(Xc, qu, np.full(3, tol), np.zeros(3), M, l1, l2sq, b, tube) or not hull_inside(tube, tol, box):
+        return False
+    for k in range(6):
+        keep[k] = k == target
+    new_cands[0, :] = Xc
+    return True
+
+
+@njit(cache=True, inline="always")
+def hull_inside(tube, tol, box):
+    """The tube's solutions over its centre joints ``+- tol`` lie in the box ``box`` (centre, half-widths)."""
+    for r in range(3):
+        spread = tube[TUBE_K + r] + PAD
+        for m in range(3):
+            spread += abs(tube[TUBE_S + 3 * r + m]) * tol
+        d = tube[TUBE_X + r] - box[r]
+        if r == 2:
+            d = wrap(d)
+        if not abs(d) + spread * (1.0 + 1e-9) < box[3 + r]:
+            return False
+    return True

@@ -40,7 +40,7 @@ MATCH = 1e-7
 LinkBoxes = namedtuple("LinkBoxes", ("tiny", "none", "tube", "c", "rho"))
 
 #: Certificates (the tracker's ``certificate`` output).
-CERT_NONE, CERT_CONTINUATION, CERT_ELIMINATION, CERT_POSTURE, CERT_REACQUIRED = 0, 1, 2, 3, 4
+CERT_NONE, CERT_CONTINUATION, CERT_ELIMINATION, CERT_POSTURE, CERT_REACQUIRED, CERT_TUBE = 0, 1, 2, 3, 4, 5
 
 
 @njit(cache=True)

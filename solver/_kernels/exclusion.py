@@ -161,10 +161,11 @@ def posture_preimage_in(c, rho, q, eps, posture_bits, root, M, l1, l2sq, b, max_
 
 
 @njit(cache=True)
-def reacquire(X, q, eps, posture_bits, region, max_boxes, model_pack):
+def reacquire(X, q, eps, posture_bits, region, max_boxes, model_pack, box):
     """The proof of the module docstring for the solution ``X`` (3,) of the measured joints ``q`` (3,).
 
-    ``region`` (6,): a pose box known to hold the robot (x, y, phi lo/hi).  True when
+    ``region`` (6,): a pose box known to hold the robot (x, y, phi lo/hi); ``box`` (6,)
+    receives the Krawczyk box's centre and half-widths (it holds the robot's pose).  True when
     ``X`` is in the posture and in the region, a Krawczyk box about it holds one solution
     for every joint vector in ``q +- eps``, and no other pose of the region in the posture
     reaches them.  (``X`` outside the region would make the last clause true of a region
@@ -179,4 +180,5 @@ def reacquire(X, q, eps, posture_bits, region, max_boxes, model_pack):
         return False
     if not same_pose(xc, X) or not krawczyk(xc, np.full(3, TINY), q, none, none, 0.0, 0.0, none, M, l1, b, l2sq, w):
         return False
+    box[:3], box[3:] = xc, rho
     return posture_preimage_in(xc, rho, q, eps, posture_bits, region, M, l1, l2sq, b, max_boxes) > 0

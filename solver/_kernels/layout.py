@@ -47,7 +47,9 @@ STATE_REFUSED = 38        # samples refused in a row since the last accepted one
 STATE_ANCHOR = 39         # (3,) the pose of the last certain step (re-acquisition's region)
 STATE_ANCHOR_AGE = 42     # seconds from that step to this one (NaN: unknown)
 STATE_STEP_DT = 43        # seconds from the last accepted sample to this one (NaN: unknown)
-STATE_SIZE = 44
+STATE_TUBE = 44           # (24,) the last step's tube (:mod:`.tube`: TUBE_SIZE), valid over its joint box
+STATE_TUBE_OK = 68        # > 0: the last step was certain and STATE_TUBE holds the robot's pose
+STATE_SIZE = 69
 
 # ----------------------------------------------------------------------------- map pack
 # The grid of a map tensor and the procedure-2 neighbourhood (eq. 18-19).
@@ -88,14 +90,16 @@ OUT_X = 0                 # (3,) the pose returned
 OUT_X_PRED = 3            # (3,) the prediction it was compared with
 OUT_INFO = 6              # (INFO_F_SIZE,) the fields F_*
 OUT_CANDS = 12            # (6, 3) the candidates after the step (as STATE_CANDS)
-OUT_SIZE = 30
+OUT_TUBE = 30             # (24,) the step's tube (:mod:`.tube`) when certain
+OUT_BOUND = 54            # (3,) the pose bound's half-widths (m, m, rad); inf when not certain
+OUT_SIZE = 57
 # float info fields (offsets inside OUT_INFO)
 F_D_BEST, F_D_SECOND, F_COND_PREV, F_COND, F_DQ, F_INNOV = 0, 1, 2, 3, 4, 5
 INFO_F_SIZE = 6
 # integer outputs of a step
 I_LABEL, I_NEAR_BORDER, I_N_REAL, I_AMBIGUOUS, I_STATUS, I_JUMP, I_REGION = 0, 1, 2, 3, 4, 5, 6
-I_CERTAIN, I_CERTIFICATE, I_N_CAND, I_INTACT = 7, 8, 9, 10
-INFO_I_SIZE = 11
+I_CERTAIN, I_CERTIFICATE, I_N_CAND, I_INTACT, I_TRUST = 7, 8, 9, 10, 11
+INFO_I_SIZE = 12
 
 # ----------------------------------------------------------------------------- codes
 #: Status of a step (also the DK FMU's ``status`` output); REJECTED: a sample the tracker (outlier
@@ -106,6 +110,12 @@ STATUS = {STATUS_OK: "ok", STATUS_UNREACHABLE: "unreachable", STATUS_SINGULAR: "
           STATUS_REJECTED: "rejected", STATUS_DIVERGED: "diverged"}
 #: Samples refused in a row after which the next one is taken anyway (the joints moved: certainty lost).
 MAX_REFUSED = 2
+#: What a controller can act on (``StepInfo.trust``): LOST, nothing proved about the branch; POSSIBLE, the
+#: branch along the measured joints is known but not proved over the joint tolerance (a fold may lie
+#: within it); CERTAIN, proved, the pose within ``pose_bound``.
+TRUST_LOST, TRUST_POSSIBLE, TRUST_CERTAIN = 0, 1, 2
+#: The trust levels by name, the one table of them.
+TRUST = {TRUST_LOST: "lost", TRUST_POSSIBLE: "possible", TRUST_CERTAIN: "certain"}
 #: Tracker modes.
 MODE_PAPER, MODE_DEFAULT = 0, 1
 #: Default-mode strategies: continuation only, extrapolation only, arbitrated by the segment's

@@ -33,12 +33,14 @@ from .direct_kinematics import dk_one
 from .gates import GATE_PASS, GATE_REFUSE, outlier_gate, speed_gate
 from .kinematics import geometry, jacobian
 from .layout import (F_D_BEST, F_D_SECOND, F_DQ, F_COND, F_INNOV, I_AMBIGUOUS, I_CERTAIN, I_CERTIFICATE, I_INTACT,
-                     I_JUMP, I_LABEL, I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, INFO_F_SIZE, INFO_I_SIZE, MAP_ORIGIN,
-                     MAP_PERIODIC, MAP_R2, MAP_STEP, MAP_WEIGHTS, MAX_REFUSED, MODE_PAPER, OUT_CANDS, OUT_INFO, OUT_X,
+                     I_JUMP, I_LABEL, I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, I_TRUST, INFO_F_SIZE, INFO_I_SIZE,
+                     MAP_ORIGIN, MAP_PERIODIC, MAP_R2, MAP_STEP, MAP_WEIGHTS, MAX_REFUSED, MODE_PAPER, OUT_BOUND,
+                     OUT_CANDS, OUT_INFO, OUT_X,
                      OUT_X_PRED, PARAM_AMBIGUITY, PARAM_GATE, PARAM_JOINT_TOL, PARAM_JUMP, PARAM_MAX_TESTS,
                      PARAM_SINGULAR, PARAM_SPEED, STATE_A_SCALE, STATE_CANDS, STATE_DQ_SCALE, STATE_EXT_SCALE,
                      STATE_HAVE_Q2, STATE_INTACT, STATE_N_CAND, STATE_Q, STATE_Q2, STATE_REFUSED, STATE_STEP_DT,
-                     STATE_X, STATUS_OK, STATUS_REJECTED, STATUS_SINGULAR, STATUS_UNREACHABLE)
+                     STATE_TUBE_OK, STATE_X, STATUS_OK, STATUS_REJECTED, STATUS_SINGULAR, STATUS_UNREACHABLE,
+                     TRUST_LOST, TRUST_POSSIBLE)
 from .linalg import hadamard, wrap
 from .maptensor import near_mask_one
 from .tracker_packs import STEP_DQ, STEP_DQN, STEP_JUMP, STEP_QU, STEP_SIZE, STEP_X_LIN
@@ -102,6 +104,8 @@ def step_pack(q, state, params, out_real, out_int):
         out_int[i] = 0
     for i in range(INFO_F_SIZE):
         out_real[OUT_INFO + i] = 0.0
+    for i in range(3):
+        out_real[OUT_BOUND + i] = np.inf
     work = np.empty(STEP_SIZE)
     qp = state[STATE_Q:STATE_Q + 3]
     dqn = joint_step(q, qp, work[STEP_DQ:STEP_DQ + 3])
@@ -116,8 +120,9 @@ def step_pack(q, state, params, out_real, out_int):
 @njit(cache=True, inline="always")
 def hold(state, out_real, out_int, status):
     """The previous pose held (a refused or unreachable sample): the pose, the status, and the
-    candidates and chain as they were."""
+    candidates and chain as they were; not certain (no bound), possible while the last step was."""
     out_real[OUT_X:OUT_X + 3] = state[STATE_X:STATE_X + 3]
+    out_int[I_TRUST] = TRUST_POSSIBLE if state[STATE_TUBE_OK] > 0.0 else TRUST_LOST
     out_int[I_STATUS] = status
     out_int[I_N_CAND] = int(state[STATE_N_CAND])
     out_int[I_INTACT] = 1 if state[STATE_INTACT] > 0.0 else 0
@@ -238,10 +243,15 @@ def speed_gate_phase(mode, chosen, linked, untrusted, state, work, poses, real, 
         out_int[I_CERTIFICATE] = CERT_NONE
         out_int[I_CERTAIN] = 0
         out_int[I_INTACT] = 0
+        out_int[I_TRUST] = TRUST_LOST
+        for i in range(3):
+            out_real[OUT_BOUND + i] = np.inf
     elif taken < 0:
         hold(state, out_real, out_int, STATUS_UNREACHABLE)
         out_int[I_CERTAIN] = 0
         out_int[I_AMBIGUOUS] = 1
+        for i in range(3):
+            out_real[OUT_BOUND + i] = np.inf
     return taken
 
 

@@ -53,6 +53,9 @@ TUBE_SIZE = 24
 ROUNDS = 6
 #: Largest rho a tube test grows to (m or rad): beyond it the tube is useless as a bound.
 RHO_MAX = 0.05
+#: How far (m, m, rad) a computed DK solution may lie outside a tube and still be taken as its solution
+#: (its rounding: polished roots are within about 1e-15 of the exact ones, distinct ones farther apart).
+MATCH_PAD = 1e-9
 #: Relative slack of the final radius and of the hand-off check.
 SLACK = 1e-9
 
@@ -292,6 +295,8 @@ def tested_takeover(pieces, n, xg, qc, t, M, l1, l2sq, b, new):
     return tube_test(xg, qc, t, need, M, l1, l2sq, b, new) and takes_over(pieces, n, new, need)
 
 
+#: Tubes of the reading's own box, each taking over from the last, that tighten its bound.
+REFINE = 4
 #: Most tubes one step's chain may hold (the pieces of the joint step and the reading's own box).
 MAX_PIECES = 48
 
@@ -345,10 +350,16 @@ def tube_chain(old, qp, dq, tol, max_tests, M, l1, l2sq, b, out):
     if n > 1 and tol == 0.0 and pieces[n - 1, TUBE_T] == 0.0 and pieces[n - 1, TUBE_T + 1] == 0.0 \
             and pieces[n - 1, TUBE_T + 2] == 0.0:
         return tests
-    predictor(out, qc, xg)
-    tests += 1
-    if tested_takeover(pieces[n - 1:n], 1, xg, qc, t, M, l1, l2sq, b, new):
+    for _ in range(REFINE):           # each tube a tighter one takes over from (kappa shrinks with rho^2)
+        predictor(out, qc, xg)
+        tests += 1
+        pieces[n, :] = out
+        if not tested_takeover(pieces[n:n + 1], 1, xg, qc, t, M, l1, l2sq, b, new):
+            break
+        shrink = max(new[TUBE_K] / out[TUBE_K], max(new[TUBE_K + 1] / out[TUBE_K + 1], new[TUBE_K + 2] / out[TUBE_K + 2]))
         out[:] = new
+        if shrink > 0.1:
+            break
     return tests
 
 
@@ -356,8 +367,9 @@ def tube_chain(old, qp, dq, tol, max_tests, M, l1, l2sq, b, out):
 def pose_bound(tube, q, tol, X, out):
     """Half-widths (3,) into ``out`` of a box about the pose ``X`` (3,) holding the tube's solution for
     every joint vector within ``tol`` of ``q`` (3,): ``|S| tol + |X - x~ - S (q - q~)| + kappa``.
-    Returns whether ``X`` lies in the tube at ``q`` (it is then that solution, up to its own
-    rounding)."""
+    Returns whether ``X`` lies in the tube at ``q`` up to :data:`MATCH_PAD` (a DK solution there is
+    the tube's, up to its own rounding).  The bound holds for any ``X``: it contains
+    ``|X - x~ - S (q - q~)|``."""
     p = np.empty(3)
     predictor(tube, q, p)
     inside = True
@@ -369,5 +381,5 @@ def pose_bound(tube, q, tol, X, out):
         for m in range(3):
             spread += abs(tube[TUBE_S + 3 * r + m]) * tol
         out[r] = (spread + abs(d) + tube[TUBE_K + r]) * (1.0 + SLACK) + PAD * (1.0 + abs(X[r])) + 1e-15
-        inside = inside and abs(d) + 1e-12 < tube[TUBE_R + r]
+        inside = inside and abs(d) < tube[TUBE_R + r] + MATCH_PAD
     return inside

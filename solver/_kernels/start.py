@@ -1,0 +1,77 @@
+"""The honest start, compiled: the DK solution nearest an approximate initial pose, proved the only
+one the robot can be in.
+
+The caller knows the robot's pose only roughly: within ``r0`` (3,) of ``X0``, the *start region*
+``R = X0 +- r0``, at joints within ``tol`` of the reading ``q0``.  :func:`certify_start` proves, for
+the DK solution ``Xs`` of ``q0`` in ``R``:
+
+1. the tube of the joint box ``Q0 = q0 +- tol`` about ``Xs`` (:func:`.tube.tube_test`): one solution
+   per joint vector, within the pose bound;
+2. a Krawczyk box ``B`` about ``Xs`` (:func:`.krawczyk.krawczyk`) holds exactly one solution for
+   every joint vector of ``Q0``, and the tube's solutions lie in it;
+3. ``B`` holds ``R``, or else every pose of ``R`` whose inverse kinematics in any of the eight
+   postures lands in ``Q0`` lies in ``B`` (:func:`.exclusion.posture_preimage_in`).
+
+So the robot's pose, in ``R`` at joints in ``Q0``, is the tube's solution: the tracker starts
+certain, with the tube as its first.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .certified import hull_inside
+from .exclusion import posture_preimage_in
+from .kinematics import geometry
+from .krawczyk import W_SIZE, krawczyk
+from .linalg import wrap
+from .tube import TUBE_K, TUBE_S, TUBE_X, tube_test
+
+#: Codes of :func:`certify_start`.
+START_PROVED, START_NO_TUBE, START_NOT_UNIQUE = 0, 1, 2
+
+
+@njit(cache=True)
+def certify_start(X0, r0, Xs, q0, tol, max_boxes, model_pack, tube):
+    """The proof of the module docstring for the solution ``Xs`` (3,) of the joints ``q0`` (3,) (rad, read
+    within ``tol``), the robot within ``r0`` (3,) of ``X0`` (3,) (m, m, rad).  Writes the tube
+    (TUBE_SIZE,) and returns START_PROVED, START_NO_TUBE (no tube proof about ``Xs``: a
+    singularity within the joint box) or START_NOT_UNIQUE (another pose of the start region
+    may reach the joints)."""
+    M, l1, l2sq, b = geometry(model_pack)
+    t = np.full(3, tol)
+    if not tube_test(Xs, q0, t, np.zeros(3), M, l1, l2sq, b, tube):
+        return START_NO_TUBE
+    c = tube[TUBE_X:TUBE_X + 3].copy()
+    rho = np.empty(3)
+    for r in range(3):
+        d = c[r] - X0[r]
+        if r == 2:
+            d = wrap(d)
+        hull = tube[TUBE_K + r]
+        for m in range(3):
+            hull += abs(tube[TUBE_S + 3 * r + m]) * tol
+        rho[r] = max(abs(d) + r0[r], 2.0 * hull) * (1.0 + 1e-6) + 1e-12
+    w = np.empty(W_SIZE)
+    none = np.zeros(3)
+    box = np.empty(6)
+    if krawczyk(c, rho, q0, none, none, 0.0, 0.0, t, M, l1, b, l2sq, w):     # one box holds R
+        box[:3], box[3:] = c, rho
+        return START_PROVED if hull_inside(tube, tol, box) else START_NOT_UNIQUE
+    for _ in range(40):                                   # the largest box about Xs that Krawczyk proves
+        for r in range(3):
+            rho[r] *= 0.5
+        if krawczyk(c, rho, q0, none, none, 0.0, 0.0, t, M, l1, b, l2sq, w):
+            break
+    else:
+        return START_NOT_UNIQUE
+    box[:3], box[3:] = c, rho
+    if not hull_inside(tube, tol, box):
+        return START_NOT_UNIQUE
+    region = np.empty(6)
+    for r in range(3):
+        region[2 * r], region[2 * r + 1] = X0[r] - r0[r], X0[r] + r0[r]
+    for posture_bits in range(8):
+        if posture_preimage_in(c, rho, q0, tol, posture_bits, region, M, l1, l2sq, b, max_boxes) <= 0:
+            return START_NOT_UNIQUE
+    return START_PROVED
