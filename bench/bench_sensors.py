@@ -35,7 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bench_tracker import VOUCHING, pose_errors
+from bench_tracker import VOUCHING as _VOUCHING
+from bench_tracker import pose_errors
 from experiments.sensors import SENSOR_GRADES, sensor_truth
 from experiments.suite import default_suite, hard_suite
 from solver import DEFAULT_RULE, DEFAULT_STEP, Manipulator, SolverInputError, Tracker, cached_map, wrap_angle
@@ -43,11 +44,14 @@ from solver.baselines import BASELINES
 from solver.tracker_state import STATUS
 
 REJECTED = [k for k, v in STATUS.items() if v == "rejected"][0]
+#: Methods that vouch: the baselines' and the default-constructed tracker's ("bare", exact grades only).
+VOUCHING = _VOUCHING + ("bare",)
 
 
 def make_methods(model, maps, names, tol, speed, stuck_after=0):
     makers = {"default": lambda p: Tracker(model, maps[p], joint_tolerance=tol, speed_bound=speed,
                                            stuck_after=stuck_after),
+              "bare": lambda p: Tracker(model, maps[p]),          # default construction (exact joints assumed)
               "paper": lambda p: Tracker(model, maps[p], mode="paper", joint_tolerance=tol, speed_bound=speed,
                                          stuck_after=stuck_after)}
     for name, cls in BASELINES.items():
@@ -55,15 +59,20 @@ def make_methods(model, maps, names, tol, speed, stuck_after=0):
     return {n: makers[n] for n in names}
 
 
-def run_stream(tracker, q, X0, dt):
-    """Track a measured stream sample by sample: poses (n, 3), certain (n,), refused (n,), step seconds (n,)."""
+def run_stream(tracker, q, X0, dt, bounds=None):
+    """Track a measured stream sample by sample: poses (n, 3), certain (n,), refused (n,), step seconds (n,);
+    the pose bounds (n, 3) into ``bounds`` when given (inf where not certain)."""
     n = len(q)
     X = np.full((n, 3), np.nan)
     certain = np.zeros(n, dtype=bool)
     refused = np.zeros(n, dtype=bool)
     secs = np.zeros(n)
-    tracker.reset(X0, q[0])
-    X[0], certain[0] = tracker.state.X, True
+    if bounds is not None:
+        bounds[:] = np.inf
+    start = tracker.reset(X0, q[0])
+    X[0], certain[0] = tracker.state.X, True if start is None else start.certain
+    if bounds is not None and start is not None:
+        bounds[0] = start.pose_bound
     step = tracker.step
     for k in range(1, n):
         t0 = time.perf_counter()
@@ -77,6 +86,8 @@ def run_stream(tracker, q, X0, dt):
         secs[k] = time.perf_counter() - t0
         certain[k] = info.certain
         refused[k] = info.status == REJECTED
+        if bounds is not None:
+            bounds[k] = info.pose_bound
     return X, certain, refused, secs
 
 
@@ -111,8 +122,12 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--coarse", action="store_true", help="also the suites at their own samplings")
     ap.add_argument("--grades", nargs="+", default=[s.name for s in SENSOR_GRADES],
                     help="sensor grades (experiments.sensors.SENSOR_GRADES; default all)")
-    ap.add_argument("--methods", nargs="+", default=["default", "paper", "newton"],
-                    help="trackers and baselines to run (default: default paper newton)")
+    ap.add_argument("--methods", nargs="+", default=["default", "bare", "paper", "newton"],
+                    help="trackers and baselines to run (default: default bare paper newton; bare, the "
+                         "default-constructed tracker, runs on the grades without noise)")
+    ap.add_argument("--no-floor", dest="floor", action="store_false",
+                    help="skip the fold floor (bench/sensor_oracle.py's fold test on the default mode's "
+                         "uncertain steps)")
     ap.add_argument("--limit", type=int, default=0, help="only the first N paths (quick looks)")
     ap.add_argument("--no-tolerance", dest="tolerance", action="store_false",
                     help="run the trackers without the sensor's joint_tolerance (as for exact joints)")
@@ -142,22 +157,61 @@ def _suite_and_speed(model, args, dt: float):
     return suite, None if args.no_speed else tuple(args.speed)
 
 
+def longest_run(flags) -> int:
+    """The longest run of True in ``flags`` (n,) bool."""
+    best = cur = 0
+    for f in flags:
+        cur = cur + 1 if f else 0
+        best = max(best, cur)
+    return best
+
+
+def bound_checks(X, bounds, certain, counted, X_true, q, q_true, tol):
+    """The pose bound against the robot's (noise-free) pose on the counted certain steps where the sensor
+    kept its tolerance: (steps checked, steps where it failed, ratios bound / actual error (m, 3))."""
+    kept = np.all(np.abs(wrap_angle(q - q_true)) <= tol * (1 + 1e-12), axis=1)
+    sel = counted & certain & kept
+    sel[0] = False
+    err = np.abs(X[sel] - X_true[sel])
+    err[:, 2] = np.abs(wrap_angle(X[sel, 2] - X_true[sel, 2]))
+    fail = np.any(err > bounds[sel], axis=1)
+    return int(sel.sum()), int(fail.sum()), bounds[sel] / np.maximum(err, 1e-300)
+
+
 def _run_grade(model, maps, suite, sensor, args, speed, dt, secs, worst, per_path) -> dict:
     """Every method on every path's stream of ``sensor``; the totals per method."""
-    makers = make_methods(model, maps, args.methods, sensor.tolerance(args.sigmas) if args.tolerance else 0.0,
-                          speed, sensor.stuck_after() if args.stuck else 0)
-    tot = {m: dict(counted=0, errors=0, silent=0, alarms=0, refused=0, recovery=0) for m in makers}
+    tol = sensor.tolerance(args.sigmas) if args.tolerance else 0.0
+    names = [m for m in args.methods if m != "bare" or (sensor.noise == 0.0 and not sensor.glitch)]
+    makers = make_methods(model, maps, names, tol, speed, sensor.stuck_after() if args.stuck else 0)
+    tot = {m: dict(counted=0, errors=0, silent=0, alarms=0, refused=0, recovery=0, run=0, checked=0, broken=0,
+                   ratios=[], floor=0) for m in makers}
+    rng = np.random.default_rng(7)
     for i, path in enumerate(suite):
         stream = sensor.measure(path.q, seed=1000 + i)
         q = stream.q.copy()
         q[0] = path.q[0]                                      # the tracker starts from a known configuration
         truth, counted = sensor_truth(model, q, path.X, stream.glitch)
         for m, make in makers.items():
-            X, certain, refused, s = run_stream(make(path.posture), q, path.X[0], dt)
+            bounds = np.empty((len(q), 3))
+            X, certain, refused, s = run_stream(make(path.posture), q, path.X[0], dt, bounds)
             sc = score(X, certain, refused, truth, counted, stream.glitch, m in VOUCHING)
-            secs[m].append(s[1:])
-            for key in tot[m]:
-                tot[m][key] = max(tot[m][key], sc[key]) if key == "recovery" else tot[m][key] + sc[key]
+            secs.setdefault(m, []).append(s[1:])
+            for key in ("counted", "errors", "silent", "alarms", "refused"):
+                tot[m][key] += sc[key]
+            tot[m]["recovery"] = max(tot[m]["recovery"], sc["recovery"])
+            if m in VOUCHING:
+                c = counted.copy()
+                c[0] = False
+                tot[m]["run"] = max(tot[m]["run"], longest_run((c & ~certain)[c]))
+                n_chk, n_bad, ratios = bound_checks(X, bounds, certain, counted, path.X, q, path.q,
+                                                    tol if m != "bare" else 0.0)      # bare: exact joints
+                tot[m]["checked"] += n_chk
+                tot[m]["broken"] += n_bad
+                tot[m]["ratios"].append(ratios)
+                if m == "default" and args.floor and tol > 0:
+                    from sensor_oracle import foldable
+                    tot[m]["floor"] += sum(foldable(model, path.X[k], path.q[k], q[k], tol, rng, 8)
+                                           for k in np.nonzero(c & ~certain)[0])
             if sc["silent"] or (m == "default" and sc["errors"] > 0):
                 worst.setdefault((sensor.name, m), []).append((path.name, sc["errors"], sc["silent"], sc["alarms"]))
             per_path[sensor.name, path.name, m] = sc["errors"]
@@ -172,7 +226,7 @@ def main(argv=None):
     grades = {s.name: s for s in SENSOR_GRADES}
     maps = {p: cached_map(model, p, DEFAULT_RULE, DEFAULT_STEP) for p in sorted({s.posture for s in suite})}
     rows, per_path, worst = {}, {}, {}
-    secs = {m: [] for m in args.methods}
+    secs = {}
     warm = make_methods(model, maps, args.methods, 1e-3, speed, 5)     # compile (or load) the kernels first
     for make in warm.values():
         run_stream(make(suite[0].posture), suite[0].q[:20], suite[0].X[0], dt)
@@ -189,6 +243,27 @@ def main(argv=None):
     _report(rows, grades, secs, len(suite), elapsed, per_path, [p.name for p in suite])
 
 
+def trust_rows(rows) -> list:
+    """Per sensor grade and vouching tracker: false alarms beside the fold floor, the longest run of
+    uncertain counted steps, the pose bound's check and its tightness (table rows of strings)."""
+    out = []
+    for gname, tot in rows.items():
+        for m, t in tot.items():
+            if m not in ("default", "bare", "paper"):
+                continue
+            n = max(t["counted"], 1)
+            r = np.concatenate(t["ratios"]) if t["ratios"] else np.empty((0, 3))
+            tight = ", ".join(f"{v:.3g}" for v in np.median(r, axis=0)) if len(r) else "-"
+            floor = f"{100 * t['floor'] / n:.2f} %" if m == "default" and gname != "exact" and t["floor"] else "-"
+            out.append((gname, m, f"{100 * t['alarms'] / n:.2f} %", floor, str(t["run"]),
+                        f"{t['checked'] - t['broken']:,} of {t['checked']:,}", tight))
+    return out
+
+
+TRUST_HEADER = ["sensor", "method", "false alarms", "fold floor", "longest uncertain run (steps)",
+                "bound holds (certain steps, sensor within tolerance)", "bound / actual error, median (x, y, phi)"]
+
+
 def _print_tables(rows, grades, secs, suite, grade_names, per_path, worst) -> None:
     print("\n| sensor | method | counted steps | errors | silent errors | false alarms | refused | recovery (samples) |")
     print("|---|---|---|---|---|---|---|---|")
@@ -197,6 +272,9 @@ def _print_tables(rows, grades, secs, suite, grade_names, per_path, worst) -> No
             fa = f"{t['alarms']} ({100 * t['alarms'] / max(t['counted'], 1):.2f} %)" if m in VOUCHING else "n/a"
             rec = str(t["recovery"]) if grades[gname].glitch else "-"
             print(f"| {gname} | {m} | {t['counted']:,} | {t['errors']} | {t['silent']} | {fa} | {t['refused']} | {rec} |")
+    print("\n| " + " | ".join(TRUST_HEADER) + " |\n|" + "---|" * len(TRUST_HEADER))
+    for row in trust_rows(rows):
+        print("| " + " | ".join(row) + " |")
     med = {m: 1e6 * float(np.median(np.concatenate(v))) for m, v in secs.items()}
     print("\n| method | median step time (us), all streams | 99th percentile (us) | 99.9th (us) | slowest (ms) |"
           "\n|---|---|---|---|---|")
@@ -243,6 +321,7 @@ def _report(rows, grades, secs, n_paths, elapsed, per_path, names):
         times.append((m, f"{np.median(a):.1f} us", f"{np.percentile(a, 99):.0f} us", f"{np.percentile(a, 99.9):.0f} us",
                       f"{a.max() / 1e3:.1f} ms"))
     steps = table(["method", "median step", "99th percentile", "99.9th percentile", "slowest"], times)
+    counts += "\n\n" + table(TRUST_HEADER, trust_rows(rows))
     worse = {g: [n for n in names if per_path[g, n, "default"] > per_path[g, n, "newton"]]
              for g in rows if "default" in rows[g] and "newton" in rows[g]}
     if worse:
@@ -254,12 +333,34 @@ def _report(rows, grades, secs, n_paths, elapsed, per_path, names):
     if noisy:
         d = [rows[g]["default"] for g in noisy]
         alarms = [100 * t["alarms"] / max(t["counted"], 1) for t in d]
+        real = [g for g in noisy if grades[g].noise <= 1e-4 and not grades[g].glitch]
+        harsh = [g for g in noisy if grades[g].noise > 1e-4 and not grades[g].glitch]
+        pct = {g: 100 * rows[g]["default"]["alarms"] / max(rows[g]["default"]["counted"], 1) for g in noisy}
+        floor = {g: 100 * rows[g]["default"]["floor"] / max(rows[g]["default"]["counted"], 1) for g in noisy}
+        checked = sum(rows[g][m]["checked"] for g in noisy for m in rows[g] if m in ("default", "bare"))
+        broken = sum(rows[g][m]["broken"] for g in noisy for m in rows[g] if m in ("default", "bare"))
         headline = [(f"joints from encoders ({', '.join(noisy)}), default mode: silent errors / errors",
                      f"{sum(t['silent'] for t in d)} / {sum(t['errors'] for t in d):,}"
                      + (f" (Newton: {sum(rows[g]['newton']['errors'] for g in noisy):,}, all silent)"
-                        if all("newton" in rows[g] for g in noisy) else ""), "0 silent"),
-                    ("the same: false alarms (right, not `certain`)", f"{min(alarms):.1f}-{max(alarms):.1f} %",
-                     "<= 3 % (not met: see docs/sensors.md)")]
+                        if all("newton" in rows[g] for g in noisy) else ""), "0 silent")]
+        if real:
+            ok = all(pct[g] <= 1.0 and rows[g]["default"]["run"] <= 50 for g in real)
+            headline.append((f"realistic encoders ({', '.join(real)}): false alarms; longest uncertain run",
+                             ", ".join(f"{pct[g]:.2f} %" for g in real) + "; "
+                             + ", ".join(str(rows[g]["default"]["run"]) for g in real) + " steps",
+                             "<= 1 %, <= 50 steps" + ("" if ok else " (not met)")))
+        if harsh:
+            ok = all(pct[g] <= floor[g] + 3.0 for g in harsh)
+            headline.append((f"harsh encoders ({', '.join(harsh)}): false alarms (fold floor)",
+                             ", ".join(f"{pct[g]:.1f} % ({floor[g]:.1f} %)" for g in harsh),
+                             "<= floor + 3 points" + ("" if ok else " (not met)")))
+        if "bare" in {m for g in rows for m in rows[g]}:
+            bare = [g for g in rows if "bare" in rows[g]]
+            headline.append((f"default-constructed tracker ({', '.join(bare)}): false alarms",
+                             ", ".join(f"{100 * rows[g]['bare']['alarms'] / max(rows[g]['bare']['counted'], 1):.2f} %"
+                                       for g in bare), "<= 1 %"))
+        headline.append(("pose bound holds (certain steps, sensor within its tolerance)",
+                         f"{checked - broken:,} of {checked:,}", "100 %" + ("" if broken == 0 else " (not met)")))
         if worse:
             headline.append(("the same: paths where the default mode errs more often than Newton",
                              ", ".join(f"{g} {len(worse[g])}" for g in noisy if g in worse) + f" of {n_paths}",

@@ -117,11 +117,16 @@ class Sensor(encoder.Sensor):
         return [int(rng.integers(edges[i], max(edges[i] + 1, edges[i + 1] - span - 2))) for i in range(slots)]
 
 
-#: The grades of the benchmark: exact joints, encoders of 16, 14 and 12 bits per turn with 1e-3 rad
-#: of noise, and each glitch on top of a 14-bit encoder with that noise.
+#: The grades of the benchmark: exact joints; realistic encoders (20 bits per turn with 2e-5 rad of
+#: noise, 16 bits with 1e-4 rad, 16 and 12 bits without noise); harsh ones (16, 14 and 12 bits with
+#: 1e-3 rad of noise); and each glitch on top of a 14-bit encoder with that noise.
 SENSOR_GRADES = (
     Sensor("exact"),
-    Sensor("16-bit", bits=16, noise=1e-3),
+    Sensor("20-bit-2e-5", bits=20, noise=2e-5),       # realistic industrial encoders
+    Sensor("16-bit-1e-4", bits=16, noise=1e-4),
+    Sensor("16-bit-exact", bits=16),                  # quantization only
+    Sensor("12-bit-exact", bits=12),
+    Sensor("16-bit", bits=16, noise=1e-3),            # harsh: 1 mrad of noise
     Sensor("14-bit", bits=14, noise=1e-3),
     Sensor("12-bit", bits=12, noise=1e-3),
     Sensor("outlier", bits=14, noise=1e-3, glitch="outlier"),

@@ -4,7 +4,7 @@ import pytest
 
 from conftest import pose_distance
 from experiments.suite import hard_suite
-from solver import CERTIFICATES, MapTensor, SolverInputError, Tracker, TrackerState, default_bounds, ik
+from solver import CERTIFICATES, MapTensor, SolverInputError, Tracker, TrackerState, default_bounds, ik, wrap_angle
 from solver._kernels.certify import TINY, follow_branch
 from solver._kernels.kinematics import geometry
 from solver._kernels.krawczyk import W_SIZE, krawczyk, newton_on_path
@@ -91,7 +91,10 @@ def test_circle_is_certain_at_every_step(model, maps):
     assert not wrong(res.X, X).any()
     assert res.certain.all()
     assert (res.uncertain_since == -1).all()
-    assert set(res.certificate[1:]) == {1}                          # continuation at every step
+    assert set(res.certificate[1:]) == {5}                          # a tube chain at every step
+    err = np.abs(res.X - X)
+    err[:, 2] = np.abs(wrap_angle(res.X[:, 2] - X[:, 2]))
+    assert np.all(err <= res.pose_bound) and res.pose_bound.max() < 1e-11   # the bound: a numerical enclosure
 
 
 @pytest.mark.parametrize("mode", ["default", "paper"])

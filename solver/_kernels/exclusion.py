@@ -105,7 +105,7 @@ def _inside(box, c, rho):
 
 
 @njit(cache=True)
-def _in_region(X, region):
+def in_region(X, region):
     """The pose ``X`` (3,) lies in the region (x, y, phi lo/hi; phi compared modulo 2 pi)."""
     if not (region[0] <= X[0] <= region[1] and region[2] <= X[1] <= region[3]):
         return False
@@ -172,7 +172,7 @@ def reacquire(X, q, eps, posture_bits, region, max_boxes, model_pack, box):
     that no pose reaching ``q +- eps`` is in: joints off by more than ``eps``.)
     """
     M, l1, l2sq, b = geometry(model_pack)
-    if elbow_bits(X, q, M, l1, b) != posture_bits or not _in_region(X, region):
+    if elbow_bits(X, q, M, l1, b) != posture_bits or not in_region(X, region):
         return False
     w = np.empty(W_SIZE)
     xc, rho, none = np.empty(3), np.empty(3), np.zeros(3)

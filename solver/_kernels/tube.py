@@ -11,7 +11,11 @@ Jacobian's spread is evaluated as an affine form in ``(q - q~, y)`` (point matri
 ``C A_k``, ``C B_j``) plus a closed-form second-order remainder, so that cancellations are
 kept.  When the Krawczyk radius ``kappa < rho``, then for every ``q`` in ``Q`` exactly one
 pose lies in the *tube* ``T = {x~ + S (q - q~) + y : |y| <= rho}``, and it satisfies
-``|y| <= kappa``: the tube's solution is a continuous function of ``q`` on ``Q``.
+``|y| <= kappa``: the tube's solution is a continuous function of ``q`` on ``Q``.  ``kappa`` is then
+tightened: the solution's ``y`` satisfies ``|y| <= a + M |y|`` (``a`` the Krawczyk image's
+constant part, ``M`` its contraction matrix over ``Y``, by the mean value theorem along the
+segment from 0 to ``y``), so iterating ``u <- min(u, a + M u)`` from ``kappa`` keeps a bound and
+approaches ``(I - M)^-1 a``.
 
 (Kolev's p-solutions ``x(p) in L p + a``; Rump, "Verification methods", Acta Numerica 2010,
 sec. 13; Duff and Lee, "Certified homotopy tracking using the Krawczyk method", ISSAC 2024.
@@ -203,6 +207,17 @@ def tube_test(xg, qc, t, rho_min, M, l1, l2sq, b, tube):
             kap[r] = (a[r] + Mt[r, 0] * rho[0] + Mt[r, 1] * rho[1] + Mt[r, 2] * rho[2]) * (1.0 + SLACK) + 1e-15
             grow = grow or not kap[r] < rho[r]
         if not grow:
+            # the solution's deviation u = |y| obeys u <= a + M u (mean value along 0..y inside Y):
+            # iterate from kappa down towards (I - M)^-1 a
+            for _ in range(40):
+                change = 0.0
+                for r in range(3):
+                    v = (a[r] + Mt[r, 0] * kap[0] + Mt[r, 1] * kap[1] + Mt[r, 2] * kap[2]) * (1.0 + SLACK) + 1e-15
+                    if v < kap[r]:
+                        change = max(change, 1.0 - v / kap[r])
+                        kap[r] = v
+                if change < 1e-3:
+                    break
             tube[TUBE_X:TUBE_X + 3] = x
             tube[TUBE_S:TUBE_S + 9] = S.ravel()
             tube[TUBE_Q:TUBE_Q + 3] = qc
@@ -296,7 +311,7 @@ def tested_takeover(pieces, n, xg, qc, t, M, l1, l2sq, b, new):
 
 
 #: Tubes of the reading's own box, each taking over from the last, that tighten its bound.
-REFINE = 4
+REFINE = 6
 #: Most tubes one step's chain may hold (the pieces of the joint step and the reading's own box).
 MAX_PIECES = 48
 
@@ -339,7 +354,7 @@ def tube_chain(old, qp, dq, tol, max_tests, M, l1, l2sq, b, out):
             pieces[n, :] = new
             n += 1
             s = sb
-            step = min(2.0 * step, 1.0)
+            step = min(1.5 * step, 1.0)
         else:
             step *= 0.5
     # the reading's own box: a tighter tube about the new joints (else the last piece's)
@@ -358,7 +373,7 @@ def tube_chain(old, qp, dq, tol, max_tests, M, l1, l2sq, b, out):
             break
         shrink = max(new[TUBE_K] / out[TUBE_K], max(new[TUBE_K + 1] / out[TUBE_K + 1], new[TUBE_K + 2] / out[TUBE_K + 2]))
         out[:] = new
-        if shrink > 0.1:
+        if shrink > 0.7:
             break
     return tests
 
