@@ -332,7 +332,6 @@ def _report(rows, grades, secs, n_paths, elapsed, per_path, names):
     headline = None
     if noisy:
         d = [rows[g]["default"] for g in noisy]
-        alarms = [100 * t["alarms"] / max(t["counted"], 1) for t in d]
         real = [g for g in noisy if grades[g].noise <= 1e-4 and not grades[g].glitch]
         harsh = [g for g in noisy if grades[g].noise > 1e-4 and not grades[g].glitch]
         pct = {g: 100 * rows[g]["default"]["alarms"] / max(rows[g]["default"]["counted"], 1) for g in noisy}

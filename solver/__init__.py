@@ -32,8 +32,9 @@ from .mapcache import cached_map, map_path
 from .mapfile import FORMAT_VERSION, MapTensorFileError
 from .maptensor import MapTensor, label_poses
 from .ordering import DEFAULT_RULE, ORDERING_RULES
+from .start import START_TOLERANCE, StartInfo
 from .tracker import Tracker
-from .tracker_state import CERTIFICATES, STATUS, StepInfo, TrackerError, TrackerState, TrackResult
+from .tracker_state import CERTIFICATES, STATUS, TRUST, StepInfo, TrackerError, TrackerState, TrackResult
 from .trajectories import PAPER_CIRCLE, circle_path
 
 __version__ = "0.1.0"
@@ -45,5 +46,6 @@ __all__ = [
     "wrap_angle", "PAPER_CIRCLE", "circle_path",
     "MapTensor", "MapTensorFileError", "FORMAT_VERSION", "label_poses", "default_bounds", "default_grid",
     "grid_shape", "DEFAULT_STEP", "cached_map", "map_path", "cache_dir", "CACHE_ENV",
-    "Tracker", "TrackerState", "StepInfo", "TrackResult", "TrackerError", "STATUS", "CERTIFICATES", "__version__",
+    "Tracker", "TrackerState", "StepInfo", "TrackResult", "TrackerError", "STATUS", "CERTIFICATES", "TRUST",
+    "StartInfo", "START_TOLERANCE", "__version__",
 ]

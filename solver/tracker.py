@@ -133,7 +133,7 @@ from .grid import default_bounds
 from .manipulator import Manipulator
 from .maptensor import MapTensor
 from .ordering import rule_code
-from .start import START_TOLERANCE, StartInfo, honest_start
+from .start import START_TOLERANCE, StartInfo, honest_start  # noqa: F401  (re-exported)
 from .tracker_state import TrackerError
 from .tracking import _TrackerBase
 

@@ -26,7 +26,7 @@ from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, F_DQ, F_INNOV, I_AMB
                               STATE_ANCHOR, STATE_ANCHOR_AGE, STATE_CANDS, STATE_DQ_SCALE, STATE_EXT_SCALE,
                               STATE_HAVE_Q2, STATE_HISTORY, STATE_INTACT, STATE_N_CAND, STATE_Q, STATE_Q2,
                               STATE_REFUSED, STATE_STEP_DT, STATE_TUBE, STATE_TUBE_OK, STATE_VERIFIED, STATE_X,
-                              STATE_X2, STATUS_REJECTED, STATUS_UNREACHABLE, TRUST, TRUST_CERTAIN, TRUST_LOST)
+                              STATE_X2, STATUS_REJECTED, STATUS_UNREACHABLE, TRUST, TRUST_LOST)
 from ._kernels.tube import TUBE_SIZE
 
 __all__ = ["TrackerState", "StepInfo", "TrackResult", "TrackerError", "STATUS", "CERTIFICATES", "TRUST",

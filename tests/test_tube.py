@@ -1,0 +1,172 @@
+"""Tube certificates (solver._kernels.tube), the proven pose bound and the honest start."""
+import numpy as np
+import pytest
+
+from conftest import coarse_map, pose_distance, track_stream
+from experiments.sensors import Sensor
+from solver import Tracker, TrackerState, circle_path, dk_all, ik, jacobians, wrap_angle
+from solver._kernels.kinematics import geometry
+from solver._kernels.tube import (TUBE_K, TUBE_R, TUBE_SIZE, TUBE_X, handoff, pose_bound, predictor, tube_chain,
+                                  tube_test)
+from solver.direct_kinematics import kernel_constants
+from solver.tracker_state import NO_BOUND, STATE_FLOATS, TRUST
+
+
+@pytest.fixture(scope="module")
+def geo(model):
+    return geometry(kernel_constants(model)["pack"])
+
+
+def newton(model, X, q, iters=30):
+    """The DK solution near ``X`` at joints ``q`` (plain Newton)."""
+    from solver import constraints
+    X = X.copy()
+    for _ in range(iters):
+        J, _ = jacobians(model, X, q)
+        X = X - np.linalg.solve(J, constraints(model, X, q))
+    return X
+
+
+def deviation(tube, X, q):
+    """x - x~ - S (q - q~), phi wrapped."""
+    p = np.empty(3)
+    predictor(tube, q, p)
+    d = X - p
+    d[2] = wrap_angle(d[2])
+    return d
+
+
+@pytest.mark.parametrize("tol", [0.0, 1e-4, 1e-3])
+def test_the_tube_holds_the_solution_of_every_joint_vector_of_its_box(model, geo, rng, tol):
+    """At random joints of the box: the solution Newton finds from the predictor deviates by at most
+    kappa from it, and every other real DK solution lies outside the tube."""
+    X0 = np.array([0.45, 0.30, -np.pi / 4])
+    q0 = ik(model, X0, 1)
+    tube = np.empty(TUBE_SIZE)
+    assert tube_test(X0.copy(), q0, np.full(3, tol), np.zeros(3), *geo, tube)
+    assert np.all(tube[TUBE_K:TUBE_K + 3] < tube[TUBE_R:TUBE_R + 3])
+    for q in q0 + tol * rng.uniform(-1, 1, (40, 3)):
+        p = np.empty(3)
+        predictor(tube, q, p)
+        X = newton(model, p, q)
+        assert np.all(np.abs(deviation(tube, X, q)) <= tube[TUBE_K:TUBE_K + 3])
+        for other in dk_all(model, q).real_poses():
+            if pose_distance(other, X) > 1e-9:
+                assert np.any(np.abs(deviation(tube, other, q)) >= tube[TUBE_R:TUBE_R + 3])
+
+
+def test_handoff_needs_the_old_enclosure_inside_the_new_tube(model, geo):
+    X0 = np.array([0.45, 0.30, -np.pi / 4])
+    q0 = ik(model, X0, 1)
+    a, b_ = np.empty(TUBE_SIZE), np.empty(TUBE_SIZE)
+    assert tube_test(X0.copy(), q0, np.full(3, 1e-4), np.zeros(3), *geo, a)
+    assert tube_test(X0.copy(), q0, np.full(3, 1e-4), np.zeros(3), *geo, b_)
+    need = np.empty(3)
+    assert handoff(a, b_, q0, np.full(3, 1e-4), need)                 # the same tube takes over from itself
+    b_[TUBE_X] += 10 * b_[TUBE_R]                                     # shifted off: it cannot
+    assert not handoff(a, b_, q0, np.full(3, 1e-4), need)
+    assert need[0] > b_[TUBE_R]
+
+
+def test_a_chain_of_tubes_follows_the_branch_along_a_path(model, geo):
+    X = circle_path(100)
+    q = ik(model, X, 1)
+    tube, out = np.empty(TUBE_SIZE), np.empty(TUBE_SIZE)
+    assert tube_test(X[0].copy(), q[0], np.zeros(3), np.zeros(3), *geo, tube)
+    for k in range(1, len(q)):
+        dq = wrap_angle(q[k] - q[k - 1])
+        assert tube_chain(tube, q[k - 1].copy(), dq, 0.0, 256, *geo, out) > 0
+        tube[:] = out
+        h = np.empty(3)
+        assert pose_bound(tube, q[k - 1] + dq, 0.0, X[k], h)
+        assert np.all(pose_distance(tube[TUBE_X:TUBE_X + 3], X[k]) <= h.max()) and h.max() < 1e-11
+
+
+def noisy_stream(model, sensor, n=1000, seed=3):
+    X = circle_path(n)
+    q_true = ik(model, X, 1)
+    q = sensor.measure(q_true, seed=seed).q
+    q[0] = q_true[0]
+    return X, q_true, q
+
+
+@pytest.mark.parametrize("grade", [Sensor("16-bit-1e-4", bits=16, noise=1e-4), Sensor("12-bit", bits=12, noise=1e-3)])
+def test_the_pose_bound_holds_on_a_noisy_stream(model, grade):
+    """Against the noise-free poses, wherever the sensor kept its tolerance: |X - X_true| <= pose_bound
+    on every certain step; the bound is finite exactly there; certain on most steps."""
+    X_true, q_true, q = noisy_stream(model, grade)
+    tol = grade.tolerance(3.0)
+    tracker = Tracker(model, coarse_map(model, 1), joint_tolerance=tol)
+    X, infos = track_stream(tracker, q, X_true[0])
+    kept = np.all(np.abs(wrap_angle(q - q_true)) <= tol, axis=1)
+    n_certain = 0
+    for k in range(1, len(q)):
+        info = infos[k]
+        assert np.all(np.isfinite(info.pose_bound)) == info.certain
+        assert (info.trust == 2) == info.certain
+        if info.certain and kept[k]:
+            err = np.abs(X[k] - X_true[k])
+            err[2] = abs(wrap_angle(X[k, 2] - X_true[k, 2]))
+            assert np.all(err <= info.pose_bound), k
+            n_certain += 1
+    assert n_certain > 0.9 * kept[1:].sum()
+
+
+def test_an_approximate_start_within_the_start_tolerance_is_certain(model):
+    X = circle_path(200)
+    q = ik(model, X, 1)
+    tracker = Tracker(model, coarse_map(model, 1), start_tolerance=(0.01, 0.01, 0.05))
+    start = tracker.reset(X[0] + np.array([0.004, -0.003, 0.02]), q[0])
+    assert start.certain and start.reason == "" and tracker.state.certain
+    assert pose_distance(start.X, X[0]) < 1e-12                  # the DK solution, not the pose given
+    assert np.all(start.pose_bound < 1e-11)
+    res = tracker.track(q, X[0] + np.array([0.004, -0.003, 0.02]))
+    assert res.certain.all() and pose_distance(res.X, X).max() < 1e-9
+
+
+def test_a_start_outside_the_start_tolerance_is_not_certain_and_says_why(model):
+    X = circle_path(200)
+    q = ik(model, X, 1)
+    tracker = Tracker(model, coarse_map(model, 1), start_tolerance=(0.001, 0.001, 0.005))
+    start = tracker.reset(X[0] + np.array([0.004, 0.0, 0.0]), q[0])
+    assert not start.certain and "start_tolerance" in start.reason and not tracker.state.certain
+    assert np.all(np.isinf(start.pose_bound))
+    _, info = tracker.step(q[1], 1e-3)
+    assert not info.certain and info.uncertain_since == 0       # exact joints: no way back without a start
+
+
+def test_a_start_tolerance_that_holds_two_solutions_is_not_certain(model):
+    X0 = np.array([0.45, 0.30, -np.pi / 4])
+    q0 = ik(model, X0, 1)
+    sols = dk_all(model, q0).real_poses()
+    far = max(pose_distance(s, X0) for s in sols)
+    tracker = Tracker(model, coarse_map(model, 1), start_tolerance=(far + 1, far + 1, 7.0))
+    start = tracker.reset(X0, q0)
+    assert not start.certain and "smaller start_tolerance" in start.reason
+
+
+def test_a_default_tracker_on_quantized_joints_starts_certain_and_vouches(model):
+    """Exact 16-bit readings, joint_tolerance 0: the start is the DK solution of the quantized joints,
+    proved; the steps are vouched for (about the measured joints, as the tolerance says)."""
+    X_true, q_true, q = noisy_stream(model, Sensor("16-bit-exact", bits=16))
+    q[0] = Sensor("16-bit-exact", bits=16).measure(q_true[:1], seed=0).q[0]
+    res = Tracker(model, coarse_map(model, 1)).track(q, X_true[0])
+    assert res.certain.mean() > 0.99
+    assert pose_distance(res.X, X_true).max() < 1e-2
+
+
+def test_the_tube_survives_a_rejected_step_and_a_saved_state(model):
+    grade = Sensor("16-bit-1e-4", bits=16, noise=1e-4)
+    X_true, q_true, q = noisy_stream(model, grade, n=300)
+    tracker = Tracker(model, coarse_map(model, 1), joint_tolerance=grade.tolerance(3.0))
+    track_stream(tracker, q[:100], X_true[0])
+    saved = tracker.state.as_array()
+    assert saved.shape == (STATE_FLOATS,) and tracker.state.tube is not None
+    with pytest.raises(Exception):
+        tracker.step([np.nan, 0.0, 0.0], 1e-3)
+    _, a = tracker.step(q[100], 1e-3)
+    tracker.state = TrackerState.from_array(saved)
+    _, b = tracker.step(q[100], 1e-3)
+    assert a.certain and b.certain and np.array_equal(a.pose_bound, b.pose_bound)
+    assert TRUST[a.trust] == "certain" and a.trust_name == "certain"
+    assert NO_BOUND.flags.writeable is False
