@@ -37,31 +37,59 @@ times larger than recent steps.  ``ambiguous`` is a heuristic; ``certain`` is th
 Certainty
 ---------
 Every step reports ``certain``: True only when the tracker has *proved* that
-the returned pose lies on the branch continued from the initial pose, through
-an unbroken chain of certificates back to :meth:`reset` (which starts certain).
-A certificate is about a joint path between samples: the straight segment
-between the previous and the current joints, or, where that segment meets a
-singularity, the parabola through the last three samples (time-scaled).  The
-tracker keeps a *candidate set*, the DK solutions the true branch can be, in
-its state, and narrows it with three certificates (:mod:`._kernels.candidates`;
-the chains of boxes: :mod:`._kernels.certify`):
+the returned pose lies on the branch continued from the start pose, through an
+unbroken chain of certificates back to :meth:`reset` (the *honest start* below),
+and ``pose_bound`` (m, m, rad): half-widths of a box about the returned pose that
+holds the robot's pose.  A certificate is about a joint path between samples: the
+straight segment between the previous and the current joints (or, for the
+chains of boxes, the parabola through the last three samples where the segment
+meets a singularity), widened by ``joint_tolerance`` for measured joints.
 
-1. *continuation*: a chain of Krawczyk boxes along the path from the single
+1. *tube* (:mod:`._kernels.tube`): the step's joint segment is covered by pieces,
+   each a box of joints (the piece of the segment, widened by the tolerance); for
+   each piece a parametric Krawczyk test proves that every joint vector of the box
+   has exactly one solution in a *tube* that follows the needle of poses the box
+   maps to (``x~ + S (q - q~) + y``, ``|y| <= rho``, ``S = -J^-1 K``).  Tubes whose
+   boxes meet are proved to hold the same solution there, the first takes over
+   from the previous step's tube, a last one covers the reading's own box: the
+   robot's pose is that tube's solution, within ``pose_bound`` of the returned
+   pose (``|S| tol + kappa``; about 1e-13 with exact joints).  A step far from
+   singularities needs two or three tube tests.
+2. *continuation*: a chain of Krawczyk boxes along the path from the single
    candidate, each box proved to hold exactly one solution for every joint value
    of its piece of the path, names the branch at the new joints;
-2. *elimination*: otherwise every real solution of the new joints is followed
+3. *elimination*: otherwise every real solution of the new joints is followed
    back along the path; one whose chain provably ends at a non-candidate is
    dropped (two branches cannot meet without a singularity in between);
-3. *posture*: when several remain, those whose elbows are not in the map's
+4. *posture*: when several remain, those whose elbows are not in the map's
    posture are dropped (the robot keeps its posture; ``posture_certificate``).
 
-One candidate left means certain.  In default mode the candidates also decide
-the answer: the one left, or the candidate nearest the prediction; paper mode
-keeps procedure 3's answer and is certain only when it is the candidate left.
-Once a step is not certain, ``uncertain_since`` gives the step index since
-which, until a certificate names the branch again; a chain uses at most
-``max_tests`` Krawczyk tests (a few per step far from singularities, hundreds
-next to one).  Measured on the suites: ``bench/bench_tracker.py``.
+The tracker keeps a *candidate set*, the DK solutions the true branch can be, in
+its state (:mod:`._kernels.candidates`; the chains of boxes:
+:mod:`._kernels.certify`).  One candidate left means certain with exact joints;
+the point's own tube then gives the bound.  With measured joints the chains of
+2-4 follow the measured joints: they steer the choice (and make ``trust``
+*possible*), and only tubes and re-acquisition vouch.  In default mode the
+certificates also decide the answer: the one left, or the candidate nearest the
+prediction; paper mode keeps procedure 3's answer and is certain only when it is
+the candidate left.  Once a step is not certain, ``uncertain_since`` gives the
+step index since which, until a certificate names the branch again; a chain of
+boxes uses at most ``max_tests`` Krawczyk tests, a chain of tubes at most 400.
+``trust`` sums it up for a controller: *certain* (act on the pose, within
+``pose_bound``), *possible* (the branch along the measured joints is known, not
+proved over the tolerance: a fold may lie within it), *lost*.  Measured on the
+suites: ``bench/bench_tracker.py`` and ``bench/bench_sensors.py``.
+
+An honest start
+---------------
+:meth:`reset` takes an approximate initial pose ``X0``, the robot within
+``start_tolerance`` (m, m, rad) of it, and the initial joints.  It starts from
+the DK solution of the joints in that start region and is certain when it proves
+it the only pose the robot can be in (:mod:`solver.start`: the reading's tube, a
+Krawczyk box about it, and a branch and bound over the start region in all eight
+postures); otherwise it starts uncertain and :attr:`start` says why and what to
+change.  With exact joints nothing else can make a later step certain; with
+measured joints re-acquisition can.
 
 Sensors
 -------
@@ -71,18 +99,21 @@ put the measured joints past a fold that the robot never crosses, and a proof
 about the measured joints then vouches for a branch the robot is not on.  Give
 the tracker a bound on the measurement error, ``joint_tolerance`` (rad, e.g. 3
 noise sigmas plus half an encoder step; :meth:`solver.sensors.Sensor.tolerance`),
-and ``certain`` means a proof for every joint path within that tolerance:
+and ``certain`` means a proof for every joint path within that tolerance of the
+samples:
 
-* *tube continuation*: the Krawczyk boxes of the chain hold one solution for
-  every joint vector within ``joint_tolerance`` of the segment (the joint box is
-  split in parts, two levels of halving, where one box is not enough).  The
-  choice still follows the chain along the measured joints; only the vouching
-  needs the tube, and once a tube fails ``certain`` stays False until
-* *re-acquisition* (:mod:`._kernels.exclusion`) proves, from the present sample
-  alone, that one Krawczyk box about the chosen solution holds every pose of the
-  map's posture whose joints are within the tolerance, searched over the tool
-  space, or over the poses the platform can have reached since the last certain
-  step when ``speed_bound`` (m/s, rad/s) is given;
+* *tubes* (above) cover the joint segment widened by the tolerance, so a chain of
+  them vouches for every such path; once one fails (a fold within the tolerance,
+  or a box too wide for the test) ``certain`` stays False until
+* *re-acquisition* proves, from the present sample alone, that the robot's pose is
+  the solution of the reading's tube: a tube twice as wide as the needle's hull
+  still holds one solution per joint vector, and a branch and bound over the tool
+  space (interval inverse kinematics in the map's posture,
+  :mod:`._kernels.exclusion`) shows that every pose of the posture whose joints
+  are within the tolerance lies in that hull (else, the same with an axis-aligned
+  Krawczyk box about the chosen solution); the search covers the poses the
+  platform can have reached since the last certain step when ``speed_bound``
+  (m/s, rad/s) is given, else the tool space;
 * an *outlier gate* (:mod:`._kernels.gates`) looks at a sample whose joint step
   differs from the expected one (constant joint velocity) by more than the
   tolerance allows plus ``gate`` times the recent differences (an envelope that
@@ -90,9 +121,9 @@ and ``certain`` means a proof for every joint path within that tolerance:
   moves the pose more than noise could (first order), the sample is refused:
   status ``rejected``, pose held, state kept (only the count of refusals moves).
   If it does not (a joint swinging next to a serial singularity), the sample is
-  taken.  Any sample taken with a step off by more than the noise allows (the
-  envelope lets fast joints through) may still be a glitch: it is vouched for by
-  nothing and ends the chain of certificates.  After ``MAX_REFUSED`` refusals in a
+  taken.  Such a sample, off by more than the gate allows yet taken, may still be
+  a glitch: it is vouched for by nothing and ends the chain of certificates (a
+  joint accelerating as it did in recent samples is not such a sample).  After ``MAX_REFUSED`` refusals in a
   row the next sample is taken (the joints really moved) and vouching ends until
   a re-acquisition, which then searches the whole tool space;
 * with ``speed_bound``, a *speed gate*: when the chosen solution is farther
@@ -301,7 +332,7 @@ class Tracker(_TrackerBase):
                              self._w, int(self._params[_lay.PARAM_REACQUIRE]) or REACQUIRE_BOXES)
         self.start = start
         self.state = replace(st, X=start.X.copy(), anchor=start.X.copy(), uncertain_since=-1 if start.certain else 0,
-                             intact=start.certain, tube=start.tube)
+                             intact=start.certain, tube=start.tube, anchor_bound=start.pose_bound)
         return start
 
     def _kernel(self, q, state_pack):

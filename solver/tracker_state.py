@@ -25,7 +25,7 @@ from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, F_DQ, F_INNOV, I_AMB
                               I_TRUST, OUT_BOUND, OUT_CANDS, OUT_INFO, OUT_TUBE, OUT_X, OUT_X_PRED, STATE_A_SCALE,
                               STATE_ANCHOR, STATE_ANCHOR_AGE, STATE_CANDS, STATE_DQ_SCALE, STATE_EXT_SCALE,
                               STATE_HAVE_Q2, STATE_HISTORY, STATE_INTACT, STATE_N_CAND, STATE_Q, STATE_Q2,
-                              STATE_REFUSED, STATE_STEP_DT, STATE_TUBE, STATE_TUBE_OK, STATE_VERIFIED, STATE_X,
+                              STATE_REFUSED, STATE_STEP_DT, STATE_TUBE, STATE_TUBE_OK, STATE_ANCHOR_BOUND, STATE_VERIFIED, STATE_X,
                               STATE_X2, STATUS_REJECTED, STATUS_UNREACHABLE, TRUST, TRUST_LOST)
 from ._kernels.tube import TUBE_SIZE
 
@@ -108,6 +108,9 @@ class TrackerState:
         detector rolls back to it; :mod:`solver.stuck`).
     clean_lag : int
         Samples read since ``clean`` was taken.
+    anchor_bound : ndarray, shape (3,)
+        The pose bound at ``anchor`` (m, m, rad; inf when none): with the speed bound, where the
+        robot can be since.
     tube : ndarray, shape (24,) or None
         While certain: the last step's tube (:mod:`solver._kernels.tube`: centre pose, ``S``,
         centre joints, kappa, rho, joint half-widths) that holds the robot's pose for every
@@ -136,6 +139,7 @@ class TrackerState:
     clean: "TrackerState | None" = None
     clean_lag: int = 0
     tube: np.ndarray | None = None
+    anchor_bound: np.ndarray = field(default_factory=lambda: NO_BOUND)
 
     @property
     def history(self) -> int:
@@ -191,6 +195,7 @@ class TrackerState:
             pk[STATE_ANCHOR:STATE_ANCHOR + 3], pk[STATE_ANCHOR_AGE] = self.X, float("nan")
         else:
             pk[STATE_ANCHOR:STATE_ANCHOR + 3], pk[STATE_ANCHOR_AGE] = self.anchor, self._anchor_age(dt)
+        pk[STATE_ANCHOR_BOUND:STATE_ANCHOR_BOUND + 3] = self.anchor_bound
 
     def _anchor_age(self, dt: float | None) -> float:
         """Seconds from the last certain step to a sample ``dt`` after the last one read (NaN: unknown)."""
@@ -240,7 +245,9 @@ class TrackerState:
                             bool(i[I_INTACT]),
                             innov if self.steps < 2 else max(innov, 0.8 * self.a_scale + 0.2 * innov), 0,
                             X if certain else anchor, 0.0 if certain else self._anchor_age(dt), **extra,
-                            tube=out_real[OUT_TUBE:OUT_TUBE + TUBE_SIZE].copy() if certain else None)
+                            tube=out_real[OUT_TUBE:OUT_TUBE + TUBE_SIZE].copy() if certain else None,
+                            anchor_bound=out_real[OUT_BOUND:OUT_BOUND + 3].copy() if certain else
+                            (NO_BOUND if anchor is None else self.anchor_bound))
 
     def as_array(self) -> np.ndarray:
         """The state as :data:`STATE_FLOATS` floats (see :data:`_SAVED_FIELDS`): what an FMU serialises."""
@@ -263,6 +270,7 @@ class TrackerState:
         a[_REPEATS:_REPEATS + 3], a[_CLEAN_LAG] = self.repeats, float(self.clean_lag)
         if self.tube is not None:
             a[_TUBE:_TUBE + TUBE_SIZE] = self.tube
+        a[_ANCHOR_BOUND:_ANCHOR_BOUND + 3] = self.anchor_bound
         if self.clean is not None:
             a[_BASE:] = self.clean.as_array()[:_BASE]
         return a
@@ -295,19 +303,21 @@ class TrackerState:
                    None if np.any(np.isnan(a[_ANCHOR:_ANCHOR + 3])) else a[_ANCHOR:_ANCHOR + 3].copy(), float(a[_AGE]),
                    int(a[_SKIPPED]), None if np.any(np.isnan(a[_READING:_READING + 3])) else a[_READING:_READING + 3].copy(),
                    a[_REPEATS:_REPEATS + 3].astype(np.int64), None, int(a[_CLEAN_LAG]),
-                   None if np.any(np.isnan(a[_TUBE:_TUBE + TUBE_SIZE])) else a[_TUBE:_TUBE + TUBE_SIZE].copy())
+                   None if np.any(np.isnan(a[_TUBE:_TUBE + TUBE_SIZE])) else a[_TUBE:_TUBE + TUBE_SIZE].copy(),
+                   a[_ANCHOR_BOUND:_ANCHOR_BOUND + 3].copy())
 
 
 #: Fields of TrackerState.as_array: X, q, X2 (NaN after a reset), dq_scale, steps, dt, q2 (NaN after a
 #: reset), number of candidates, verified, uncertain_since, candidates (6 x 3, NaN past the number), intact,
 #: a_scale, refused, anchor (NaN before the first certain step), anchor_age, skipped, reading (NaN before the
-#: first), repeats, clean_lag, the tube (NaN when none); then the clean state's first _BASE floats (NaN when there is none).
+#: first), repeats, clean_lag, the tube (NaN when none), the anchor's bound; then the clean state's first _BASE floats (NaN when there is none).
 _X, _Q, _X2, _DQ_SCALE, _STEPS, _DT, _Q2, _N_CAND, _VERIFIED, _SINCE, _CANDS = 0, 3, 6, 9, 10, 11, 12, 15, 16, 17, 18
 _INTACT, _A_SCALE, _REFUSED, _ANCHOR, _AGE = _CANDS + 18, _CANDS + 19, _CANDS + 20, _CANDS + 21, _CANDS + 24
 _SKIPPED = _AGE + 1
 _READING, _REPEATS, _CLEAN_LAG = _SKIPPED + 1, _SKIPPED + 4, _SKIPPED + 7
 _TUBE = _CLEAN_LAG + 1
-_BASE = _TUBE + TUBE_SIZE
+_ANCHOR_BOUND = _TUBE + TUBE_SIZE
+_BASE = _ANCHOR_BOUND + 3
 STATE_FLOATS = 2 * _BASE
 _FINITE = [*range(_X, _X + 3), *range(_Q, _Q + 3), _DQ_SCALE, _STEPS, _N_CAND, _VERIFIED, _SINCE, _INTACT, _A_SCALE,
            _REFUSED, _SKIPPED, *range(_REPEATS, _REPEATS + 3), _CLEAN_LAG]

@@ -29,7 +29,7 @@ from .tracker_packs import STEP_DQ, STEP_QU
 from .tube import TUBE_K, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_X, pose_bound, tube_chain, tube_test
 
 #: Tube tests one step's tube chain may use (a step far from singularities uses two).
-TUBE_TESTS = 256
+TUBE_TESTS = 400
 
 
 @njit(cache=True, inline="always")

@@ -9,8 +9,8 @@ the samples crossed no fold; the robot's joints, within the tolerance of it, may
 choice, not a proof, and the chain does not vouch) nor to a re-acquired one; before it
 acts on a trusted sample with one previous candidate, the tracker tries that chain once more
 with a larger budget of tests (default mode).  The re-acquisition
-region (:func:`reacquire_region`) is anchored at a certain pose, whose Krawczyk box
-(half-width at most ``RHO_CAP``) holds the platform.
+region (:func:`reacquire_region`) is anchored at a certain pose, whose proven pose bound
+holds the platform.
 
 The outlier gate (:func:`outlier_gate`) refuses a sample whose joint step is off the
 expected one (constant joint velocity) by more than the tolerance and the recent
@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 from .certify import RHO_CAP
-from .layout import PARAM_ROOT, PARAM_SPEED, STATE_ANCHOR, STATE_ANCHOR_AGE
+from .layout import PARAM_ROOT, PARAM_SPEED, STATE_ANCHOR, STATE_ANCHOR_AGE, STATE_ANCHOR_BOUND
 from .kinematics import jacobian
 from .linalg import det3, wrap
 
@@ -45,15 +45,18 @@ def reach(params, seconds):
 @njit(cache=True)
 def reacquire_region(params, state, region):
     """The pose box (6,) the robot is in: the tool space, cut to what the platform can have reached
-    since its last certain pose when a speed bound is given."""
+    since its last certain pose when a speed bound is given (that pose's proven bound plus the
+    speed bound times the time since)."""
     region[0:4] = params[PARAM_ROOT:PARAM_ROOT + 4]
     region[4], region[5] = -math.pi, math.pi
     age = state[STATE_ANCHOR_AGE]
-    if params[PARAM_SPEED] > 0.0 and math.isfinite(age):
+    bound = state[STATE_ANCHOR_BOUND:STATE_ANCHOR_BOUND + 3]
+    if params[PARAM_SPEED] > 0.0 and math.isfinite(age) and math.isfinite(bound[0] + bound[1] + bound[2]):
         a = state[STATE_ANCHOR:STATE_ANCHOR + 3]
-        r, rp = reach(params, age)
-        region[0], region[1] = max(region[0], a[0] - r), min(region[1], a[0] + r)
-        region[2], region[3] = max(region[2], a[1] - r), min(region[3], a[1] + r)
+        r, rp = params[PARAM_SPEED] * age, params[PARAM_SPEED + 1] * age
+        rx, ry, rp = (r + bound[0]) * (1.0 + 1e-9), (r + bound[1]) * (1.0 + 1e-9), (rp + bound[2]) * (1.0 + 1e-9)
+        region[0], region[1] = max(region[0], a[0] - rx), min(region[1], a[0] + rx)
+        region[2], region[3] = max(region[2], a[1] - ry), min(region[3], a[1] + ry)
         if rp < math.pi:
             region[4], region[5] = a[2] - rp, a[2] + rp
 

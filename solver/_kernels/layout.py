@@ -49,7 +49,8 @@ STATE_ANCHOR_AGE = 42     # seconds from that step to this one (NaN: unknown)
 STATE_STEP_DT = 43        # seconds from the last accepted sample to this one (NaN: unknown)
 STATE_TUBE = 44           # (24,) the last step's tube (:mod:`.tube`: TUBE_SIZE), valid over its joint box
 STATE_TUBE_OK = 68        # > 0: the last step was certain and STATE_TUBE holds the robot's pose
-STATE_SIZE = 69
+STATE_ANCHOR_BOUND = 69   # (3,) the pose bound at STATE_ANCHOR (m, m, rad; inf: none, e.g. an unproved start)
+STATE_SIZE = 72
 
 # ----------------------------------------------------------------------------- map pack
 # The grid of a map tensor and the procedure-2 neighbourhood (eq. 18-19).

@@ -313,7 +313,7 @@ def tested_takeover(pieces, n, xg, qc, t, M, l1, l2sq, b, new):
 #: Tubes of the reading's own box, each taking over from the last, that tighten its bound.
 REFINE = 6
 #: Most tubes one step's chain may hold (the pieces of the joint step and the reading's own box).
-MAX_PIECES = 48
+MAX_PIECES = 160
 
 
 @njit(cache=True)
@@ -354,7 +354,7 @@ def tube_chain(old, qp, dq, tol, max_tests, M, l1, l2sq, b, out):
             pieces[n, :] = new
             n += 1
             s = sb
-            step = min(1.5 * step, 1.0)
+            step = min(1.25 * step, 1.0)
         else:
             step *= 0.5
     # the reading's own box: a tighter tube about the new joints (else the last piece's)
