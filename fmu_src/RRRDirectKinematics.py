@@ -23,10 +23,12 @@ import numpy as np
 from pythonfmu import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 
-from fmu_src.dk_variables import dk_outputs, initial_pose, sensor_parameters
+from fmu_src.dk_variables import NO_BOUND, dk_outputs, initial_pose, sensor_parameters
 from fmu_src.table_slave import TableSlave, Var
 from solver import (HOME_POSE, STATUS, Manipulator, MapTensor, MapTensorFileError, Tracker, TrackerState, dk_all,
                     ik, jacobians, wrap_angle)
+from solver.tracker_state import TRUST
+TRUST_CERTAIN, TRUST_LOST = (next(k for k, v in TRUST.items() if v == name) for name in ("certain", "lost"))
 
 # Build constants: start values of the parameters ``posture`` and ``mode`` (build_fmu.py --posture/--mode).
 BUILD_POSTURE = 1
@@ -158,15 +160,28 @@ class RRRDirectKinematics(TableSlave):
             raise ValueError(f"parameter 'stuck_after' = {stuck!r}: expected 0 (off) or an integer >= 2")
         return float(tol), ((float(v), float(w)) if v > 0.0 else None), int(stuck)
 
+    def _start_tolerance(self):
+        """(m, m, rad) of the parameters ``start_tolerance_linear``, ``start_tolerance_angular``, checked."""
+        lin, ang = self.start_tolerance_linear, self.start_tolerance_angular
+        for name, value, unit in (("start_tolerance_linear", lin, "m"), ("start_tolerance_angular", ang, "rad")):
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"parameter {name!r} = {value!r}: expected a finite number > 0 ({unit}): how far "
+                                 "the initial pose (x0, y0, phi0) may be from the robot's")
+        return (float(lin), float(lin), float(ang))
+
+    def _options(self):
+        """The tracker options of the parameters (checked): what a tracker built for them has."""
+        return (*self._sensor_options(), self._start_tolerance())
+
     def _make_tracker(self, posture, mode):
         if posture not in self._maps:
             raise ValueError(f"parameter 'posture' = {posture!r}: this FMU embeds maps of posture(s) "
                              f"{sorted(self._maps)} only (build_fmu.py --posture)")
         if not 0 <= mode < len(self.MODES):
             raise ValueError(f"parameter 'mode' = {mode!r}: expected 0 (default) or 1 (paper)")
-        tol, speed, stuck = self._sensor_options()
+        tol, speed, stuck, start_tol = self._options()
         return Tracker(self._model, self._maps[posture], mode=self.MODES[mode], singular_tol=self.SINGULAR_TOL,
-                       joint_tolerance=tol, speed_bound=speed, stuck_after=stuck)
+                       joint_tolerance=tol, speed_bound=speed, stuck_after=stuck, start_tolerance=start_tol)
 
     # ------------------------------------------------------------------ initialization
     def on_initialized(self):
@@ -183,7 +198,16 @@ class RRRDirectKinematics(TableSlave):
         super()._init_failed(reason)
 
     def _initialize_tracker(self):
-        self._tracker = self._make_tracker(self.posture, self.mode)
+        self._tracker, q0 = self._start(log=True)
+        self._track = self._tracker.state
+        self._cache = None
+        self._initial_outputs(self._tracker, log=True)
+        self._committed = (tuple(float(v) for v in q0), self._outputs())
+
+    def _start(self, log):
+        """A tracker for the parameters, reset by its honest start (see the readme, "Initialization"):
+        ``(tracker, q0)``; raises ValueError on a refused parameter or initial pose."""
+        tracker = self._make_tracker(self.posture, self.mode)
         X0 = np.array([self.x0, self.y0, self.phi0], dtype=float)
         for name, value in zip(("x0", "y0", "phi0"), X0):
             if not math.isfinite(value):
@@ -193,25 +217,36 @@ class RRRDirectKinematics(TableSlave):
             raise ValueError(f"the initial pose (x0, y0, phi0) = ({X0[0]!r}, {X0[1]!r}, {X0[2]!r}) is outside "
                              f"the tool space of posture {self.posture} (no inverse-kinematics solution)")
         q_in = np.array(self._joints(), dtype=float)
-        gap = float(np.max(np.abs(wrap_angle(q_in - q_ik)))) if np.all(np.isfinite(q_in)) else math.inf
+        finite = bool(np.all(np.isfinite(q_in)))
+        gap = float(np.max(np.abs(wrap_angle(q_in - q_ik)))) if finite else math.inf
         if gap <= self.Q0_TOL:
-            q0 = q_in                             # the joints at t0 are the inputs
-        else:
-            q0 = q_ik
-            self._report(f"initialization: inputs ({', '.join(self.JOINTS)}) = ({q_in[0]!r}, {q_in[1]!r}, {q_in[2]!r}) "
-                         f"are not the joints of the initial pose (x0, y0, phi0) in posture {self.posture} "
-                         f"(largest difference {gap:.3g} rad > {self.Q0_TOL:g} rad); the tracker starts "
-                         f"from the inverse kinematics q = ({q_ik[0]!r}, {q_ik[1]!r}, {q_ik[2]!r}) and "
-                         "moves to the inputs at the first step", Fmi2Status.warning)
-        self._tracker.reset(X0, q0)
-        self._track = self._tracker.state
-        self._cache = None
-        self._initial_outputs()
-        self._committed = (tuple(float(v) for v in q0), self._outputs())
+            tracker.reset(X0, q_in)               # the joints at t0 are the inputs
+            return tracker, q_in
+        joints = f"inputs ({', '.join(self.JOINTS)}) = ({', '.join(repr(float(v)) for v in q_in)})"
+        if finite and tracker.reset(X0, q_in).certain:
+            # the inputs are not the joints of X0, but their DK solution within start_tolerance of X0 is
+            # proved the robot's: the tracker starts there, at the inputs
+            if log:
+                msg = (f"initialization: {joints} are not the joints of the initial pose (x0, y0, phi0) in posture "
+                       f"{self.posture} (largest difference {gap:.3g} rad > {self.Q0_TOL:g} rad); the tracker "
+                       f"starts from their DK solution within start_tolerance of it, proved the robot's")
+                self.log(msg, Fmi2Status.ok)
+                self._pylog.info("%s", msg)
+            return tracker, q_in
+        why = tracker.start.reason if finite else "an input is not finite"
+        tracker.reset(X0, q_ik)
+        if log:
+            self._report(f"initialization: {joints} are not the joints of the initial pose (x0, y0, phi0) in "
+                         f"posture {self.posture} (largest difference {gap:.3g} rad > {self.Q0_TOL:g} rad) and "
+                         f"cannot start the tracker ({why}); the tracker starts from the inverse kinematics "
+                         f"q = ({', '.join(repr(float(v)) for v in q_ik)}) and moves to the inputs at the first step",
+                         Fmi2Status.warning)
+        return tracker, q_ik
 
-    def _initial_outputs(self):
-        """Outputs at the initial configuration: the initial pose itself, described like a step."""
-        st, mt = self._track, self._tracker.map
+    def _initial_outputs(self, tracker, log):
+        """Outputs at the initial configuration of ``tracker`` (just reset): its start pose, described like
+        a step, certain and bounded as its honest start (``tracker.start``) says."""
+        st, mt, start = tracker.state, tracker.map, tracker.start
         sol = dk_all(self._model, st.q, rule=mt.rule)
         real = sol.poses.real[sol.real]
         labels = np.flatnonzero(sol.real) + 1
@@ -222,7 +257,7 @@ class RRRDirectKinematics(TableSlave):
             region = int(labels[np.argmin(d.max(axis=1))])
         J, _ = jacobians(self._model, st.X, st.q)
         cond = float(abs(np.linalg.det(J)) / np.prod(np.linalg.norm(J, axis=1)))
-        near = mt.near_labels(st.X, self._tracker.r, mt.default_weights)[1:]
+        near = mt.near_labels(st.X, tracker.r, mt.default_weights)[1:]
         self.x, self.y, self.phi = (float(v) for v in st.X)
         self.region = region
         self.near_border = bool(np.count_nonzero(near) > 1)
@@ -230,16 +265,34 @@ class RRRDirectKinematics(TableSlave):
         self.ambiguous = False
         self.status = 2 if cond < self.SINGULAR_TOL else 0
         self.cond = cond
-        self.certain, self.uncertain_since, self._since = True, -1.0, None       # the initial pose is given
+        self.certain = bool(start.certain)
+        # an uncertain start: the episode begins at step 0, the start time
+        self._since = None if start.certain else (0, float(self._time))
+        self.uncertain_since = -1.0 if start.certain else float(self._time)
+        self._publish_bound(start.certain, start.pose_bound, TRUST_CERTAIN if start.certain else TRUST_LOST)
         self._episode = self.status
-        if self.status:
+        if log and self.status:
             self._report(f"initialization: the initial pose is {STATUS[self.status]} (cond {cond:.3g})",
                          Fmi2Status.warning)
+        if log and not start.certain:
+            self._report(f"initialization: the start is not certain (certain false, trust 0, no bound): "
+                         f"{start.reason}", Fmi2Status.warning)
+
+    def _publish_bound(self, certain, bound, trust):
+        self.x_bound, self.y_bound, self.phi_bound = bound.tolist() if certain else (NO_BOUND,) * 3
+        self.trust = int(trust)
 
     def initial_outputs(self):
-        """In Initialization Mode: the initial pose (x0, y0, phi0), given, hence certain."""
-        self.x, self.y, self.phi = float(self.x0), float(self.y0), float(wrap_angle(self.phi0))
-        self.certain, self.uncertain_since = True, -1.0
+        """In Initialization Mode: the outputs after the honest start from (x0, y0, phi0) at the inputs
+        (those of exitInitializationMode); parameters it refuses: the initial pose, not certain."""
+        try:
+            tracker, _ = self._start(log=False)
+        except ValueError:
+            self.x, self.y, self.phi = float(self.x0), float(self.y0), float(wrap_angle(self.phi0))
+            self.certain, self.uncertain_since = False, float(self._time)
+            self._publish_bound(False, None, TRUST_LOST)
+            return
+        self._initial_outputs(tracker, log=False)
 
     # ------------------------------------------------------------------ stepping
     def _outputs(self):
@@ -284,6 +337,7 @@ class RRRDirectKinematics(TableSlave):
             since = (int(info.uncertain_since), float(t))
         self.certain = bool(info.certain)
         self.uncertain_since = -1.0 if since is None else since[1]
+        self._publish_bound(info.certain, info.pose_bound, info.trust)
         return since
 
     def _joints(self):
@@ -357,5 +411,6 @@ class RRRDirectKinematics(TableSlave):
         if track is not None and (self._tracker is None or self._tracker.posture != self.posture
                                   or self._tracker.mode != self.MODES[self.mode]
                                   or (self._tracker.joint_tolerance, self._tracker.speed_bound,
-                                      self._tracker.stuck_after) != self._sensor_options()):
+                                      self._tracker.stuck_after, tuple(self._tracker.start_tolerance.tolist()))
+                                  != self._options()):
             self._tracker = self._make_tracker(self.posture, self.mode)

@@ -6,8 +6,13 @@ pose differ.  Each slave's ``VARIABLES`` lists its own rows and these.
 from __future__ import annotations
 
 from fmu_src.table_slave import Var
+from solver.start import START_TOLERANCE
 
-__all__ = ["initial_pose", "sensor_parameters", "dk_outputs"]
+#: The value of ``x_bound``, ``y_bound``, ``phi_bound`` when the pose is not certain (no bound): the
+#: tracker's inf is not a value every FMI tool (nor this slave's output check) accepts.
+NO_BOUND = -1.0
+
+__all__ = ["initial_pose", "sensor_parameters", "dk_outputs", "bound_rows", "NO_BOUND"]
 
 
 def initial_pose(pose, point: str = "the platform centre") -> tuple:
@@ -38,7 +43,7 @@ def sensor_parameters(joint_unit: str) -> tuple:
 
 def dk_outputs(deps: tuple, point: str = "platform centre") -> tuple:
     """The table rows of the DK outputs, each depending on the joint inputs ``deps``, then
-    ``stuck_after`` (added last: the other rows keep their value references)."""
+    ``stuck_after`` and :func:`bound_rows` (added last: the other rows keep their value references)."""
     return (
         Var("x", "Real", "output", unit="m", depends_on=deps, description=f"{point} x"),
         Var("y", "Real", "output", unit="m", depends_on=deps, description=f"{point} y"),
@@ -58,12 +63,35 @@ def dk_outputs(deps: tuple, point: str = "platform centre") -> tuple:
                         "4 diverged"),
         Var("cond", "Real", "output", unit="1", depends_on=deps,
             description="|det J| / prod |rows of J| at the pose (0 singular, 1 best)"),
-        Var("certain", "Boolean", "output", initial="exact", start=True, depends_on=deps,
-            description="the tracker vouches for the pose (certificates back to the initial pose)"),
-        Var("uncertain_since", "Real", "output", "discrete", initial="exact", start=-1.0, unit="s",
-            depends_on=deps,
+        Var("certain", "Boolean", "output", depends_on=deps,
+            description="the tracker vouches for the pose (certificates back to a proved start)"),
+        Var("uncertain_since", "Real", "output", "discrete", unit="s", depends_on=deps,
             description="time of the step since which the tracker cannot vouch for the pose; -1 while certain"),
         Var("stuck_after", "Integer", "parameter", "fixed", start=0, min=0,
             description="with joint_tolerance: identical readings in a row that mark a joint stuck (refused, "
                         "state rolled back to before them); 0: off, for noisy encoders see the readme"),
+        *bound_rows(deps),
+    )
+
+
+def bound_rows(deps: tuple) -> tuple:
+    """The rows of the pose bound, ``trust`` and the start tolerance (after ``stuck_after``: the rows
+    before keep their value references)."""
+    no = f"; {NO_BOUND:g}: no bound (not certain)"
+    return (
+        Var("x_bound", "Real", "output", unit="m", depends_on=deps,
+            description="half-width in x of a proven box about the pose (certain steps: every joint path within "
+                        "joint_tolerance)" + no),
+        Var("y_bound", "Real", "output", unit="m", depends_on=deps,
+            description="half-width in y of the proven box about the pose" + no),
+        Var("phi_bound", "Real", "output", unit="rad", depends_on=deps,
+            description="half-width in phi of the proven box about the pose" + no),
+        Var("trust", "Integer", "output", depends_on=deps,
+            description="what a controller can act on: 2 certain (the pose within the bounds), 1 possible (the "
+                        "branch along the measured joints known, not proved over joint_tolerance), 0 lost"),
+        Var("start_tolerance_linear", "Real", "parameter", "fixed", start=float(START_TOLERANCE[0]), unit="m",
+            description="> 0: how far x0 and y0 may be from the robot's position; the start is the DK solution "
+                        "of the joints at t0 within it, certain when proved the only one"),
+        Var("start_tolerance_angular", "Real", "parameter", "fixed", start=float(START_TOLERANCE[2]), unit="rad",
+            description="> 0: how far phi0 may be from the robot's orientation"),
     )

@@ -20,6 +20,8 @@ RES = references.REFERENCE["resolution"]
 OUTPUTS = references.OUTPUTS
 #: the outputs of the tracker's certainty (not in the reference CSV)
 CERTAINTY = ("certain", "uncertain_since")
+#: the pose bound and trust (not in the reference CSV)
+BOUND = ("x_bound", "y_bound", "phi_bound", "trust")
 MODEL = Manipulator.paper()
 PATH = circle_path(N)
 Q = ik(MODEL, PATH, 1)

@@ -28,9 +28,9 @@ from cosim.fmus.cli import main as build_main
 from cosim.hosts.libcosim import LibcosimError, run_libcosim
 from cosim.simulation import input_table, simulate
 from cosim.unit import FMUUnit
-from solver import CACHE_ENV, DEFAULT_RULE, HOME_POSE, MapTensor, cache_dir, dk_all, ik, singularity_measures
+from solver import CACHE_ENV, DEFAULT_RULE, HOME_POSE, MapTensor, Tracker, cache_dir, dk_all, ik, singularity_measures
 
-from dk_fmu_support import (CERTAINTY, H, MODEL, N, OUTPUTS, PATH, RES, X0, Q, circle_start, result_rows,
+from dk_fmu_support import (BOUND, CERTAINTY, H, MODEL, N, OUTPUTS, PATH, RES, X0, Q, circle_start, result_rows,
                             tracker_rows)
 from dk_fmu_support import built, built_multi, fmu, hygiene, make, map1, md, tmp, unzipdir  # noqa: F401 (fixtures)
 
@@ -55,6 +55,10 @@ def test_model_description(md, map1):
                 "speed_bound_linear": ("parameter", "fixed", "m/s"),
                 "speed_bound_angular": ("parameter", "fixed", "rad/s"),
                 "stuck_after": ("parameter", "fixed", None),
+                "start_tolerance_linear": ("parameter", "fixed", "m"),
+                "start_tolerance_angular": ("parameter", "fixed", "rad"),
+                "x_bound": ("output", "continuous", "m"), "y_bound": ("output", "continuous", "m"),
+                "phi_bound": ("output", "continuous", "rad"), "trust": ("output", "discrete", None),
                 "x": ("output", "continuous", "m"), "y": ("output", "continuous", "m"),
                 "phi": ("output", "continuous", "rad"), "cond": ("output", "continuous", "1"),
                 "region": ("output", "discrete", None), "near_border": ("output", "discrete", None),
@@ -62,13 +66,13 @@ def test_model_description(md, map1):
                 "status": ("output", "discrete", None),
                 "certain": ("output", "discrete", None), "uncertain_since": ("output", "discrete", "s")}
     assert {n: (x.causality, x.variability, x.unit) for n, x in v.items()} == expected
-    ints = ("posture", "mode", "region", "n_real", "status", "stuck_after")
+    ints = ("posture", "mode", "region", "n_real", "status", "stuck_after", "trust")
     assert {n: v[n].type for n in ints} == dict.fromkeys(ints, "Integer")
     assert v["near_border"].type == v["ambiguous"].type == "Boolean"
     # every output depends on exactly q1..q3; InitialUnknowns list every output
     assert {u.variable.name: sorted(d.name for d in u.dependencies) for u in md.outputs} == \
-        {n: ["q1", "q2", "q3"] for n in OUTPUTS + CERTAINTY}
-    assert {u.variable.name for u in md.initialUnknowns} == set(OUTPUTS)
+        {n: ["q1", "q2", "q3"] for n in OUTPUTS + CERTAINTY + BOUND}
+    assert {u.variable.name for u in md.initialUnknowns} == set(OUTPUTS + CERTAINTY + BOUND)
     assert {u.name for u in md.unitDefinitions} == {"1", "m", "rad", "s", "m/s", "rad/s"}
     assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate
     # start values: the home pose and its joints in posture 1; posture 1 (1..8), default mode
@@ -89,7 +93,11 @@ def test_home_pose_is_inside_and_far_from_singularities(map1, make):
     # the FMU with its start values: outputs = the home pose, status ok, one region, no warning
     m = make()
     x, y, phi, region, near_border, n_real, ambiguous, status, cond = m.outputs()
-    assert (x, y, phi) == HOME_POSE and status == 0 and not ambiguous and not near_border
+    # the honest start: the DK solution of the joints within start_tolerance of (x0, y0, phi0), proved
+    start = Tracker(MODEL, map1).reset(X, q)
+    assert start.certain and (x, y, phi) == tuple(start.X) and np.abs(start.X - X).max() < 1e-12
+    assert m.get_values(BOUND + ("certain",)) == [*start.pose_bound.tolist(), 2, True]
+    assert status == 0 and not ambiguous and not near_border
     assert region == map1.label_at(X) and n_real == dk_all(MODEL, q).n_real and cond > 0.4
     assert m.errors(least=1) == []
 
@@ -149,7 +157,7 @@ def test_circle_in_fmpy_matches_tracker_and_reference(fmu, map1):
     np.testing.assert_array_equal(result["time"], np.arange(N + 1) * H)
     rows = result_rows(result)
     # row 0: the initial pose before any doStep; row k+1: the pose for q[k], exactly the in-process tracker's
-    assert rows[0][:3] == tuple(X0) and rows[0][OUTPUTS.index("status")] == 0
+    assert rows[0][:3] == tuple(Tracker(MODEL, map1).reset(X0, Q[0]).X) and rows[0][OUTPUTS.index("status")] == 0
     assert rows[1:] == tracker_rows(map1, Q)
     # the tracker follows the circle (the true solution, not another assembly mode)
     pose = np.column_stack([result["x"], result["y"], result["phi"]])

@@ -57,20 +57,23 @@ def test_state_round_trip_is_bit_for_bit(make, map1):
     assert first == tracker_rows(map1, Q[:700])[300:]
 
 
-def test_reset_returns_to_the_initial_pose(make):
+def test_reset_returns_to_the_initial_pose(make, map1):
     m = make(**circle_start())
     initial = m.outputs()
     first = [m.step(q) for q in Q[:200]]
     m.fmu.reset()
     m.initialize(**circle_start())
-    assert m.outputs() == initial and initial[:3] == tuple(X0)
+    # the honest start's pose: the DK solution of q[0] near X0 (X0 within rounding)
+    assert m.outputs() == initial and initial[:3] == tuple(Tracker(MODEL, map1).reset(X0, Q[0]).X)
     assert [m.step(q) for q in Q[:200]] == first
 
 
 def test_outputs_before_the_first_step_and_direct_feedthrough(make, map1):
     m = make(**circle_start())
     initial = m.outputs()
-    assert initial[:3] == tuple(X0)                   # the initial pose itself, before any doStep
+    # the initial pose before any doStep: the honest start's, the DK solution of q[0] near X0
+    assert initial[:3] == tuple(Tracker(MODEL, map1).reset(X0, Q[0]).X)
+    assert np.abs(np.array(initial[:3]) - X0).max() < 1e-12
     # setting q without doStep: the outputs are the pose for that q (declared dependencies on q1..q3) ...
     m.set_q(Q[5])
     ahead = m.outputs()
@@ -266,17 +269,22 @@ def test_sensor_parameters_are_checked_at_initialization(make):
     assert info.value.status == fmi2Discard
 
 
-def test_outputs_hold_the_initial_pose_in_initialization_mode(fmu, unzipdir):
+def test_outputs_hold_the_initial_pose_in_initialization_mode(fmu, unzipdir, map1):
     from cosim.unit import FMUUnit
     unit = FMUUnit(fmu, "dk-init", unzip_dir=unzipdir)
     try:
         unit.fmu.setupExperiment(startTime=0.0)
         unit.fmu.enterInitializationMode()
+        # the honest start of the start values (the home pose and its joints), then of the circle's start
         start = [float(unit.vars[n].start) for n in ("x0", "y0", "phi0")]
-        assert unit.get_values(["x", "y", "phi", "certain"]) == [*start, True]
+        assert unit.get_values(["x", "y", "phi"]) == pytest.approx(start, abs=1e-12)
+        assert unit.get_values(["certain", "trust"]) == [True, 2]
         unit.set_values(circle_start())
-        assert unit.get_values(["x", "y", "phi"]) == [float(v) for v in X0]
+        honest = Tracker(MODEL, map1).reset(X0, Q[0])
+        expected = [*honest.X.tolist(), True, *honest.pose_bound.tolist()]
+        names = ["x", "y", "phi", "certain", "x_bound", "y_bound", "phi_bound"]
+        assert unit.get_values(names) == expected
         unit.fmu.exitInitializationMode()
-        assert unit.get_values(["x", "y", "phi"]) == [float(v) for v in X0]
+        assert unit.get_values(names) == expected
     finally:
         unit.close()

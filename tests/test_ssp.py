@@ -160,7 +160,8 @@ def test_ecos_runs_the_package_with_its_start_values(ecos):
     assert proc.returncode == 0, proc.stderr[-3000:]
     np.testing.assert_allclose(t, SC.h * np.arange(1, SC.n_steps + 1), rtol=0, atol=1e-9)
     X0 = SC.start_pose
-    assert _pose_error([init["x"], init["y"], init["phi"]], X0) == 0.0
+    # the DK's honest start: the DK solution of the plant's joints near X0, X0 within rounding
+    assert _pose_error([init["x"], init["y"], init["phi"]], X0) < 1e-12
     assert _pose_error([init["x_true"], init["y_true"], init["phi_true"]], X0) == 0.0
 
 
