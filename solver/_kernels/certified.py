@@ -16,7 +16,7 @@ from .candidates import certify
 from .certify import CERT_NONE, CERT_REACQUIRED, CERT_TUBE
 from .choice import nearest
 from .certify import elbow_bits
-from .exclusion import in_region, posture_preimage_in, reacquire
+from .exclusion import in_region, reacquire, tube_exclusion
 from .gates import reacquire_region
 from .kinematics import geometry
 from .krawczyk import PAD
@@ -26,8 +26,10 @@ from .layout import (I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_TRUST, MAP_
                      STATE_Q2, STATE_TUBE, STATE_TUBE_OK, STATE_VERIFIED, TRUST_CERTAIN, TRUST_LOST, TRUST_POSSIBLE)
 from .linalg import wrap
 from .tracker_packs import STEP_DQ, STEP_QU
-from .tube import TUBE_K, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_X, pose_bound, tube_chain, tube_test
+from .tube import TUBE_K, TUBE_S, TUBE_SIZE, TUBE_X, pose_bound, tube_chain, tube_test
 
+#: Re-acquisition by tubes tries the reading's joint box whole, then in 2**3 parts.
+REACQUIRE_PARTS = 2
 #: Tube tests one step's tube chain may use (a step far from singularities uses two).
 TUBE_TESTS = 400
 
@@ -190,29 +192,16 @@ def reacquired(chosen, certified, state, work, poses, params, model_pack, new_ca
 @njit(cache=True, inline="always")
 def tube_reacquire(tube, qu, tol, posture, region, max_boxes, M, l1, l2sq, b):
     """Re-acquisition by the tube: the robot's pose is the solution of ``tube`` (the reading's joint box
-    ``qu +- tol``) when (1) a fat tube, same centre and ``S``, with half-widths twice the hull's,
-    passes the tube test (one solution in it per joint vector: it holds the whole hull), and (2)
-    every pose of the region in the tracker's posture reaching the joint box lies in the hull
-    (:func:`.exclusion.posture_preimage_in`).  The tube's centre must itself be such a pose (else
-    the region and the joints would disagree: a sensor off by more than its tolerance)."""
+    ``qu +- tol``) by :func:`.exclusion.tube_exclusion` (the joint box whole, then in 2**3 parts),
+    for the robot in the tracker's posture.  The tube's centre must itself be such a pose (else the
+    region and the joints would disagree: a sensor off by more than its tolerance)."""
     xc = tube[TUBE_X:TUBE_X + 3].copy()
     if elbow_bits(xc, qu, M, l1, b) != posture or not in_region(xc, region):
         return False
-    hull = np.empty(3)
-    for r in range(3):
-        hull[r] = tube[TUBE_K + r] + PAD
-        for m in range(3):
-            hull[r] += abs(tube[TUBE_S + 3 * r + m]) * tol
-        hull[r] *= 1.0 + 1e-9
-    fat = np.empty(TUBE_SIZE)
-    if not tube_test(tube[TUBE_X:TUBE_X + 3].copy(), qu, np.full(3, tol), 2.0 * hull * (1.0 + 1e-6), M, l1, l2sq, b,
-                     fat):
-        return False
-    for r in range(3):                       # the same tube (Newton from the same start) with a larger rho
-        if fat[TUBE_X + r] != tube[TUBE_X + r] or fat[TUBE_R + r] <= 2.0 * hull[r]:
-            return False
-    return posture_preimage_in(tube[TUBE_X:TUBE_X + 3].copy(), hull, qu, tol, posture, region, M, l1, l2sq, b,
-                               max_boxes) > 0
+    for parts in range(1, REACQUIRE_PARTS + 1):
+        if tube_exclusion(tube, qu, tol, posture, posture + 1, region, max_boxes, parts, M, l1, l2sq, b):
+            return True
+    return False
 
 
 @njit(cache=True, inline="always")

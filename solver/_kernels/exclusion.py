@@ -26,6 +26,13 @@ from numba import njit
 from .certify import TINY, elbow_bits, prove_part, same_pose
 from .kinematics import geometry
 from .krawczyk import PAD, TWO_PI, W_SIZE, _smul, icos, isin, krawczyk
+from .tube import TUBE_K, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_X, predictor, takes_over, tube_test
+
+#: Smallest half-width (m, m, rad) of a hull the exclusion works with: the branch and bound cannot
+#: separate poses from a box far smaller than the region's own scale.
+HULL_MIN = 1e-6
+#: The box about a needle the exclusion tries, in times its hull: the widest first.
+HULL_FACTORS = (3.0, 1.5)
 
 
 @njit(cache=True)
@@ -182,3 +189,71 @@ def reacquire(X, q, eps, posture_bits, region, max_boxes, model_pack, box):
         return False
     box[:3], box[3:] = xc, rho
     return posture_preimage_in(xc, rho, q, eps, posture_bits, region, M, l1, l2sq, b, max_boxes) > 0
+
+
+@njit(cache=True)
+def tube_exclusion(tube, qc, tol, posture_lo, posture_hi, region, max_boxes, parts, M, l1, l2sq, b):
+    """The robot's pose is the solution of ``tube`` (TUBE_SIZE,; its joint box ``qc +- tol``, rad): a
+    proof from this joint box alone and a region (6,) known to hold the robot, for the robot in a
+    posture of ``posture_lo..posture_hi - 1`` (posture bits).
+
+    The joint box is split in ``parts``**3 sub-boxes.  For each, (1) a tube about it whose solution
+    lies in ``tube`` there (``tube`` takes over from it, :func:`.tube.takes_over`): the same solution; (2) a fat tube, the same centre and wide enough
+    to hold a box about the sub-needle's hull, holds one solution per joint vector over that box
+    (:func:`.tube.tube_test`); (3) every pose of the region in those postures reaching the sub-box
+    lies in that box (:func:`posture_preimage_in`; both in :func:`hull_excludes`).  The robot, at
+    joints in some sub-box, is then in that box, where the only solution is the sub-tube's, which
+    is ``tube``'s.
+    """
+    sub = np.empty(TUBE_SIZE)
+    one = np.empty((1, TUBE_SIZE))
+    q, t, xg, need = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    h = tol / parts
+    for k in range(parts ** 3):
+        for i in range(3):
+            idx = (k // parts ** i) % parts
+            q[i] = qc[i] - tol + (2 * idx + 1) * h
+            t[i] = h
+        predictor(tube, q, xg)
+        if not tube_test(xg, q, t, np.zeros(3), M, l1, l2sq, b, sub):
+            return False
+        one[0, :] = sub
+        if not takes_over(one, 1, tube, need):          # the sub-tube's solution lies in ``tube``: it is its
+            return False
+        xc = sub[TUBE_X:TUBE_X + 3].copy()
+        if not hull_excludes(sub, xc, q, h, posture_lo, posture_hi, region, max_boxes, M, l1, l2sq, b):
+            return False
+    return True
+
+
+@njit(cache=True)
+def hull_excludes(sub, xc, q, h, posture_lo, posture_hi, region, max_boxes, M, l1, l2sq, b):
+    """Steps (2) and (3) of :func:`tube_exclusion` for the tube ``sub`` of the joint box ``q +- h``: a box
+    about its centre ``xc``, :data:`HULL_FACTORS` times the needle's hull, holds one solution per
+    joint vector (a fat tube), and every pose of the region in the postures reaching the joint box
+    lies in it.  (A box far wider than the needle lets the branch and bound drop the poses about the
+    needle quickly; the fat tube's test decides how wide it may be.)"""
+    fat = np.empty(TUBE_SIZE)
+    hull, rho, spread = np.empty(3), np.empty(3), np.empty(3)
+    for factor in HULL_FACTORS:
+        for r in range(3):
+            spread[r] = 0.0
+            for m in range(3):
+                spread[r] += abs(sub[TUBE_S + 3 * r + m]) * h
+            hull[r] = factor * max((spread[r] + sub[TUBE_K + r]) * (1.0 + 1e-9), HULL_MIN)
+            rho[r] = (hull[r] + spread[r]) * (1.0 + 1e-4) + 1e-12
+        if not tube_test(xc, q, np.full(3, h), rho, M, l1, l2sq, b, fat):
+            continue
+        holds = True                     # the box xc +- hull inside the fat tube at every q: its own centre, S
+        for r in range(3):
+            reach = abs(xc[r] - fat[TUBE_X + r]) + hull[r]
+            for m in range(3):
+                reach += abs(fat[TUBE_S + 3 * r + m]) * h
+            holds = holds and reach * (1.0 + 1e-9) + 1e-15 < fat[TUBE_R + r]
+        if not holds:
+            continue
+        for p in range(posture_lo, posture_hi):
+            if posture_preimage_in(xc, hull, q, h, p, region, M, l1, l2sq, b, max_boxes) <= 0:
+                return False
+        return True
+    return False

@@ -12,6 +12,9 @@ the DK solution ``Xs`` of ``q0`` in ``R``:
 3. ``B`` holds ``R``, or else every pose of ``R`` whose inverse kinematics in any of the eight
    postures lands in ``Q0`` lies in ``B`` (:func:`.exclusion.posture_preimage_in`).
 
+Where no Krawczyk box holds the needle's hull (an ill-conditioned start), the joint box is split and
+fat tubes hold the sub-needles' hulls instead (:func:`.exclusion.tube_exclusion`).
+
 So the robot's pose, in ``R`` at joints in ``Q0``, is the tube's solution: the tracker starts
 certain, with the tube as its first.
 """
@@ -21,12 +24,14 @@ import numpy as np
 from numba import njit
 
 from .certified import hull_inside
-from .exclusion import posture_preimage_in
+from .exclusion import posture_preimage_in, tube_exclusion
 from .kinematics import geometry
 from .krawczyk import W_SIZE, krawczyk
 from .linalg import wrap
 from .tube import TUBE_K, TUBE_S, TUBE_X, tube_test
 
+#: The joint box of the start is tried whole, then split in 2**3 and 3**3 parts (:func:`.exclusion.tube_exclusion`).
+START_PARTS = 3
 #: Codes of :func:`certify_start`.
 START_PROVED, START_NO_TUBE, START_NOT_UNIQUE = 0, 1, 2
 
@@ -57,7 +62,14 @@ def certify_start(X0, r0, Xs, q0, tol, max_boxes, model_pack, tube):
     box = np.empty(6)
     if krawczyk(c, rho, q0, none, none, 0.0, 0.0, t, M, l1, b, l2sq, w):     # one box holds R
         box[:3], box[3:] = c, rho
-        return START_PROVED if hull_inside(tube, tol, box) else START_NOT_UNIQUE
+        if hull_inside(tube, tol, box):
+            return START_PROVED
+    region = np.empty(6)
+    for r in range(3):
+        region[2 * r], region[2 * r + 1] = X0[r] - r0[r], X0[r] + r0[r]
+    for parts in range(1, START_PARTS + 1):           # the needle's hull, by parts of the joint box
+        if tube_exclusion(tube, q0, tol, 0, 8, region, max_boxes, parts, M, l1, l2sq, b):
+            return START_PROVED
     for _ in range(40):                                   # the largest box about Xs that Krawczyk proves
         for r in range(3):
             rho[r] *= 0.5
@@ -68,9 +80,6 @@ def certify_start(X0, r0, Xs, q0, tol, max_boxes, model_pack, tube):
     box[:3], box[3:] = c, rho
     if not hull_inside(tube, tol, box):
         return START_NOT_UNIQUE
-    region = np.empty(6)
-    for r in range(3):
-        region[2 * r], region[2 * r + 1] = X0[r] - r0[r], X0[r] + r0[r]
     for posture_bits in range(8):
         if posture_preimage_in(c, rho, q0, tol, posture_bits, region, M, l1, l2sq, b, max_boxes) <= 0:
             return START_NOT_UNIQUE
