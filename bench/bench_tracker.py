@@ -46,7 +46,9 @@ VOUCHING = ("default", "paper", "newton-separation")
 
 
 def methods(model, maps):
-    out = {"default": lambda p: Tracker(model, maps[p]), "paper": lambda p: Tracker(model, maps[p], mode="paper")}
+    exact = (1e-9, 1e-9, 1e-9)                       # the start poses are exact: a start tolerance of rounding
+    out = {"default": lambda p: Tracker(model, maps[p], start_tolerance=exact),
+           "paper": lambda p: Tracker(model, maps[p], mode="paper", start_tolerance=exact)}
     for name, cls in BASELINES.items():
         out[name] = (lambda c: (lambda p: c(model)))(cls)
     return out

@@ -13,7 +13,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ._kernels.start import START_NO_TUBE, START_PROVED, certify_start
-from ._kernels.tube import TUBE_SIZE, pose_bound
+from ._kernels.tube import MAX_COVER, TUBE_SIZE, pose_bound
 from .direct_kinematics import dk_all
 from .kinematics import wrap_angle
 
@@ -37,8 +37,9 @@ class StartInfo(NamedTuple):
         When certain, half-widths (m, m, rad) of a box about ``X`` holding the robot's pose; inf otherwise.
     reason : str
         Why the start is not certain ("" when it is), with what to change.
-    tube : ndarray, shape (24,) or None
-        The first tube of the tracker's chain (None when not certain).
+    tube : ndarray, shape (n, 24) or None
+        The first cover of tubes of the tracker's chain (:mod:`solver._kernels.tube`; None when not
+        certain).
     """
 
     certain: bool
@@ -72,14 +73,14 @@ def honest_start(model_pack, model, X0, q0, start_tolerance, joint_tolerance: fl
                          f"{int(inside.sum())} DK solutions of q0 lie within start_tolerance {r0.tolist()} of X0: give "
                          "a smaller start_tolerance")
     Xs = sols[int(np.argmax(inside))].copy()
-    tube = np.empty(TUBE_SIZE)
-    code = certify_start(np.asarray(X0, dtype=float), r0, Xs, np.asarray(q0, dtype=float), float(joint_tolerance),
-                         int(max_boxes), model_pack, tube)
+    tubes = np.empty((MAX_COVER, TUBE_SIZE))
+    code, n = certify_start(np.asarray(X0, dtype=float), r0, Xs, np.asarray(q0, dtype=float),
+                            float(joint_tolerance), int(max_boxes), model_pack, tubes)
     if code != START_PROVED:
         why = ("a singularity lies within joint_tolerance of q0" if code == START_NO_TUBE else
                "another pose within start_tolerance of X0 may reach joints within joint_tolerance of q0")
         return StartInfo(False, Xs, np.full(3, np.inf), f"the start is not proved: {why}; give a smaller "
                          "start_tolerance or start away from singularities")
     bound = np.empty(3)
-    pose_bound(tube, np.asarray(q0, dtype=float), float(joint_tolerance), Xs, bound)
-    return StartInfo(True, Xs, bound, "", tube)
+    pose_bound(tubes, n, np.asarray(q0, dtype=float), float(joint_tolerance), Xs, bound)
+    return StartInfo(True, Xs, bound, "", tubes[:n].copy())

@@ -22,12 +22,12 @@ from ._kernels import layout as _lay
 from ._kernels.certify import CERT_CONTINUATION, CERT_REACQUIRED
 from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, F_DQ, F_INNOV, I_AMBIGUOUS, I_CERTAIN, I_CERTIFICATE,
                               I_INTACT, I_JUMP, I_LABEL, I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, MAX_REFUSED,
-                              I_TRUST, OUT_BOUND, OUT_CANDS, OUT_INFO, OUT_TUBE, OUT_X, OUT_X_PRED, STATE_A_SCALE,
+                              I_TRUST, OUT_BOUND, OUT_CANDS, OUT_INFO, OUT_N_TUBES, OUT_TUBE, OUT_X, OUT_X_PRED, STATE_A_SCALE,
                               STATE_ANCHOR, STATE_ANCHOR_AGE, STATE_CANDS, STATE_DQ_SCALE, STATE_EXT_SCALE,
                               STATE_HAVE_Q2, STATE_HISTORY, STATE_INTACT, STATE_N_CAND, STATE_Q, STATE_Q2,
-                              STATE_REFUSED, STATE_STEP_DT, STATE_TUBE, STATE_TUBE_OK, STATE_ANCHOR_BOUND, STATE_VERIFIED, STATE_X,
+                              STATE_REFUSED, STATE_STEP_DT, STATE_TUBE, STATE_N_TUBES, STATE_ANCHOR_BOUND, STATE_VERIFIED, STATE_X,
                               STATE_X2, STATUS_REJECTED, STATUS_UNREACHABLE, TRUST, TRUST_LOST)
-from ._kernels.tube import TUBE_SIZE
+from ._kernels.tube import MAX_COVER, TUBE_SIZE
 
 __all__ = ["TrackerState", "StepInfo", "TrackResult", "TrackerError", "STATUS", "CERTIFICATES", "TRUST",
            "STATE_FLOATS", "NO_BOUND"]
@@ -50,6 +50,23 @@ MAX_HELD = 10
 
 class TrackerError(ValueError):
     """A tracker used wrongly (no state yet, a map of another geometry...)."""
+
+
+def _cover(out_real: np.ndarray) -> np.ndarray:
+    """The step's cover of tubes (n, TUBE_SIZE) from its result pack."""
+    n = int(out_real[OUT_N_TUBES])
+    return out_real[OUT_TUBE:OUT_TUBE + n * TUBE_SIZE].reshape(n, TUBE_SIZE).copy()
+
+
+def _saved_cover(a: np.ndarray) -> np.ndarray | None:
+    """The cover of tubes of a saved state (:meth:`TrackerState.as_array`), None when it has none."""
+    n = int(a[_N_TUBES]) if np.isfinite(a[_N_TUBES]) else 0
+    if not 1 <= n <= MAX_COVER:
+        return None
+    cover = a[_TUBE:_TUBE + n * TUBE_SIZE].reshape(n, TUBE_SIZE).copy()
+    if not np.all(np.isfinite(cover)):
+        raise TrackerError(f"state: {n} tubes expected, got non-finite values")
+    return cover
 
 
 def _no_candidates() -> np.ndarray:
@@ -111,11 +128,11 @@ class TrackerState:
     anchor_bound : ndarray, shape (3,)
         The pose bound at ``anchor`` (m, m, rad; inf when none): with the speed bound, where the
         robot can be since.
-    tube : ndarray, shape (24,) or None
-        While certain: the last step's tube (:mod:`solver._kernels.tube`: centre pose, ``S``,
-        centre joints, kappa, rho, joint half-widths) that holds the robot's pose for every
-        joint vector within the tolerance of ``q``; the next step's tube chain starts from it.
-        None when not certain.
+    tube : ndarray, shape (n, 24) or None
+        While certain: the last step's cover of tubes (:mod:`solver._kernels.tube`: each a centre
+        pose, ``S``, centre joints, kappa, rho, joint half-widths; 1 <= n <= 27) that holds the
+        robot's pose for every joint vector within the tolerance of ``q``; the next step's tube
+        chain starts from it.  None when not certain.
     """
 
     X: np.ndarray
@@ -186,9 +203,10 @@ class TrackerState:
             pk[STATE_CANDS:STATE_CANDS + 3 * n], pk[STATE_N_CAND] = self.candidates.ravel(), n
         pk[STATE_VERIFIED] = 1.0 if self.verified else 0.0
         if self.tube is not None and self.certain:
-            pk[STATE_TUBE:STATE_TUBE + TUBE_SIZE], pk[STATE_TUBE_OK] = self.tube, 1.0
+            n = len(self.tube)
+            pk[STATE_TUBE:STATE_TUBE + n * TUBE_SIZE], pk[STATE_N_TUBES] = self.tube.ravel(), n
         else:
-            pk[STATE_TUBE_OK] = 0.0
+            pk[STATE_N_TUBES] = 0.0
         pk[STATE_INTACT] = 1.0 if self.intact else 0.0
         pk[STATE_A_SCALE], pk[STATE_REFUSED] = self.a_scale, self.refused
         if self.anchor is None:
@@ -245,7 +263,7 @@ class TrackerState:
                             bool(i[I_INTACT]),
                             innov if self.steps < 2 else max(innov, 0.8 * self.a_scale + 0.2 * innov), 0,
                             X if certain else anchor, 0.0 if certain else self._anchor_age(dt), **extra,
-                            tube=out_real[OUT_TUBE:OUT_TUBE + TUBE_SIZE].copy() if certain else None,
+                            tube=_cover(out_real) if certain else None,
                             anchor_bound=out_real[OUT_BOUND:OUT_BOUND + 3].copy() if certain else
                             (NO_BOUND if anchor is None else self.anchor_bound))
 
@@ -268,8 +286,9 @@ class TrackerState:
         if self.reading is not None:
             a[_READING:_READING + 3] = self.reading
         a[_REPEATS:_REPEATS + 3], a[_CLEAN_LAG] = self.repeats, float(self.clean_lag)
+        a[_N_TUBES] = 0.0 if self.tube is None else len(self.tube)
         if self.tube is not None:
-            a[_TUBE:_TUBE + TUBE_SIZE] = self.tube
+            a[_TUBE:_TUBE + self.tube.size] = self.tube.ravel()
         a[_ANCHOR_BOUND:_ANCHOR_BOUND + 3] = self.anchor_bound
         if self.clean is not None:
             a[_BASE:] = self.clean.as_array()[:_BASE]
@@ -303,20 +322,21 @@ class TrackerState:
                    None if np.any(np.isnan(a[_ANCHOR:_ANCHOR + 3])) else a[_ANCHOR:_ANCHOR + 3].copy(), float(a[_AGE]),
                    int(a[_SKIPPED]), None if np.any(np.isnan(a[_READING:_READING + 3])) else a[_READING:_READING + 3].copy(),
                    a[_REPEATS:_REPEATS + 3].astype(np.int64), None, int(a[_CLEAN_LAG]),
-                   None if np.any(np.isnan(a[_TUBE:_TUBE + TUBE_SIZE])) else a[_TUBE:_TUBE + TUBE_SIZE].copy(),
+                   _saved_cover(a),
                    a[_ANCHOR_BOUND:_ANCHOR_BOUND + 3].copy())
 
 
 #: Fields of TrackerState.as_array: X, q, X2 (NaN after a reset), dq_scale, steps, dt, q2 (NaN after a
 #: reset), number of candidates, verified, uncertain_since, candidates (6 x 3, NaN past the number), intact,
 #: a_scale, refused, anchor (NaN before the first certain step), anchor_age, skipped, reading (NaN before the
-#: first), repeats, clean_lag, the tube (NaN when none), the anchor's bound; then the clean state's first _BASE floats (NaN when there is none).
+#: first), repeats, clean_lag, the number of tubes and the cover (NaN past them), the anchor's bound; then the clean state's first _BASE floats (NaN when there is none).
 _X, _Q, _X2, _DQ_SCALE, _STEPS, _DT, _Q2, _N_CAND, _VERIFIED, _SINCE, _CANDS = 0, 3, 6, 9, 10, 11, 12, 15, 16, 17, 18
 _INTACT, _A_SCALE, _REFUSED, _ANCHOR, _AGE = _CANDS + 18, _CANDS + 19, _CANDS + 20, _CANDS + 21, _CANDS + 24
 _SKIPPED = _AGE + 1
 _READING, _REPEATS, _CLEAN_LAG = _SKIPPED + 1, _SKIPPED + 4, _SKIPPED + 7
-_TUBE = _CLEAN_LAG + 1
-_ANCHOR_BOUND = _TUBE + TUBE_SIZE
+_N_TUBES = _CLEAN_LAG + 1
+_TUBE = _N_TUBES + 1
+_ANCHOR_BOUND = _TUBE + MAX_COVER * TUBE_SIZE
 _BASE = _ANCHOR_BOUND + 3
 STATE_FLOATS = 2 * _BASE
 _FINITE = [*range(_X, _X + 3), *range(_Q, _Q + 3), _DQ_SCALE, _STEPS, _N_CAND, _VERIFIED, _SINCE, _INTACT, _A_SCALE,

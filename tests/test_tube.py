@@ -6,8 +6,8 @@ from conftest import coarse_map, pose_distance, track_stream
 from experiments.sensors import Sensor
 from solver import Tracker, TrackerState, circle_path, dk_all, ik, jacobians, wrap_angle
 from solver._kernels.kinematics import geometry
-from solver._kernels.tube import (TUBE_K, TUBE_R, TUBE_SIZE, TUBE_X, handoff, pose_bound, predictor, tube_chain,
-                                  tube_test)
+from solver._kernels.tube import (MAX_COVER, TUBE_K, TUBE_R, TUBE_SIZE, TUBE_X, handoff, pose_bound, predictor,
+                                  tube_chain, tube_test)
 from solver.direct_kinematics import kernel_constants
 from solver.tracker_state import NO_BOUND, STATE_FLOATS, TRUST
 
@@ -71,15 +71,44 @@ def test_handoff_needs_the_old_enclosure_inside_the_new_tube(model, geo):
 def test_a_chain_of_tubes_follows_the_branch_along_a_path(model, geo):
     X = circle_path(100)
     q = ik(model, X, 1)
-    tube, out = np.empty(TUBE_SIZE), np.empty(TUBE_SIZE)
-    assert tube_test(X[0].copy(), q[0], np.zeros(3), np.zeros(3), *geo, tube)
+    cover, out = np.empty((MAX_COVER, TUBE_SIZE)), np.empty((MAX_COVER, TUBE_SIZE))
+    assert tube_test(X[0].copy(), q[0], np.zeros(3), np.zeros(3), *geo, cover[0])
+    n = 1
     for k in range(1, len(q)):
         dq = wrap_angle(q[k] - q[k - 1])
-        assert tube_chain(tube, q[k - 1].copy(), dq, 0.0, 256, *geo, out) > 0
-        tube[:] = out
+        tests, n = tube_chain(cover, n, q[k - 1].copy(), dq, 0.0, 256, *geo, out)
+        assert tests > 0 and n == 1
+        cover[:n] = out[:n]
         h = np.empty(3)
-        assert pose_bound(tube, q[k - 1] + dq, 0.0, X[k], h)
-        assert np.all(pose_distance(tube[TUBE_X:TUBE_X + 3], X[k]) <= h.max()) and h.max() < 1e-11
+        assert pose_bound(cover, n, q[k - 1] + dq, 0.0, X[k], h)
+        assert np.all(pose_distance(cover[0, TUBE_X:TUBE_X + 3], X[k]) <= h.max()) and h.max() < 1e-11
+
+
+def test_a_cover_holds_a_joint_box_one_tube_cannot(model, geo):
+    """An ill-conditioned joint box: the tube test fails on the whole box, the cover in parts proves it,
+    and its pose bound holds the solutions of joints sampled in the box."""
+    from solver._kernels.tube import cover
+    X = circle_path(1000)
+    q = ik(model, X, 1)
+    sigma = np.array([np.linalg.svd(jacobians(model, X[k], q[k])[0])[1][-1] for k in range(0, 1000, 10)])
+    k = 10 * int(np.argmin(sigma))
+    X0, q0 = X[k], q[k]
+    one = np.empty(TUBE_SIZE)
+    tol = next(t for t in np.geomspace(1e-5, 1e-1, 60)
+               if not tube_test(X0.copy(), q0, np.full(3, t), np.zeros(3), *geo, one))
+    pieces = np.empty((40, TUBE_SIZE))
+    assert tube_test(X0.copy(), q0, np.zeros(3), np.zeros(3), *geo, pieces[0])
+    m, _ = cover(pieces, 1, pieces[0], q0, np.full(3, tol), *geo)
+    if m < 0:
+        pytest.skip(f"no cover at the tolerance where one tube fails ({tol:.2e} rad)")
+    h = np.empty(3)
+    assert pose_bound(pieces[1:m], m - 1, q0, tol, X0, h)
+    rng = np.random.default_rng(5)
+    for qs in q0 + tol * rng.uniform(-1, 1, (30, 3)):
+        Xs = newton(model, X0 + np.linalg.solve(*(lambda J, K: (J, -K @ (qs - q0)))(*jacobians(model, X0, q0))), qs)
+        err = np.abs(Xs - X0)
+        err[2] = abs(wrap_angle(Xs[2] - X0[2]))
+        assert np.all(err <= h)
 
 
 def noisy_stream(model, sensor, n=1000, seed=3):
@@ -161,7 +190,7 @@ def test_the_tube_survives_a_rejected_step_and_a_saved_state(model):
     tracker = Tracker(model, coarse_map(model, 1), joint_tolerance=grade.tolerance(3.0))
     track_stream(tracker, q[:100], X_true[0])
     saved = tracker.state.as_array()
-    assert saved.shape == (STATE_FLOATS,) and tracker.state.tube is not None
+    assert saved.shape == (STATE_FLOATS,) and tracker.state.tube is not None and tracker.state.tube.ndim == 2
     with pytest.raises(Exception):
         tracker.step([np.nan, 0.0, 0.0], 1e-3)
     _, a = tracker.step(q[100], 1e-3)

@@ -21,12 +21,12 @@ from .gates import reacquire_region
 from .kinematics import geometry
 from .krawczyk import PAD
 from .layout import (I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_TRUST, MAP_WEIGHTS, MODE_PAPER, OUT_BOUND,
-                     OUT_CANDS, OUT_TUBE, OUT_X_PRED, PARAM_JOINT_TOL, PARAM_MAX_TESTS, PARAM_POSTURE_BITS,
+                     OUT_CANDS, OUT_N_TUBES, OUT_TUBE, OUT_X_PRED, PARAM_JOINT_TOL, PARAM_MAX_TESTS, PARAM_POSTURE_BITS,
                      PARAM_REACQUIRE, STATE_CANDS, STATE_EXT_SCALE, STATE_HAVE_Q2, STATE_INTACT, STATE_N_CAND, STATE_Q,
-                     STATE_Q2, STATE_TUBE, STATE_TUBE_OK, STATE_VERIFIED, TRUST_CERTAIN, TRUST_LOST, TRUST_POSSIBLE)
+                     STATE_N_TUBES, STATE_Q2, STATE_TUBE, STATE_VERIFIED, TRUST_CERTAIN, TRUST_LOST, TRUST_POSSIBLE)
 from .linalg import wrap
 from .tracker_packs import STEP_DQ, STEP_QU
-from .tube import TUBE_K, TUBE_S, TUBE_SIZE, TUBE_X, pose_bound, tube_chain, tube_test
+from .tube import MAX_COVER, TUBE_K, TUBE_S, TUBE_SIZE, TUBE_X, pose_bound, tube_chain, tube_test
 
 #: Re-acquisition by tubes tries the reading's joint box whole, then in 2**3 parts.
 REACQUIRE_PARTS = 2
@@ -44,7 +44,7 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
     posture), which vouch with exact joints; with measured joints (``joint_tolerance > 0``)
     they only steer the choice, and certainty comes back by re-acquisition from this sample
     alone.  Updates the candidate set (OUT_CANDS) and writes I_CERTAIN, I_CERTIFICATE, I_N_CAND,
-    I_INTACT, I_TRUST, the step's tube (OUT_TUBE) and the pose bound (OUT_BOUND, inf when not
+    I_INTACT, I_TRUST, the step's cover of tubes (OUT_TUBE, OUT_N_TUBES) and the pose bound (OUT_BOUND, inf when not
     certain).  In default mode a choice the certificates rule out is replaced: by the one
     candidate left, or by the candidate nearest the prediction.  Paper mode keeps its answer
     and is certain only when it is the one candidate left.  An ``untrusted`` sample (its
@@ -53,15 +53,16 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
     a previous candidate or it was re-acquired (the speed gate then leaves it alone).
     """
     new_cands = out_real[OUT_CANDS:OUT_CANDS + 18].reshape((6, 3))
-    tube = out_real[OUT_TUBE:OUT_TUBE + TUBE_SIZE]
+    tubes = out_real[OUT_TUBE:OUT_TUBE + MAX_COVER * TUBE_SIZE].reshape((MAX_COVER, TUBE_SIZE))
     bound = out_real[OUT_BOUND:OUT_BOUND + 3]
+    n_tubes = 0
     for r in range(3):
         bound[r] = np.inf
     keep = np.empty(6, dtype=np.bool_)
     tol = params[PARAM_JOINT_TOL]
     sol = -1
-    if state[STATE_TUBE_OK] > 0.0 and not untrusted:
-        sol = tube_step(state, work, poses, real, tol, model_pack, tube)
+    if state[STATE_N_TUBES] > 0.0 and not untrusted:
+        sol, n_tubes = tube_step(state, work, poses, real, tol, model_pack, tubes)
     if sol >= 0:
         n_new, cert, intact, linked = 1, CERT_TUBE, True, True
         for k in range(6):
@@ -71,10 +72,11 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
         n_new, cert, intact, linked = chains(state, work, poses, real, params, model_pack, new_cands, keep)
         if tol > 0.0:                          # along the measured joints: a choice, not a proof
             intact = False
-            if params[PARAM_REACQUIRE] > 0.0 and int(params[PARAM_POSTURE_BITS]) >= 0 and not untrusted and \
-                    reacquired(chosen, cert != CERT_NONE, state, work, poses, params, model_pack, new_cands, keep,
-                               tube):
-                n_new, cert, intact, linked = 1, CERT_REACQUIRED, True, True
+            if params[PARAM_REACQUIRE] > 0.0 and int(params[PARAM_POSTURE_BITS]) >= 0 and not untrusted:
+                n_tubes = reacquired(chosen, cert != CERT_NONE, state, work, poses, params, model_pack, new_cands,
+                                     keep, tubes)
+                if n_tubes > 0:
+                    n_new, cert, intact, linked = 1, CERT_REACQUIRED, True, True
     certain = False
     if cert != CERT_NONE:        # the choice follows the certificates; vouched only with the chain intact
         sole = 0
@@ -99,12 +101,15 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
     qu = work[STEP_QU:STEP_QU + 3]
     if certain and cert != CERT_TUBE and cert != CERT_REACQUIRED:       # exact joints: the point's tube
         M, l1, l2sq, b = geometry(model_pack)
-        certain = tube_test(Xc, qu, np.zeros(3), np.zeros(3), M, l1, l2sq, b, tube)
+        zero = np.zeros(3)
+        certain = tube_test(Xc, qu, zero, zero, M, l1, l2sq, b, tubes[0])
+        n_tubes = 1
     if certain:
-        certain = pose_bound(tube, qu, tol, Xc, bound)
+        certain = pose_bound(tubes, n_tubes, qu, tol, Xc, bound)
         if not certain:
             for r in range(3):
                 bound[r] = np.inf
+    out_real[OUT_N_TUBES] = n_tubes if certain else 0
     out_int[I_CERTAIN] = 1 if certain else 0
     out_int[I_CERTIFICATE] = cert
     out_int[I_N_CAND] = n_new
@@ -114,23 +119,27 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
 
 
 @njit(cache=True, inline="always")
-def tube_step(state, work, poses, real, tol, model_pack, tube):
-    """The tube chain (:func:`.tube.tube_chain`) over this step's joints from the last step's tube
-    (state pack), into ``tube`` (TUBE_SIZE,).  Returns the index of the real DK solution that is
-    the tube's solution at the measured joints, or -1 when the chain did not close."""
+def tube_step(state, work, poses, real, tol, model_pack, tubes):
+    """The tube chain (:func:`.tube.tube_chain`) over this step's joints from the last step's cover
+    (state pack), into ``tubes`` (MAX_COVER, TUBE_SIZE).  Returns (the index of the real DK solution
+    that is the cover's solution at the measured joints, or -1 when the chain did not close; the
+    number of tubes of the new cover)."""
     M, l1, l2sq, b = geometry(model_pack)
-    if tube_chain(state[STATE_TUBE:STATE_TUBE + TUBE_SIZE], state[STATE_Q:STATE_Q + 3], work[STEP_DQ:STEP_DQ + 3],
-                  tol, TUBE_TESTS, M, l1, l2sq, b, tube) <= 0:
-        return -1
+    n_old = int(state[STATE_N_TUBES])
+    old = state[STATE_TUBE:STATE_TUBE + MAX_COVER * TUBE_SIZE].reshape((MAX_COVER, TUBE_SIZE))
+    tests, n = tube_chain(old, n_old, state[STATE_Q:STATE_Q + 3], work[STEP_DQ:STEP_DQ + 3], tol, TUBE_TESTS,
+                          M, l1, l2sq, b, tubes)
+    if tests <= 0:
+        return -1, 0
     qu = work[STEP_QU:STEP_QU + 3]
     Xr, h = np.empty(3), np.empty(3)
     for k in range(6):
         if real[k]:
             for i in range(3):
                 Xr[i] = poses[k, i].real
-            if pose_bound(tube, qu, tol, Xr, h):
-                return k
-    return -1
+            if pose_bound(tubes, n, qu, tol, Xr, h):
+                return k, n
+    return -1, 0
 
 
 @njit(cache=True, inline="always")
@@ -156,13 +165,14 @@ def chains(state, work, poses, real, params, model_pack, new_cands, keep):
 
 
 @njit(cache=True, inline="always")
-def reacquired(chosen, certified, state, work, poses, params, model_pack, new_cands, keep, tube):
+def reacquired(chosen, certified, state, work, poses, params, model_pack, new_cands, keep, tubes):
     """Re-acquire the branch from this sample alone (measured joints, :mod:`.exclusion`): the
     solution the certificates kept (``certified``) or else ``chosen``, over the region the robot
-    can be in (:func:`.gates.reacquire_region`).  The re-acquired Krawczyk box holds the robot's
-    pose; the tube of the reading's joint box (``tube``, TUBE_SIZE,) takes it over when its
-    hull lies inside that box.  On success ``keep`` (6,) marks the solution alone and
-    ``new_cands[0]`` holds it; returns whether it succeeded."""
+    can be in (:func:`.gates.reacquire_region`), by a cover of the reading's joint box
+    (:func:`.exclusion.tube_exclusion`, the box whole, then in 2**3 parts) or else an
+    axis-aligned Krawczyk box whose tube's hull it holds (:func:`box_reacquire`).  On success
+    ``keep`` (6,) marks the solution alone, ``new_cands[0]`` holds it and ``tubes`` (MAX_COVER,
+    TUBE_SIZE) its cover; returns the number of the cover's tubes (0: not re-acquired)."""
     region = np.empty(6)
     reacquire_region(params, state, region)
     target = chosen
@@ -175,33 +185,26 @@ def reacquired(chosen, certified, state, work, poses, params, model_pack, new_ca
         Xc[i] = poses[target, i].real
     qu, tol = work[STEP_QU:STEP_QU + 3], params[PARAM_JOINT_TOL]
     if not (region[0] <= region[1] and region[2] <= region[3]):
-        return False
+        return 0
     M, l1, l2sq, b = geometry(model_pack)
     posture = int(params[PARAM_POSTURE_BITS])
-    if not tube_test(Xc, qu, np.full(3, tol), np.zeros(3), M, l1, l2sq, b, tube):
-        return False
-    if not (tube_reacquire(tube, qu, tol, posture, region, int(params[PARAM_REACQUIRE]), M, l1, l2sq, b) or
-            box_reacquire(Xc, qu, tol, posture, region, int(params[PARAM_REACQUIRE]), model_pack, tube)):
-        return False
+    if elbow_bits(Xc, qu, M, l1, b) != posture or not in_region(Xc, region):
+        return 0                 # the region and the joints disagree: a sensor off by more than its tolerance
+    n = 0
+    for parts in range(1, REACQUIRE_PARTS + 1):
+        if tube_exclusion(Xc, qu, tol, posture, posture + 1, region, int(params[PARAM_REACQUIRE]), parts, M, l1,
+                          l2sq, b, tubes):
+            n = parts ** 3
+            break
+    if n == 0:
+        if not (tube_test(Xc, qu, np.full(3, tol), np.zeros(3), M, l1, l2sq, b, tubes[0]) and
+                box_reacquire(Xc, qu, tol, posture, region, int(params[PARAM_REACQUIRE]), model_pack, tubes[0])):
+            return 0
+        n = 1
     for k in range(6):
         keep[k] = k == target
     new_cands[0, :] = Xc
-    return True
-
-
-@njit(cache=True, inline="always")
-def tube_reacquire(tube, qu, tol, posture, region, max_boxes, M, l1, l2sq, b):
-    """Re-acquisition by the tube: the robot's pose is the solution of ``tube`` (the reading's joint box
-    ``qu +- tol``) by :func:`.exclusion.tube_exclusion` (the joint box whole, then in 2**3 parts),
-    for the robot in the tracker's posture.  The tube's centre must itself be such a pose (else the
-    region and the joints would disagree: a sensor off by more than its tolerance)."""
-    xc = tube[TUBE_X:TUBE_X + 3].copy()
-    if elbow_bits(xc, qu, M, l1, b) != posture or not in_region(xc, region):
-        return False
-    for parts in range(1, REACQUIRE_PARTS + 1):
-        if tube_exclusion(tube, qu, tol, posture, posture + 1, region, max_boxes, parts, M, l1, l2sq, b):
-            return True
-    return False
+    return n
 
 
 @njit(cache=True, inline="always")

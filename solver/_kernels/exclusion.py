@@ -26,7 +26,7 @@ from numba import njit
 from .certify import TINY, elbow_bits, prove_part, same_pose
 from .kinematics import geometry
 from .krawczyk import PAD, TWO_PI, W_SIZE, _smul, icos, isin, krawczyk
-from .tube import TUBE_K, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_X, predictor, takes_over, tube_test
+from .tube import TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_T, TUBE_X, cover_box, tube_test
 
 #: Smallest half-width (m, m, rad) of a hull the exclusion works with: the branch and bound cannot
 #: separate poses from a box far smaller than the region's own scale.
@@ -192,36 +192,28 @@ def reacquire(X, q, eps, posture_bits, region, max_boxes, model_pack, box):
 
 
 @njit(cache=True)
-def tube_exclusion(tube, qc, tol, posture_lo, posture_hi, region, max_boxes, parts, M, l1, l2sq, b):
-    """The robot's pose is the solution of ``tube`` (TUBE_SIZE,; its joint box ``qc +- tol``, rad): a
-    proof from this joint box alone and a region (6,) known to hold the robot, for the robot in a
-    posture of ``posture_lo..posture_hi - 1`` (posture bits).
+def tube_exclusion(Xc, qc, tol, posture_lo, posture_hi, region, max_boxes, parts, M, l1, l2sq, b, out):
+    """The robot's pose is the solution of a cover of the joint box ``qc +- tol`` (rad) by ``parts**3``
+    tubes about the DK solution ``Xc`` (3,), written to ``out[:parts**3]`` (n, TUBE_SIZE): a proof
+    from this joint box alone and a region (6,) known to hold the robot, for the robot in a posture
+    of ``posture_lo..posture_hi - 1`` (posture bits).
 
-    The joint box is split in ``parts``**3 sub-boxes.  For each, (1) a tube about it whose solution
-    lies in ``tube`` there (``tube`` takes over from it, :func:`.tube.takes_over`): the same solution; (2) a fat tube, the same centre and wide enough
-    to hold a box about the sub-needle's hull, holds one solution per joint vector over that box
-    (:func:`.tube.tube_test`); (3) every pose of the region in those postures reaching the sub-box
-    lies in that box (:func:`posture_preimage_in`; both in :func:`hull_excludes`).  The robot, at
-    joints in some sub-box, is then in that box, where the only solution is the sub-tube's, which
-    is ``tube``'s.
+    The tubes agree where their joint boxes meet (:func:`.tube.cover_box`), and for each (1) a fat
+    tube, wide enough to hold a box about its needle's hull, holds one solution per joint vector
+    over that box (:func:`.tube.tube_test`), and (2) every pose of the region in those postures
+    reaching its joint box lies in that box (:func:`posture_preimage_in`; both in
+    :func:`hull_excludes`).  The robot, at joints in some part, is then in that box, where the only
+    solution is the part's tube's.  Returns whether proved.
     """
-    sub = np.empty(TUBE_SIZE)
-    one = np.empty((1, TUBE_SIZE))
-    q, t, xg, need = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-    h = tol / parts
+    point = np.empty(TUBE_SIZE)
+    zero = np.zeros(3)
+    if not tube_test(Xc, qc, zero, zero, M, l1, l2sq, b, point):
+        return False
+    if cover_box(out, 0, point, qc, np.full(3, tol), parts, M, l1, l2sq, b) != parts ** 3:
+        return False
     for k in range(parts ** 3):
-        for i in range(3):
-            idx = (k // parts ** i) % parts
-            q[i] = qc[i] - tol + (2 * idx + 1) * h
-            t[i] = h
-        predictor(tube, q, xg)
-        if not tube_test(xg, q, t, np.zeros(3), M, l1, l2sq, b, sub):
-            return False
-        one[0, :] = sub
-        if not takes_over(one, 1, tube, need):          # the sub-tube's solution lies in ``tube``: it is its
-            return False
-        xc = sub[TUBE_X:TUBE_X + 3].copy()
-        if not hull_excludes(sub, xc, q, h, posture_lo, posture_hi, region, max_boxes, M, l1, l2sq, b):
+        if not hull_excludes(out[k], out[k, TUBE_X:TUBE_X + 3].copy(), out[k, TUBE_Q:TUBE_Q + 3].copy(),
+                             out[k, TUBE_T], posture_lo, posture_hi, region, max_boxes, M, l1, l2sq, b):
             return False
     return True
 

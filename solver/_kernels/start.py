@@ -37,50 +37,53 @@ START_PROVED, START_NO_TUBE, START_NOT_UNIQUE = 0, 1, 2
 
 
 @njit(cache=True)
-def certify_start(X0, r0, Xs, q0, tol, max_boxes, model_pack, tube):
+def certify_start(X0, r0, Xs, q0, tol, max_boxes, model_pack, tubes):
     """The proof of the module docstring for the solution ``Xs`` (3,) of the joints ``q0`` (3,) (rad, read
-    within ``tol``), the robot within ``r0`` (3,) of ``X0`` (3,) (m, m, rad).  Writes the tube
-    (TUBE_SIZE,) and returns START_PROVED, START_NO_TUBE (no tube proof about ``Xs``: a
-    singularity within the joint box) or START_NOT_UNIQUE (another pose of the start region
-    may reach the joints)."""
+    within ``tol``), the robot within ``r0`` (3,) of ``X0`` (3,) (m, m, rad).  Writes the cover of
+    tubes (MAX_COVER, TUBE_SIZE) and returns (START_PROVED, START_NO_TUBE: no tube about ``Xs``, a
+    singularity within the joint box, or START_NOT_UNIQUE: another pose of the start region may
+    reach the joints; the number of tubes)."""
     M, l1, l2sq, b = geometry(model_pack)
     t = np.full(3, tol)
-    if not tube_test(Xs, q0, t, np.zeros(3), M, l1, l2sq, b, tube):
-        return START_NO_TUBE
-    c = tube[TUBE_X:TUBE_X + 3].copy()
-    rho = np.empty(3)
-    for r in range(3):
-        d = c[r] - X0[r]
-        if r == 2:
-            d = wrap(d)
-        hull = tube[TUBE_K + r]
-        for m in range(3):
-            hull += abs(tube[TUBE_S + 3 * r + m]) * tol
-        rho[r] = max(abs(d) + r0[r], 2.0 * hull) * (1.0 + 1e-6) + 1e-12
-    w = np.empty(W_SIZE)
-    none = np.zeros(3)
-    box = np.empty(6)
-    if krawczyk(c, rho, q0, none, none, 0.0, 0.0, t, M, l1, b, l2sq, w):     # one box holds R
-        box[:3], box[3:] = c, rho
-        if hull_inside(tube, tol, box):
-            return START_PROVED
     region = np.empty(6)
     for r in range(3):
         region[2 * r], region[2 * r + 1] = X0[r] - r0[r], X0[r] + r0[r]
-    for parts in range(1, START_PARTS + 1):           # the needle's hull, by parts of the joint box
-        if tube_exclusion(tube, q0, tol, 0, 8, region, max_boxes, parts, M, l1, l2sq, b):
-            return START_PROVED
+    whole = tube_test(Xs, q0, t, np.zeros(3), M, l1, l2sq, b, tubes[0])
+    w = np.empty(W_SIZE)
+    none = np.zeros(3)
+    box = np.empty(6)
+    rho = np.empty(3)
+    if whole:                                             # one Krawczyk box holds R and the needle
+        c = tubes[0, TUBE_X:TUBE_X + 3].copy()
+        for r in range(3):
+            d = c[r] - X0[r]
+            if r == 2:
+                d = wrap(d)
+            hull = tubes[0, TUBE_K + r]
+            for m in range(3):
+                hull += abs(tubes[0, TUBE_S + 3 * r + m]) * tol
+            rho[r] = max(abs(d) + r0[r], 2.0 * hull) * (1.0 + 1e-6) + 1e-12
+        if krawczyk(c, rho, q0, none, none, 0.0, 0.0, t, M, l1, b, l2sq, w):
+            box[:3], box[3:] = c, rho
+            if hull_inside(tubes[0], tol, box):
+                return START_PROVED, 1
+    for parts in range(1, START_PARTS + 1):             # the needles' hulls, by parts of the joint box
+        if tube_exclusion(Xs, q0, tol, 0, 8, region, max_boxes, parts, M, l1, l2sq, b, tubes):
+            return START_PROVED, parts ** 3
+    if not (whole and tube_test(Xs, q0, t, np.zeros(3), M, l1, l2sq, b, tubes[0])):
+        return START_NO_TUBE, 0
+    c = tubes[0, TUBE_X:TUBE_X + 3].copy()
     for _ in range(40):                                   # the largest box about Xs that Krawczyk proves
         for r in range(3):
             rho[r] *= 0.5
         if krawczyk(c, rho, q0, none, none, 0.0, 0.0, t, M, l1, b, l2sq, w):
             break
     else:
-        return START_NOT_UNIQUE
+        return START_NOT_UNIQUE, 0
     box[:3], box[3:] = c, rho
-    if not hull_inside(tube, tol, box):
-        return START_NOT_UNIQUE
+    if not hull_inside(tubes[0], tol, box):
+        return START_NOT_UNIQUE, 0
     for posture_bits in range(8):
         if posture_preimage_in(c, rho, q0, tol, posture_bits, region, M, l1, l2sq, b, max_boxes) <= 0:
-            return START_NOT_UNIQUE
-    return START_PROVED
+            return START_NOT_UNIQUE, 0
+    return START_PROVED, 1

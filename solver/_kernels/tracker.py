@@ -39,7 +39,7 @@ from .layout import (F_D_BEST, F_D_SECOND, F_DQ, F_COND, F_INNOV, I_AMBIGUOUS, I
                      OUT_X_PRED, PARAM_AMBIGUITY, PARAM_GATE, PARAM_JOINT_TOL, PARAM_JUMP, PARAM_MAX_TESTS,
                      PARAM_SINGULAR, PARAM_SPEED, STATE_A_SCALE, STATE_CANDS, STATE_DQ_SCALE, STATE_EXT_SCALE,
                      STATE_HAVE_Q2, STATE_INTACT, STATE_N_CAND, STATE_Q, STATE_Q2, STATE_REFUSED, STATE_STEP_DT,
-                     STATE_TUBE_OK, STATE_X, STATUS_OK, STATUS_REJECTED, STATUS_SINGULAR, STATUS_UNREACHABLE,
+                     STATE_N_TUBES, STATE_X, STATUS_OK, STATUS_REJECTED, STATUS_SINGULAR, STATUS_UNREACHABLE,
                      TRUST_LOST, TRUST_POSSIBLE)
 from .linalg import hadamard, wrap
 from .maptensor import near_mask_one
@@ -122,7 +122,7 @@ def hold(state, out_real, out_int, status):
     """The previous pose held (a refused or unreachable sample): the pose, the status, and the
     candidates and chain as they were; not certain (no bound), possible while the last step was."""
     out_real[OUT_X:OUT_X + 3] = state[STATE_X:STATE_X + 3]
-    out_int[I_TRUST] = TRUST_POSSIBLE if state[STATE_TUBE_OK] > 0.0 else TRUST_LOST
+    out_int[I_TRUST] = TRUST_POSSIBLE if state[STATE_N_TUBES] > 0.0 else TRUST_LOST
     out_int[I_STATUS] = status
     out_int[I_N_CAND] = int(state[STATE_N_CAND])
     out_int[I_INTACT] = 1 if state[STATE_INTACT] > 0.0 else 0
