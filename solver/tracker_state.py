@@ -52,9 +52,13 @@ class TrackerError(ValueError):
     """A tracker used wrongly (no state yet, a map of another geometry...)."""
 
 
-def _cover(out_real: np.ndarray) -> np.ndarray:
-    """The step's cover of tubes (n, TUBE_SIZE) from its result pack."""
-    n = int(out_real[OUT_N_TUBES])
+def _cover(out_real: np.ndarray) -> np.ndarray | None:
+    """The step's cover of tubes (n, TUBE_SIZE) from its result pack; None when it has none (a baseline's
+    step, which vouches without tubes)."""
+    n = out_real[OUT_N_TUBES]
+    if not (np.isfinite(n) and 1 <= n <= MAX_COVER):
+        return None
+    n = int(n)
     return out_real[OUT_TUBE:OUT_TUBE + n * TUBE_SIZE].reshape(n, TUBE_SIZE).copy()
 
 

@@ -14,7 +14,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from ._kernels.layout import I_CERTAIN, INFO_I_SIZE, OUT_SIZE, OUT_X, STATE_SIZE, STATUS_REJECTED, TRUST_CERTAIN, TRUST_LOST
+from ._kernels.layout import (I_CERTAIN, INFO_I_SIZE, OUT_N_TUBES, OUT_SIZE, OUT_X, STATE_SIZE, STATUS_REJECTED,
+                              TRUST_CERTAIN, TRUST_LOST)
 from .checks import SolverInputError, as_array
 from .direct_kinematics import kernel_constants
 from .kinematics import wrap_angle
@@ -52,6 +53,7 @@ class _TrackerBase:
         self.state: TrackerState | None = None
         self._state_pack = np.empty(STATE_SIZE)
         self._out_real = np.empty(OUT_SIZE)
+        self._out_real[OUT_N_TUBES] = 0.0                  # a baseline's step leaves no cover of tubes
         self._out_int = np.empty(INFO_I_SIZE, dtype=np.int64)
 
     def reset(self, X0, q0) -> None:

@@ -4,7 +4,8 @@ import pytest
 
 from conftest import pose_distance
 from experiments.suite import hard_suite
-from solver import CERTIFICATES, MapTensor, SolverInputError, Tracker, TrackerState, default_bounds, ik, wrap_angle
+from solver import (CERTIFICATES, MapTensor, SolverInputError, Tracker, TrackerState, default_bounds, dk_all, ik,
+                    wrap_angle)
 from solver._kernels.certify import TINY, follow_branch
 from solver._kernels.kinematics import geometry
 from solver._kernels.krawczyk import W_SIZE, krawczyk, newton_on_path
@@ -135,18 +136,19 @@ def test_certificates_correct_the_heuristic_choice(model, maps, hard):
 
 
 def test_uncertain_until_a_certificate_names_the_branch(model, maps, hard):
-    """Lose the branch on purpose (a budget too small for any chain), then let the certificates work:
-    certainty comes back only through elimination or the posture, and never on a wrong pose."""
+    """Lose the branch on purpose (after one step, the state forgets its cover of tubes and keeps every
+    real solution as a candidate), then let the certificates work: certainty comes back only through
+    elimination or the posture, and never on a wrong pose."""
+    from dataclasses import replace
     regained = 0
     for p in hard:
-        starved = Tracker(model, maps[p.posture], max_tests=1, start_tolerance=(1e-9, 1e-9, 1e-9))
-        starved.reset(p.X[0], p.q[0])
-        _, info = starved.step(p.q[1])
-        if info.n_candidates == 1:
+        tr = Tracker(model, maps[p.posture], start_tolerance=(1e-9, 1e-9, 1e-9))
+        tr.reset(p.X[0], p.q[0])
+        tr.step(p.q[1])
+        sols = dk_all(model, p.q[1]).real_poses()
+        if len(sols) < 2:
             continue                                  # a single real solution: nothing to lose
-        assert not info.certain and info.uncertain_since == 1
-        tr = Tracker(model, maps[p.posture])
-        tr.state = starved.state                      # the state is data: hand it to a tracker with a budget
+        tr.state = replace(tr.state, tube=None, candidates=sols, verified=False, uncertain_since=1)
         for k in range(2, len(p.q)):
             Xk, info = tr.step(p.q[k])
             assert not (info.certain and wrong(Xk[None], p.X[k][None])[0]), p.name
@@ -192,7 +194,7 @@ def test_a_refused_step_keeps_the_certainty(model, maps):
         tr.step([np.nan, 0.0, 0.0])
     assert tr.state is before and tr.state.certain
     _, info = tr.step(q[2])
-    assert info.certain and info.certificate == 1
+    assert info.certain and CERTIFICATES[info.certificate] == "tube"
 
 
 def test_newton_separation_baseline_vouches_and_can_be_wrong(model, hard):
@@ -206,4 +208,4 @@ def test_newton_separation_baseline_vouches_and_can_be_wrong(model, hard):
 
 
 def test_certificate_names():
-    assert CERTIFICATES == {0: "none", 1: "continuation", 2: "elimination", 3: "posture", 4: "reacquired"}
+    assert CERTIFICATES == {0: "none", 1: "continuation", 2: "elimination", 3: "posture", 4: "reacquired", 5: "tube"}
