@@ -17,7 +17,7 @@ from ._kernels.tube import MAX_COVER, TUBE_SIZE, pose_bound
 from .direct_kinematics import dk_all
 from .kinematics import wrap_angle
 
-__all__ = ["START_TOLERANCE", "StartInfo", "honest_start"]
+__all__ = ["START_TOLERANCE", "StartInfo", "honest_start", "encoder_bits"]
 
 #: How far the initial pose given to :meth:`solver.Tracker.reset` may be from the robot's (m, m, rad).
 START_TOLERANCE = (0.01, 0.01, 0.05)
@@ -40,6 +40,8 @@ class StartInfo(NamedTuple):
     tube : ndarray, shape (n, 24) or None
         The first cover of tubes of the tracker's chain (:mod:`solver._kernels.tube`; None when not
         certain).
+    note : str
+        What the start changed, e.g. the joint tolerance it took for encoder readings ("" when nothing).
     """
 
     certain: bool
@@ -47,6 +49,27 @@ class StartInfo(NamedTuple):
     pose_bound: np.ndarray
     reason: str
     tube: np.ndarray | None = None
+    note: str = ""
+
+
+#: Encoders of at most this many bits per turn are recognised from their readings (:func:`encoder_bits`).
+MAX_ENCODER_BITS = 24
+
+
+def encoder_bits(q) -> int | None:
+    """The bits per turn of the encoder grid the joints ``q`` (3,) (rad) lie on, or None.
+
+    Readings of a ``B``-bit encoder are integer multiples of ``2 pi / 2**B``; joints that are all
+    such multiples for some ``B <= MAX_ENCODER_BITS`` (the smallest is returned) are taken as
+    encoder readings.  Joints computed in floating point (inverse kinematics, a simulation) land
+    on such a grid with a probability of about ``1e-8``.
+    """
+    q = np.asarray(q, dtype=float)
+    for bits in range(1, MAX_ENCODER_BITS + 1):
+        k = q * (2.0 ** bits / (2.0 * np.pi))
+        if np.all(np.abs(k - np.round(k)) <= 1e-9 * np.maximum(1.0, np.abs(k))):
+            return bits
+    return None
 
 
 def honest_start(model_pack, model, X0, q0, start_tolerance, joint_tolerance: float, weights,

@@ -153,6 +153,7 @@ Every step reports a :class:`StepInfo`.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -164,7 +165,7 @@ from .grid import default_bounds
 from .manipulator import Manipulator
 from .maptensor import MapTensor
 from .ordering import rule_code
-from .start import START_TOLERANCE, StartInfo, honest_start  # noqa: F401  (re-exported)
+from .start import START_TOLERANCE, StartInfo, encoder_bits, honest_start  # noqa: F401  (re-exported)
 from .tracker_state import TrackerError
 from .tracking import _TrackerBase
 
@@ -227,7 +228,9 @@ class Tracker(_TrackerBase):
     max_tests : int
         Krawczyk tests one chain of certificates may use.
     joint_tolerance : float
-        Bound on the joints' measurement error, rad (0: the joints are exact).  See "Sensors".
+        Bound on the joints' measurement error, rad (0: the joints are exact).  See "Sensors".  Left
+        at 0, a :meth:`reset` whose joints lie on an encoder grid (:func:`solver.start.encoder_bits`)
+        sets it to half an encoder step, with a warning and :attr:`StartInfo.note`.
     gate : float
         Outlier gate (with ``joint_tolerance > 0``): refuse a sample whose joint step is off the
         expected one by more than the tolerance allows plus this many recent mean differences.
@@ -328,12 +331,32 @@ class Tracker(_TrackerBase):
         """
         super().reset(X0, q0)
         st = self.state
+        note = self._encoder_tolerance(st.q)
         start = honest_start(self._model_pack, self.model, st.X, st.q, self.start_tolerance, self.joint_tolerance,
                              self._w, int(self._params[_lay.PARAM_REACQUIRE]) or REACQUIRE_BOXES)
+        start = start._replace(note=note)
         self.start = start
         self.state = replace(st, X=start.X.copy(), anchor=start.X.copy(), uncertain_since=-1 if start.certain else 0,
                              intact=start.certain, tube=start.tube, anchor_bound=start.pose_bound)
         return start
+
+    def _encoder_tolerance(self, q0) -> str:
+        """With ``joint_tolerance = 0``: joints ``q0`` (3,) on an encoder grid are readings, not exact
+        joints; take half an encoder step as the tolerance (so that ``certain`` is about the robot,
+        not about the readings), say so and warn.  Returns the note ("" when nothing changed)."""
+        if self.joint_tolerance > 0.0 or self.model.kind != "3-RRR":
+            return ""
+        bits = encoder_bits(q0)
+        if bits is None:
+            return ""
+        tol = float(np.pi / 2.0 ** bits) * (1.0 + 1e-9)
+        self.joint_tolerance = tol
+        self._params[_lay.PARAM_JOINT_TOL] = tol
+        note = (f"q0 lies on a {bits}-bit encoder grid (2 pi / 2**{bits} rad): readings, not exact joints; "
+                f"joint_tolerance = 0 would vouch for the branch along the readings, so the tracker takes half "
+                f"a step, joint_tolerance = {tol:.3g} rad (pass joint_tolerance, e.g. Sensor.tolerance(), to choose)")
+        warnings.warn(note, stacklevel=3)
+        return note
 
     def _kernel(self, q, state_pack):
         tracker_step(self._mode, self._rule, q, state_pack, self._model_pack, self._sample_to_sextic, self._labels,

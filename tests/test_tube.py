@@ -174,14 +174,21 @@ def test_a_start_tolerance_that_holds_two_solutions_is_not_certain(model):
     assert not start.certain and "smaller start_tolerance" in start.reason
 
 
-def test_a_default_tracker_on_quantized_joints_starts_certain_and_vouches(model):
-    """Exact 16-bit readings, joint_tolerance 0: the start is the DK solution of the quantized joints,
-    proved; the steps are vouched for (about the measured joints, as the tolerance says)."""
-    X_true, q_true, q = noisy_stream(model, Sensor("16-bit-exact", bits=16))
-    q[0] = Sensor("16-bit-exact", bits=16).measure(q_true[:1], seed=0).q[0]
-    res = Tracker(model, coarse_map(model, 1)).track(q, X_true[0])
-    assert res.certain.mean() > 0.99
-    assert pose_distance(res.X, X_true).max() < 1e-2
+def test_a_default_tracker_on_encoder_readings_takes_half_a_step_and_says_so(model):
+    """Exact 16-bit readings, joint_tolerance left at 0: the tracker recognises the encoder grid at the
+    reset, warns, takes half a step as its tolerance, and its bound then holds against the robot."""
+    sensor = Sensor("16-bit-exact", bits=16)
+    X_true, q_true, q = noisy_stream(model, sensor, n=1000)        # 1 kHz, a revolution a second
+    q[0] = sensor.measure(q_true[:1], seed=0).q[0]
+    tracker = Tracker(model, coarse_map(model, 1))
+    with pytest.warns(UserWarning, match="16-bit encoder grid"):
+        res = tracker.track(q, X_true[0])
+    assert "joint_tolerance" in tracker.start.note and tracker.joint_tolerance == pytest.approx(np.pi / 2 ** 16)
+    assert res.certain.mean() > 0.9
+    err = np.abs(res.X - X_true)
+    err[:, 2] = np.abs(wrap_angle(res.X[:, 2] - X_true[:, 2]))
+    assert np.all(err[res.certain] <= res.pose_bound[res.certain])
+    assert Tracker(model, coarse_map(model, 1)).reset(X_true[0], q_true[0]).note == ""   # float joints: exact
 
 
 def test_the_tube_survives_a_rejected_step_and_a_saved_state(model):

@@ -136,8 +136,9 @@ def gate_phase(state, work, params, model_pack, out_real, out_int):
     (taken after refusals, or off the expected step by more than the gate allows, noise plus
     ``gate`` times the recent envelope, yet let through because it barely moves the pose: a
     serial singularity's swing) may be a glitch, so it is vouched for by nothing and ends the
-    chain.  Steps off by less (a joint accelerating as it did in recent samples) are vouched
-    for under the sensor's tolerance like any other."""
+    chain.  Steps off by less (a joint accelerating as it did in recent samples), and the first
+    innovation (no envelope yet to judge it by), are vouched for under the sensor's tolerance like
+    any other."""
     Xp, qp, dq = state[STATE_X:STATE_X + 3], state[STATE_Q:STATE_Q + 3], work[STEP_DQ:STEP_DQ + 3]
     ext_scale = state[STATE_EXT_SCALE]
     innov = np.zeros(3)
@@ -156,7 +157,8 @@ def gate_phase(state, work, params, model_pack, out_real, out_int):
         M, l1, l2sq, b = geometry(model_pack)
         verdict = outlier_gate(innov, noise + params[PARAM_GATE] * state[STATE_A_SCALE], noise, Xp, qp, M, l1, l2sq,
                                b)
-    untrusted = forced or (gated and worst > noise + params[PARAM_GATE] * state[STATE_A_SCALE])
+    a_scale = state[STATE_A_SCALE]
+    untrusted = forced or (gated and a_scale > 0.0 and worst > noise + params[PARAM_GATE] * a_scale)
     if verdict == GATE_REFUSE:
         out_real[OUT_X_PRED:OUT_X_PRED + 3] = Xp
         hold(state, out_real, out_int, STATUS_REJECTED)
