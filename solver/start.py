@@ -52,23 +52,26 @@ class StartInfo(NamedTuple):
     note: str = ""
 
 
-#: Encoders of at most this many bits per turn are recognised from their readings (:func:`encoder_bits`).
-MAX_ENCODER_BITS = 24
+#: Encoders of MIN_ENCODER_BITS to MAX_ENCODER_BITS bits per turn are recognised from their readings
+#: (:func:`encoder_bits`).
+MIN_ENCODER_BITS, MAX_ENCODER_BITS = 8, 24
 
 
 def encoder_bits(q) -> int | None:
     """The bits per turn of the encoder grid the joints ``q`` (3,) (rad) lie on, or None.
 
     Readings of a ``B``-bit encoder are integer multiples of ``2 pi / 2**B``; joints that are all
-    such multiples for some ``B <= MAX_ENCODER_BITS`` (the smallest is returned) are taken as
-    encoder readings.  Joints computed in floating point (inverse kinematics, a simulation) land
+    such multiples for some ``B <= MAX_ENCODER_BITS`` (the smallest is returned, at least
+    ``MIN_ENCODER_BITS``: joints on a coarser grid, such as 0 or pi / 2, are set by hand) are taken
+    as encoder readings.  Joints computed in floating point (inverse kinematics, a simulation) land
     on such a grid with a probability of about ``1e-8``.
     """
     q = np.asarray(q, dtype=float)
     for bits in range(1, MAX_ENCODER_BITS + 1):
         k = q * (2.0 ** bits / (2.0 * np.pi))
         if np.all(np.abs(k - np.round(k)) <= 1e-9 * np.maximum(1.0, np.abs(k))):
-            return bits
+            # joints on a grid coarser than MIN_ENCODER_BITS (0, pi / 2, ...) are set by hand, not read
+            return bits if bits >= MIN_ENCODER_BITS else None
     return None
 
 
