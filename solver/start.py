@@ -13,7 +13,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ._kernels.start import START_NO_TUBE, START_PROVED, certify_start
-from ._kernels.tube import MAX_COVER, TUBE_SIZE, pose_bound
+from ._kernels.tube import TUBE_SIZE
+from ._kernels.tube_chain import MAX_COVER, pose_bound
 from .direct_kinematics import dk_all
 from .kinematics import wrap_angle
 

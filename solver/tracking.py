@@ -10,7 +10,6 @@ meaning of ``certain``: :mod:`solver.tracker`.
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 
 import numpy as np
 

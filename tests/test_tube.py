@@ -6,8 +6,8 @@ from conftest import coarse_map, pose_distance, track_stream
 from experiments.sensors import Sensor
 from solver import Tracker, TrackerState, circle_path, dk_all, ik, jacobians, wrap_angle
 from solver._kernels.kinematics import geometry
-from solver._kernels.tube import (MAX_COVER, TUBE_K, TUBE_R, TUBE_SIZE, TUBE_X, handoff, pose_bound, predictor,
-                                  tube_chain, tube_test)
+from solver._kernels.tube import TUBE_K, TUBE_R, TUBE_SIZE, TUBE_X, handoff, predictor, tube_test
+from solver._kernels.tube_chain import MAX_COVER, pose_bound, tube_chain
 from solver.direct_kinematics import kernel_constants
 from solver.tracker_state import NO_BOUND, STATE_FLOATS, TRUST
 
@@ -87,7 +87,7 @@ def test_a_chain_of_tubes_follows_the_branch_along_a_path(model, geo):
 def test_a_cover_holds_a_joint_box_one_tube_cannot(model, geo):
     """An ill-conditioned joint box: the tube test fails on the whole box, the cover in parts proves it,
     and its pose bound holds the solutions of joints sampled in the box."""
-    from solver._kernels.tube import cover
+    from solver._kernels.tube_chain import cover
     X = circle_path(1000)
     q = ik(model, X, 1)
     sigma = np.array([np.linalg.svd(jacobians(model, X[k], q[k])[0])[1][-1] for k in range(0, 1000, 10)])

@@ -26,7 +26,8 @@ from .layout import (I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_TRUST, MAP_
                      STATE_N_TUBES, STATE_Q2, STATE_TUBE, STATE_VERIFIED, TRUST_CERTAIN, TRUST_LOST, TRUST_POSSIBLE)
 from .linalg import wrap
 from .tracker_packs import STEP_DQ, STEP_QU
-from .tube import MAX_COVER, TUBE_K, TUBE_S, TUBE_SIZE, TUBE_X, pose_bound, tube_chain, tube_test
+from .tube import TUBE_K, TUBE_S, TUBE_SIZE, TUBE_X, tube_test
+from .tube_chain import MAX_COVER, pose_bound, tube_chain
 
 #: Re-acquisition by tubes tries the reading's joint box whole, then in 2**3 parts.
 REACQUIRE_PARTS = 2

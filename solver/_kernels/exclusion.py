@@ -26,7 +26,8 @@ from numba import njit
 from .certify import TINY, elbow_bits, prove_part, same_pose
 from .kinematics import geometry
 from .krawczyk import PAD, TWO_PI, W_SIZE, _smul, icos, isin, krawczyk
-from .tube import TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_T, TUBE_X, cover_box, tube_test
+from .tube import TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_T, TUBE_X, tube_test
+from .tube_chain import cover_box
 
 #: Smallest half-width (m, m, rad) of a hull the exclusion works with: the branch and bound cannot
 #: separate poses from a box far smaller than the region's own scale.

@@ -1,0 +1,152 @@
+"""What a tracker step reports: :class:`StepInfo`, and :class:`TrackResult` for a whole stream.
+
+Both are read from a step's result pack (:mod:`solver._kernels.layout` ``OUT_*``, ``F_*``, ``I_*``);
+the tracker's data is :mod:`solver.tracker_state`.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ._kernels import layout as _lay
+from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, I_AMBIGUOUS, I_CERTAIN, I_CERTIFICATE, I_JUMP, I_LABEL,
+                              I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, I_TRUST, OUT_BOUND, OUT_INFO, OUT_X_PRED,
+                              TRUST, TRUST_LOST)
+
+__all__ = ["StepInfo", "TrackResult", "STATUS", "CERTIFICATES", "TRUST", "NO_BOUND", "STEP_FIELDS"]
+
+#: Status codes of a step by code (also the FMU's ``status`` output; 3, rejected, is the FMU's own).
+STATUS = _lay.STATUS
+
+#: Certificates by code (``StepInfo.certificate``), see :mod:`solver.tracker`.
+CERTIFICATES = {0: "none", 1: "continuation", 2: "elimination", 3: "posture", 4: "reacquired", 5: "tube"}
+
+#: The pose bound of a step that is not certain: no bound (inf, inf, inf), read-only.
+NO_BOUND = np.full(3, np.inf)
+NO_BOUND.flags.writeable = False
+
+
+class StepInfo(NamedTuple):
+    """What a step knows about its choice.
+
+    Attributes
+    ----------
+    label : int
+        Solution number (region) used, 1..6; 0 when nothing was chosen.
+    near_border : bool
+        Procedure 2 saw more than one label near the previous pose.
+    X_pred : ndarray, shape (3,)
+        The prediction the choice was compared with (eq. 22 in paper mode, the
+        continuation predictor in default mode, the start of Newton for baselines).
+    n_real : int
+        Number of real DK solutions (-1 where a baseline does not compute them).
+    cond : float
+        Hadamard ratio |det J| / prod |rows of J| at the returned pose (0 singular, 1 best).
+    ambiguous : bool
+        The heuristic doubt of the choice (see :mod:`solver.tracker`); ``certain`` is the proof.
+    status : int
+        See :data:`STATUS`: 0 ok, 1 unreachable (pose held), 2 singular, 3 rejected
+        (an outlier the gate refused, pose held, state kept), 4 diverged.
+    jump : bool
+        The joint step was far larger than recent ones.
+    d_best, d_second : float
+        Weighted distance (m) from the prediction to the chosen and to the
+        nearest other real solution.
+    certain : bool
+        The tracker vouches that the pose lies on the branch continued from the
+        initial pose (a chain of certificates back to it; see :mod:`solver.tracker`).
+    certificate : int
+        The certificate of this step (:data:`CERTIFICATES`): 0 none, 1
+        continuation, 2 elimination, 3 posture, 4 reacquired (measured joints).
+    n_candidates : int
+        DK solutions the true branch can be after this step (1 when known).
+    uncertain_since : int
+        Step index since which the tracker cannot vouch; -1 when ``certain``.
+    pose_bound : ndarray, shape (3,)
+        When ``certain``: half-widths (m, m, rad) of a box about the returned pose that holds
+        every pose consistent, on the tracked branch, with joints within ``joint_tolerance``
+        of the sample (a proof, like ``certain``; about 1e-12 with exact joints).  inf when
+        not certain (:data:`NO_BOUND`).
+    trust : int
+        What a controller can act on (:data:`TRUST`): 2 certain (the branch proved, the pose
+        within ``pose_bound``); 1 possible (the branch along the measured joints is known but
+        not proved over the joint tolerance: a fold may lie within it); 0 lost.
+    """
+
+    label: int
+    near_border: bool
+    X_pred: np.ndarray
+    n_real: int
+    cond: float
+    ambiguous: bool
+    status: int
+    jump: bool
+    d_best: float
+    d_second: float
+    certain: bool = False
+    certificate: int = 0
+    n_candidates: int = 0
+    uncertain_since: int = -1
+    pose_bound: np.ndarray = NO_BOUND
+    trust: int = TRUST_LOST
+
+    @classmethod
+    def from_result(cls, out_real: np.ndarray, out_int: np.ndarray, uncertain_since: int) -> "StepInfo":
+        """The step's information from its result pack (:mod:`solver._kernels.layout` ``OUT_*``, ``F_*``, ``I_*``)."""
+        i, f = out_int.tolist(), out_real[OUT_INFO:].tolist()      # Python numbers: quicker to read
+        return cls(i[I_LABEL], bool(i[I_NEAR_BORDER]), out_real[OUT_X_PRED:OUT_X_PRED + 3].copy(), i[I_N_REAL],
+                   f[F_COND], bool(i[I_AMBIGUOUS]), i[I_STATUS], bool(i[I_JUMP]), f[F_D_BEST], f[F_D_SECOND],
+                   bool(i[I_CERTAIN]), i[I_CERTIFICATE], i[I_N_CAND], uncertain_since,
+                   out_real[OUT_BOUND:OUT_BOUND + 3].copy() if i[I_CERTAIN] else NO_BOUND, i[I_TRUST])
+
+    @property
+    def status_name(self) -> str:
+        return STATUS[self.status]
+
+    @property
+    def trust_name(self) -> str:
+        """``trust`` by name: "certain", "possible" or "lost"."""
+        return TRUST[self.trust]
+
+
+class TrackResult(NamedTuple):
+    """Result of :meth:`Tracker.track`: poses and per-step information as arrays.
+
+    Attributes
+    ----------
+    X : ndarray (n, 3)
+    label, n_real, status, certificate, n_candidates, uncertain_since, trust : ndarray of int (n,)
+    near_border, ambiguous, jump, certain : ndarray of bool (n,)
+    X_pred : ndarray (n, 3)
+    cond, d_best, d_second : ndarray (n,)
+    pose_bound : ndarray (n, 3)
+        Half-widths of the proven pose box (m, m, rad) at certain steps, inf elsewhere; row 0 the start's.
+    seconds : ndarray (n,)
+        Wall time of each step (s); 0 for the initial pose (which is certain).
+    """
+
+    X: np.ndarray
+    label: np.ndarray
+    near_border: np.ndarray
+    X_pred: np.ndarray
+    n_real: np.ndarray
+    cond: np.ndarray
+    ambiguous: np.ndarray
+    status: np.ndarray
+    jump: np.ndarray
+    d_best: np.ndarray
+    d_second: np.ndarray
+    certain: np.ndarray
+    certificate: np.ndarray
+    n_candidates: np.ndarray
+    uncertain_since: np.ndarray
+    trust: np.ndarray
+    pose_bound: np.ndarray
+    seconds: np.ndarray
+
+
+#: Per-step fields of TrackResult (name, dtype) besides X, X_pred and seconds.
+STEP_FIELDS = (("label", int), ("near_border", bool), ("n_real", int), ("cond", float), ("ambiguous", bool),
+               ("status", int), ("jump", bool), ("d_best", float), ("d_second", float), ("certain", bool),
+               ("certificate", int), ("n_candidates", int), ("uncertain_since", int), ("trust", int))
