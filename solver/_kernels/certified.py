@@ -26,7 +26,7 @@ from .layout import (I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_TRUST, MAP_
                      STATE_N_TUBES, STATE_Q2, STATE_TUBE, STATE_VERIFIED, TRUST_CERTAIN, TRUST_LOST, TRUST_POSSIBLE)
 from .linalg import wrap
 from .tracker_packs import STEP_DQ, STEP_QU
-from .tube import TUBE_K, TUBE_S, TUBE_SIZE, TUBE_X, tube_test
+from .tube import TUBE_K, TUBE_SIZE, TUBE_X, spread, tube_test
 from .tube_chain import MAX_COVER, pose_bound, tube_chain
 
 #: Re-acquisition by tubes tries the reading's joint box whole, then in 2**3 parts.
@@ -220,12 +220,10 @@ def box_reacquire(Xc, qu, tol, posture, region, max_boxes, model_pack, tube):
 def hull_inside(tube, tol, box):
     """The tube's solutions over its centre joints ``+- tol`` lie in the box ``box`` (centre, half-widths)."""
     for r in range(3):
-        spread = tube[TUBE_K + r] + PAD
-        for m in range(3):
-            spread += abs(tube[TUBE_S + 3 * r + m]) * tol
+        hull = tube[TUBE_K + r] + PAD + spread(tube, r, tol)
         d = tube[TUBE_X + r] - box[r]
         if r == 2:
             d = wrap(d)
-        if not abs(d) + spread * (1.0 + 1e-9) < box[3 + r]:
+        if not abs(d) + hull * (1.0 + 1e-9) < box[3 + r]:
             return False
     return True

@@ -26,7 +26,7 @@ from numba import njit
 from .certify import TINY, elbow_bits, prove_part, same_pose
 from .kinematics import geometry
 from .krawczyk import PAD, TWO_PI, W_SIZE, _smul, icos, isin, krawczyk
-from .tube import TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_T, TUBE_X, tube_test
+from .tube import TUBE_K, TUBE_Q, TUBE_R, TUBE_SIZE, TUBE_T, TUBE_X, spread, tube_test
 from .tube_chain import cover_box
 
 #: Smallest half-width (m, m, rad) of a hull the exclusion works with: the branch and bound cannot
@@ -227,21 +227,17 @@ def hull_excludes(sub, xc, q, h, posture_lo, posture_hi, region, max_boxes, M, l
     lies in it.  (A box far wider than the needle lets the branch and bound drop the poses about the
     needle quickly; the fat tube's test decides how wide it may be.)"""
     fat = np.empty(TUBE_SIZE)
-    hull, rho, spread = np.empty(3), np.empty(3), np.empty(3)
+    hull, rho = np.empty(3), np.empty(3)
     for factor in HULL_FACTORS:
         for r in range(3):
-            spread[r] = 0.0
-            for m in range(3):
-                spread[r] += abs(sub[TUBE_S + 3 * r + m]) * h
-            hull[r] = factor * max((spread[r] + sub[TUBE_K + r]) * (1.0 + 1e-9), HULL_MIN)
-            rho[r] = (hull[r] + spread[r]) * (1.0 + 1e-4) + 1e-12
+            s = spread(sub, r, h)
+            hull[r] = factor * max((s + sub[TUBE_K + r]) * (1.0 + 1e-9), HULL_MIN)
+            rho[r] = (hull[r] + s) * (1.0 + 1e-4) + 1e-12
         if not tube_test(xc, q, np.full(3, h), rho, M, l1, l2sq, b, fat):
             continue
         holds = True                     # the box xc +- hull inside the fat tube at every q: its own centre, S
         for r in range(3):
-            reach = abs(xc[r] - fat[TUBE_X + r]) + hull[r]
-            for m in range(3):
-                reach += abs(fat[TUBE_S + 3 * r + m]) * h
+            reach = abs(xc[r] - fat[TUBE_X + r]) + hull[r] + spread(fat, r, h)
             holds = holds and reach * (1.0 + 1e-9) + 1e-15 < fat[TUBE_R + r]
         if not holds:
             continue

@@ -28,7 +28,7 @@ from .exclusion import posture_preimage_in, tube_exclusion
 from .kinematics import geometry
 from .krawczyk import W_SIZE, krawczyk
 from .linalg import wrap
-from .tube import TUBE_K, TUBE_S, TUBE_X, tube_test
+from .tube import TUBE_K, TUBE_X, spread, tube_test
 
 #: The joint box of the start is tried whole, then split in 2**3 and 3**3 parts (:func:`.exclusion.tube_exclusion`).
 START_PARTS = 3
@@ -59,9 +59,7 @@ def certify_start(X0, r0, Xs, q0, tol, max_boxes, model_pack, tubes):
             d = c[r] - X0[r]
             if r == 2:
                 d = wrap(d)
-            hull = tubes[0, TUBE_K + r]
-            for m in range(3):
-                hull += abs(tubes[0, TUBE_S + 3 * r + m]) * tol
+            hull = tubes[0, TUBE_K + r] + spread(tubes[0], r, tol)
             rho[r] = max(abs(d) + r0[r], 2.0 * hull) * (1.0 + 1e-6) + 1e-12
         if krawczyk(c, rho, q0, none, none, 0.0, 0.0, t, M, l1, b, l2sq, w):
             box[:3], box[3:] = c, rho

@@ -260,6 +260,13 @@ def handoff(old, new, qm, h, need):
     return ok
 
 
+@njit(cache=True, inline="always")
+def spread(tube, r, t):
+    """How far coordinate ``r`` of the tube's linear predictor moves over joints within ``t`` (rad) of its
+    centre: ``sum_m |S_rm| t`` (m, or rad for r = 2).  The needle's hull is ``spread + kappa``."""
+    return (abs(tube[TUBE_S + 3 * r]) + abs(tube[TUBE_S + 3 * r + 1]) + abs(tube[TUBE_S + 3 * r + 2])) * t
+
+
 @njit(cache=True)
 def predictor(tube, q, out):
     """The tube's linear predictor ``x~ + S (q - q~)`` at joints ``q`` (3,) into ``out`` (3,)."""
