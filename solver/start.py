@@ -38,7 +38,7 @@ class StartInfo(NamedTuple):
         When certain, half-widths (m, m, rad) of a box about ``X`` holding the robot's pose; inf otherwise.
     reason : str
         Why the start is not certain ("" when it is), with what to change.
-    tube : ndarray, shape (n, 24) or None
+    tube : ndarray, shape (n, 36) or None
         The first cover of tubes of the tracker's chain (:mod:`solver._kernels.tube`; None when not
         certain).
     note : str

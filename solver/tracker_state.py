@@ -125,7 +125,7 @@ class TrackerState:
     anchor_bound : ndarray, shape (3,)
         The pose bound at ``anchor`` (m, m, rad; inf when none): with the speed bound, where the
         robot can be since.
-    tube : ndarray, shape (n, 24) or None
+    tube : ndarray, shape (n, 36) or None
         While certain: the last step's cover of tubes (:mod:`solver._kernels.tube`: each a centre
         pose, ``S``, centre joints, kappa, rho, joint half-widths; 1 <= n <= 27) that holds the
         robot's pose for every joint vector within the tolerance of ``q``; the next step's tube

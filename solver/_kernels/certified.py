@@ -29,8 +29,9 @@ from .tracker_packs import STEP_DQ, STEP_QU
 from .tube import TUBE_K, TUBE_SIZE, TUBE_X, spread, tube_test
 from .tube_chain import MAX_COVER, pose_bound, tube_chain
 
-#: Re-acquisition by tubes tries the reading's joint box whole, then in 2**3 parts.
-REACQUIRE_PARTS = 2
+#: Re-acquisition by tubes tries the first covers of :data:`.exclusion.EXCLUSION_COVERS`: the reading's
+#: joint box whole, in 3 and 8 slabs across the needle, in 2**3 parts.
+REACQUIRE_COVERS = 4
 #: Tube tests one step's tube chain may use (a step far from singularities uses two).
 TUBE_TESTS = 400
 
@@ -170,7 +171,7 @@ def reacquired(chosen, certified, state, work, poses, params, model_pack, new_ca
     """Re-acquire the branch from this sample alone (measured joints, :mod:`.exclusion`): the
     solution the certificates kept (``certified``) or else ``chosen``, over the region the robot
     can be in (:func:`.gates.reacquire_region`), by a cover of the reading's joint box
-    (:func:`.exclusion.tube_exclusion`, the box whole, then in 2**3 parts) or else an
+    (:func:`.exclusion.tube_exclusion`, the box whole, then in slabs or parts) or else an
     axis-aligned Krawczyk box whose tube's hull it holds (:func:`box_reacquire`).  On success
     ``keep`` (6,) marks the solution alone, ``new_cands[0]`` holds it and ``tubes`` (MAX_COVER,
     TUBE_SIZE) its cover; returns the number of the cover's tubes (0: not re-acquired)."""
@@ -192,10 +193,10 @@ def reacquired(chosen, certified, state, work, poses, params, model_pack, new_ca
     if elbow_bits(Xc, qu, M, l1, b) != posture or not in_region(Xc, region):
         return 0                 # the region and the joints disagree: a sensor off by more than its tolerance
     n = 0
-    for parts in range(1, REACQUIRE_PARTS + 1):
-        if tube_exclusion(Xc, qu, tol, posture, posture + 1, region, int(params[PARAM_REACQUIRE]), parts, M, l1,
-                          l2sq, b, tubes):
-            n = parts ** 3
+    for attempt in range(1, REACQUIRE_COVERS + 1):
+        n = tube_exclusion(Xc, qu, tol, posture, posture + 1, region, int(params[PARAM_REACQUIRE]), attempt, M, l1,
+                           l2sq, b, tubes)
+        if n > 0:
             break
     if n == 0:
         if not (tube_test(Xc, qu, np.full(3, tol), np.zeros(3), M, l1, l2sq, b, tubes[0]) and

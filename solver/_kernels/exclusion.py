@@ -26,8 +26,9 @@ from numba import njit
 from .certify import TINY, elbow_bits, prove_part, same_pose
 from .kinematics import geometry
 from .krawczyk import PAD, TWO_PI, W_SIZE, _smul, icos, isin, krawczyk
-from .tube import TUBE_K, TUBE_Q, TUBE_R, TUBE_SIZE, TUBE_T, TUBE_X, spread, tube_test
-from .tube_chain import cover_box
+from .tube import (TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_T, TUBE_V, TUBE_W, TUBE_X, set_spread, slab_test,
+                   tube_test)
+from .tube_chain import cover_box, needle_frame, slab_cover
 
 #: Smallest half-width (m, m, rad) of a hull the exclusion works with: the branch and bound cannot
 #: separate poses from a box far smaller than the region's own scale.
@@ -192,57 +193,80 @@ def reacquire(X, q, eps, posture_bits, region, max_boxes, model_pack, box):
     return posture_preimage_in(xc, rho, q, eps, posture_bits, region, M, l1, l2sq, b, max_boxes) > 0
 
 
-@njit(cache=True)
-def tube_exclusion(Xc, qc, tol, posture_lo, posture_hi, region, max_boxes, parts, M, l1, l2sq, b, out):
-    """The robot's pose is the solution of a cover of the joint box ``qc +- tol`` (rad) by ``parts**3``
-    tubes about the DK solution ``Xc`` (3,), written to ``out[:parts**3]`` (n, TUBE_SIZE): a proof
-    from this joint box alone and a region (6,) known to hold the robot, for the robot in a posture
-    of ``posture_lo..posture_hi - 1`` (posture bits).
+#: The covers :func:`tube_exclusion` tries, by attempt: one tube, slabs across the needle (3, then 8:
+#: :func:`.tube_chain.slab_cover`), then 2**3 and 3**3 axis-aligned parts.
+EXCLUSION_COVERS = (1, -3, -8, 2, 3)
 
-    The tubes agree where their joint boxes meet (:func:`.tube.cover_box`), and for each (1) a fat
-    tube, wide enough to hold a box about its needle's hull, holds one solution per joint vector
-    over that box (:func:`.tube.tube_test`), and (2) every pose of the region in those postures
+
+@njit(cache=True)
+def exclusion_cover(out, point, qc, t, attempt, M, l1, l2sq, b):
+    """Cover ``attempt`` (1-based, :data:`EXCLUSION_COVERS`) of the joint box ``qc +- t`` (3,) into
+    ``out`` (n, TUBE_SIZE) from the point tube ``point``; returns its number of tubes, or -1."""
+    kind = EXCLUSION_COVERS[attempt - 1]
+    if kind > 0:
+        return cover_box(out, 0, point, qc, t, kind, M, l1, l2sq, b)
+    if cover_box(out, 0, point, qc, t, 1, M, l1, l2sq, b) == 1 or not out[0, TUBE_S] == out[0, TUBE_S]:
+        return -1                                       # one tube held it (attempt 1's) or no S to cut across
+    V = np.empty((3, 3))
+    needle_frame(out[0, TUBE_S:TUBE_S + 9].reshape((3, 3)).copy(), V)
+    return slab_cover(out, 0, point, qc, t, -kind, V, M, l1, l2sq, b)
+
+
+@njit(cache=True)
+def tube_exclusion(Xc, qc, tol, posture_lo, posture_hi, region, max_boxes, attempt, M, l1, l2sq, b, out):
+    """The robot's pose is the solution of a cover of the joint box ``qc +- tol`` (rad) by tubes about
+    the DK solution ``Xc`` (3,) (cover ``attempt``: :func:`exclusion_cover`), written to ``out[:n]``
+    (n, TUBE_SIZE): a proof from this joint box alone and a region (6,) known to hold the robot,
+    for the robot in a posture of ``posture_lo..posture_hi - 1`` (posture bits).
+
+    The tubes agree where their joint sets meet (:mod:`.handoff`), and for each (1) a fat tube,
+    wide enough to hold a box about its needle's hull, holds one solution per joint vector of its
+    joint set (:func:`.tube.slab_test`), and (2) every pose of the region in those postures
     reaching its joint box lies in that box (:func:`posture_preimage_in`; both in
     :func:`hull_excludes`).  The robot, at joints in some part, is then in that box, where the only
-    solution is the part's tube's.  Returns whether proved.
+    solution is the part's tube's.  Returns n when proved, else 0.
     """
     point = np.empty(TUBE_SIZE)
     zero = np.zeros(3)
     if not tube_test(Xc, qc, zero, zero, M, l1, l2sq, b, point):
-        return False
-    if cover_box(out, 0, point, qc, np.full(3, tol), parts, M, l1, l2sq, b) != parts ** 3:
-        return False
-    for k in range(parts ** 3):
-        if not hull_excludes(out[k], out[k, TUBE_X:TUBE_X + 3].copy(), out[k, TUBE_Q:TUBE_Q + 3].copy(),
-                             out[k, TUBE_T], posture_lo, posture_hi, region, max_boxes, M, l1, l2sq, b):
-            return False
-    return True
+        return 0
+    n = exclusion_cover(out, point, qc, np.full(3, tol), attempt, M, l1, l2sq, b)
+    if n <= 0:
+        return 0
+    for k in range(n):
+        if not hull_excludes(out[k], posture_lo, posture_hi, region, max_boxes, M, l1, l2sq, b):
+            return 0
+    return n
 
 
 @njit(cache=True)
-def hull_excludes(sub, xc, q, h, posture_lo, posture_hi, region, max_boxes, M, l1, l2sq, b):
-    """Steps (2) and (3) of :func:`tube_exclusion` for the tube ``sub`` of the joint box ``q +- h``: a box
-    about its centre ``xc``, :data:`HULL_FACTORS` times the needle's hull, holds one solution per
-    joint vector (a fat tube), and every pose of the region in the postures reaching the joint box
-    lies in it.  (A box far wider than the needle lets the branch and bound drop the poses about the
-    needle quickly; the fat tube's test decides how wide it may be.)"""
+def hull_excludes(sub, posture_lo, posture_hi, region, max_boxes, M, l1, l2sq, b):
+    """Steps (2) and (3) of :func:`tube_exclusion` for the tube ``sub`` (its joint set: a box or a slab):
+    a box about its centre, :data:`HULL_FACTORS` times the needle's hull, holds one solution per
+    joint vector of that set (a fat tube), and every pose of the region in the postures reaching
+    the set's joint box lies in it.  (A box far wider than the needle lets the branch and bound
+    drop the poses about the needle quickly; the fat tube's test decides how wide it may be.)"""
     fat = np.empty(TUBE_SIZE)
     hull, rho = np.empty(3), np.empty(3)
+    xc, q = sub[TUBE_X:TUBE_X + 3].copy(), sub[TUBE_Q:TUBE_Q + 3].copy()
+    V = sub[TUBE_V:TUBE_V + 9].reshape((3, 3)).copy()
+    tw, t = sub[TUBE_W:TUBE_W + 3].copy(), sub[TUBE_T:TUBE_T + 3].copy()
     for factor in HULL_FACTORS:
         for r in range(3):
-            s = spread(sub, r, h)
+            s = set_spread(sub, r)
             hull[r] = factor * max((s + sub[TUBE_K + r]) * (1.0 + 1e-9), HULL_MIN)
             rho[r] = (hull[r] + s) * (1.0 + 1e-4) + 1e-12
-        if not tube_test(xc, q, np.full(3, h), rho, M, l1, l2sq, b, fat):
+        if not slab_test(xc, q, V, tw, t, rho, M, l1, l2sq, b, fat):
             continue
         holds = True                     # the box xc +- hull inside the fat tube at every q: its own centre, S
         for r in range(3):
-            reach = abs(xc[r] - fat[TUBE_X + r]) + hull[r] + spread(fat, r, h)
+            reach = abs(xc[r] - fat[TUBE_X + r]) + hull[r] + set_spread(fat, r)
             holds = holds and reach * (1.0 + 1e-9) + 1e-15 < fat[TUBE_R + r]
         if not holds:
             continue
         for p in range(posture_lo, posture_hi):
-            if posture_preimage_in(xc, hull, q, h, p, region, M, l1, l2sq, b, max_boxes) <= 0:
+            if posture_preimage_in(xc, hull, q, max(t[0], max(t[1], t[2])), p, region, M, l1, l2sq, b,
+                                   max_boxes) <= 0:
                 return False
         return True
     return False

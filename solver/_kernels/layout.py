@@ -49,8 +49,8 @@ STATE_ANCHOR_AGE = 42     # seconds from that step to this one (NaN: unknown)
 STATE_STEP_DT = 43        # seconds from the last accepted sample to this one (NaN: unknown)
 STATE_ANCHOR_BOUND = 44   # (3,) the pose bound at STATE_ANCHOR (m, m, rad; inf: none, e.g. an unproved start)
 STATE_N_TUBES = 47        # tubes in STATE_TUBE; > 0: the last step was certain and they hold the robot's pose
-STATE_TUBE = 48           # (27, 24) the last step's cover (:mod:`.tube`: MAX_COVER tubes of TUBE_SIZE)
-STATE_SIZE = 48 + 27 * 24
+STATE_TUBE = 48           # (27, 36) the last step's cover (:mod:`.tube`: MAX_COVER tubes of TUBE_SIZE)
+STATE_SIZE = 48 + 27 * 36
 
 # ----------------------------------------------------------------------------- map pack
 # The grid of a map tensor and the procedure-2 neighbourhood (eq. 18-19).
@@ -93,8 +93,8 @@ OUT_INFO = 6              # (INFO_F_SIZE,) the fields F_*
 OUT_CANDS = 12            # (6, 3) the candidates after the step (as STATE_CANDS)
 OUT_BOUND = 30            # (3,) the pose bound's half-widths (m, m, rad); inf when not certain
 OUT_N_TUBES = 33          # tubes in OUT_TUBE (when certain)
-OUT_TUBE = 34             # (27, 24) the step's cover (:mod:`.tube`) when certain
-OUT_SIZE = 34 + 27 * 24
+OUT_TUBE = 34             # (27, 36) the step's cover (:mod:`.tube`) when certain
+OUT_SIZE = 34 + 27 * 36
 # float info fields (offsets inside OUT_INFO)
 F_D_BEST, F_D_SECOND, F_COND_PREV, F_COND, F_DQ, F_INNOV = 0, 1, 2, 3, 4, 5
 INFO_F_SIZE = 6

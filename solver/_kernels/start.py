@@ -24,14 +24,12 @@ import numpy as np
 from numba import njit
 
 from .certified import hull_inside
-from .exclusion import posture_preimage_in, tube_exclusion
+from .exclusion import EXCLUSION_COVERS, posture_preimage_in, tube_exclusion
 from .kinematics import geometry
 from .krawczyk import W_SIZE, krawczyk
 from .linalg import wrap
 from .tube import TUBE_K, TUBE_X, spread, tube_test
 
-#: The joint box of the start is tried whole, then split in 2**3 and 3**3 parts (:func:`.exclusion.tube_exclusion`).
-START_PARTS = 3
 #: Codes of :func:`certify_start`.
 START_PROVED, START_NO_TUBE, START_NOT_UNIQUE = 0, 1, 2
 
@@ -65,9 +63,10 @@ def certify_start(X0, r0, Xs, q0, tol, max_boxes, model_pack, tubes):
             box[:3], box[3:] = c, rho
             if hull_inside(tubes[0], tol, box):
                 return START_PROVED, 1
-    for parts in range(1, START_PARTS + 1):             # the needles' hulls, by parts of the joint box
-        if tube_exclusion(Xs, q0, tol, 0, 8, region, max_boxes, parts, M, l1, l2sq, b, tubes):
-            return START_PROVED, parts ** 3
+    for attempt in range(1, len(EXCLUSION_COVERS) + 1):   # the needles' hulls, by parts of the joint box
+        n = tube_exclusion(Xs, q0, tol, 0, 8, region, max_boxes, attempt, M, l1, l2sq, b, tubes)
+        if n > 0:
+            return START_PROVED, n
     if not (whole and tube_test(Xs, q0, t, np.zeros(3), M, l1, l2sq, b, tubes[0])):
         return START_NO_TUBE, 0
     c = tubes[0, TUBE_X:TUBE_X + 3].copy()

@@ -22,10 +22,11 @@ sec. 13; Duff and Lee, "Certified homotopy tracking using the Krawczyk method", 
 The derivation and its bounds: ``docs/noisy-joints-design.md``, section 4.)
 
 A *tube* is a flat pack (``TUBE_*``): the centre pose ``x~``, ``S`` (row-major), the centre
-joints ``q~``, ``kappa``, ``rho`` and the joint box's half-widths ``t``.  :func:`handoff`
-checks that one tube's solution lies inside another's wherever both apply (so a path of
-joints that moves from one box into the other keeps the same solution).  Chains and covers
-of tubes over a tracker step, and the pose bound: :mod:`.tube_chain`.
+joints ``q~``, ``kappa``, ``rho``, and its joint set: the joints ``q~ + V w``, ``|w| <= tw``, within
+``t`` of ``q~`` (:func:`tube_test`: a box, ``V = I``; :func:`slab_test`: a slab across the needle,
+``V[:, 0]`` its joint direction, the top right-singular vector of ``S``; design note section 2.4).
+Hand-offs between tubes: :mod:`.handoff`.  Chains and covers of tubes over a tracker step, and the
+pose bound: :mod:`.tube_chain`.
 
 Floating point: round-to-nearest with a priori slack, as in :mod:`.krawczyk`: residuals
 and products of signed terms get an absolute pad (:data:`.krawczyk.PAD` times their scale),
@@ -48,8 +49,10 @@ TUBE_S = 3            # (9,) S = -J~^-1 K~, row-major (m/rad, m/rad, rad/rad)
 TUBE_Q = 12           # (3,) centre joints q~ (rad)
 TUBE_K = 15           # (3,) kappa: |x - x~ - S (q - q~)| <= kappa for the tube's solution
 TUBE_R = 18           # (3,) rho: the tube's half-widths about the linear predictor
-TUBE_T = 21           # (3,) the joint box's half-widths t (rad)
-TUBE_SIZE = 24
+TUBE_T = 21           # (3,) half-widths t of the joint box that holds the tube's joint set (rad)
+TUBE_W = 24           # (3,) the joint set's half-widths along V's columns (rad)
+TUBE_V = 27           # (9,) V (row-major, orthonormal): the joint set is q~ + V w, |w| <= TUBE_W
+TUBE_SIZE = 36
 
 #: Epsilon-inflation rounds of one tube test.
 ROUNDS = 6
@@ -62,6 +65,24 @@ MATCH_PAD = 1e-9
 SLACK = 1e-9
 
 
+@njit(cache=True, inline="always")
+def lin_bound(l0, l1_, l2, V, tw):
+    """``max |l . V w|`` over ``|w| <= tw`` (3,): ``sum_n |l . V[:, n]| tw_n``, padded for rounding."""
+    out = 0.0
+    for n in range(3):
+        acc = l0 * V[0, n] + l1_ * V[1, n] + l2 * V[2, n]
+        mag = abs(l0 * V[0, n]) + abs(l1_ * V[1, n]) + abs(l2 * V[2, n])
+        out += (abs(acc) + PAD * mag) * tw[n]
+    return out * (1.0 + 1e-12)
+
+
+@njit(cache=True, inline="always")
+def lin_bound2(l0, l1_, l2, V, tw, t):
+    """``max |l . dq|`` over ``dq = V w``, ``|w| <= tw``, with ``|dq| <= t`` (3,): the smaller bound."""
+    box = (abs(l0) * t[0] + abs(l1_) * t[1] + abs(l2) * t[2]) * (1.0 + 1e-12)
+    return min(lin_bound(l0, l1_, l2, V, tw), box)
+
+
 @njit(cache=True)
 def tube_test(xg, qc, t, rho_min, M, l1, l2sq, b, tube):
     """The parametric Krawczyk test of the joint box ``qc +- t`` (3,) about the solution near ``xg``.
@@ -69,8 +90,27 @@ def tube_test(xg, qc, t, rho_min, M, l1, l2sq, b, tube):
     ``xg`` (3,): a guess of the solution at ``qc`` (Newton polishes it); ``rho_min`` (3,): the
     smallest tube half-widths wanted (0 for the tightest).  Writes the tube pack ``tube``
     (TUBE_SIZE,) and returns True when proved: for every ``q`` with ``|q - qc| <= t`` exactly
-    one solution lies in the tube, within ``kappa`` of ``x~ + S (q - q~)``.
+    one solution lies in the tube, within ``kappa`` of ``x~ + S (q - q~)``.  (:func:`slab_test`
+    with ``V = I``.)
     """
+    return slab_test(xg, qc, np.eye(3), t, t, rho_min, M, l1, l2sq, b, tube)
+
+
+@njit(cache=True)
+def slab_test(xg, qc, V, tw, tq, rho_min, M, l1, l2sq, b, tube):
+    """The parametric Krawczyk test of the joints ``q = qc + V w``, ``|w| <= tw`` (3,), that also lie
+    within ``tq`` (3,) of ``qc``: a parallelepiped cut by a box.
+
+    ``V`` (3, 3) orthonormal: a slab across the needle has a small ``tw[0]`` along ``V[:, 0]``, the
+    needle's joint direction.  Every linear term in the joint error is bounded over both
+    (``min(|L V| tw, |L| t)``), the quadratic remainders over the joint box ``qc +- t``,
+    ``t = min(|V| tw, tq)``.  As :func:`tube_test` otherwise; the pack keeps ``V``, ``tw`` and
+    ``t`` (TUBE_V, TUBE_W, TUBE_T).  Writes ``x~``, ``S`` and ``q~`` into the pack even when the test
+    fails (once Newton converged): a linear predictor.
+    """
+    t = np.empty(3)
+    for i in range(3):
+        t[i] = min((abs(V[i, 0]) * tw[0] + abs(V[i, 1]) * tw[1] + abs(V[i, 2]) * tw[2]) * (1.0 + 1e-15), tq[i])
     w = np.empty(W_SIZE)
     none = np.zeros(3)
     x = xg.copy()
@@ -110,10 +150,14 @@ def tube_test(xg, qc, t, rho_min, M, l1, l2sq, b, tube):
     for r in range(3):
         for j in range(3):
             S[r, j] = -C[r, j] * k[j]
+    tube[TUBE_X:TUBE_X + 3] = x
+    tube[TUBE_S:TUBE_S + 9] = S.ravel()
+    tube[TUBE_Q:TUBE_Q + 3] = qc
     aC = np.abs(C)
     # |I - C J~| and N = J~ S + K~ with their rounding pads
     M0 = np.empty((3, 3))
-    aN = np.empty((3, 3))
+    sN = np.empty((3, 3))
+    pN = np.empty((3, 3))
     for r in range(3):
         for j in range(3):
             acc, mag = 0.0, 0.0
@@ -126,7 +170,20 @@ def tube_test(xg, qc, t, rho_min, M, l1, l2sq, b, tube):
                 acc += J[r, m] * S[m, j]
                 mag += abs(J[r, m] * S[m, j])
             acc += k[r] if r == j else 0.0
-            aN[r, j] = abs(acc) + PAD * (mag + abs(k[r]) + 1.0)
+            sN[r, j] = acc
+            pN[r, j] = PAD * (mag + abs(k[r]) + 1.0)
+    # |N dq| over the joints (the parameter term |C| |N dq| below): over w or over the box
+    nd = np.empty(3)
+    for r in range(3):
+        byw, byq = 0.0, 0.0
+        for j in range(3):
+            acc, pad = 0.0, 0.0
+            for m in range(3):
+                acc += sN[r, m] * V[m, j]
+                pad += pN[r, m] * abs(V[m, j])
+            byw += (abs(acc) + pad * (1.0 + 1e-12) + PAD * abs(acc)) * tw[j]
+            byq += (abs(sN[r, j]) + pN[r, j]) * t[j]
+        nd[r] = min(byw, byq) * (1.0 + 1e-12)
     # G_i = H_i S - l1 E u e_i^T (2 x 3 per leg) and gamma_i = e . E w = -(e . R c)
     G = np.empty((3, 2, 3))
     gam = np.empty(3)
@@ -138,6 +195,7 @@ def tube_test(xg, qc, t, rho_min, M, l1, l2sq, b, tube):
     # the affine parts of C (J - J~): C A_k t_k summed, and C B_j (per j)
     MA = np.zeros((3, 3))
     A = np.empty((3, 3))
+    CA = np.empty((3, 3, 3))
     for m in range(3):
         for i in range(3):
             A[i, 0] = 2.0 * G[i, 0, m]
@@ -145,8 +203,16 @@ def tube_test(xg, qc, t, rho_min, M, l1, l2sq, b, tube):
             A[i, 2] = 2.0 * (G[i, 0, m] * wv[i, 0] + G[i, 1, m] * wv[i, 1] + gam[i] * S[2, m])
         for r in range(3):
             for j in range(3):
-                acc = C[r, 0] * A[0, j] + C[r, 1] * A[1, j] + C[r, 2] * A[2, j]
-                MA[r, j] += abs(acc) * t[m]
+                CA[m, r, j] = C[r, 0] * A[0, j] + C[r, 1] * A[1, j] + C[r, 2] * A[2, j]
+    for r in range(3):                       # over w (sum_m C A_m V_mn w_n) or over the box
+        for j in range(3):
+            byw, byq = 0.0, 0.0
+            for n in range(3):
+                acc = CA[0, r, j] * V[0, n] + CA[1, r, j] * V[1, n] + CA[2, r, j] * V[2, n]
+                mag = abs(CA[0, r, j] * V[0, n]) + abs(CA[1, r, j] * V[1, n]) + abs(CA[2, r, j] * V[2, n])
+                byw += (abs(acc) + PAD * mag) * tw[n]
+                byq += abs(CA[n, r, j]) * (1.0 + PAD) * t[n]
+            MA[r, j] = min(byw, byq)
     CB = np.empty((3, 3, 3))
     for m in range(3):
         for i in range(3):
@@ -159,12 +225,12 @@ def tube_test(xg, qc, t, rho_min, M, l1, l2sq, b, tube):
             for j in range(3):
                 CB[m, r, j] = abs(C[r, 0] * A[0, j] + C[r, 1] * A[1, j] + C[r, 2] * A[2, j])
     # the parameter term: |C F~| + |C| beta + |C N| t
-    phi0 = abs(S[2, 0]) * t[0] + abs(S[2, 1]) * t[1] + abs(S[2, 2]) * t[2]
+    phi0 = lin_bound2(S[2, 0], S[2, 1], S[2, 2], V, tw, t)
     gt = np.empty((3, 2))
     beta = np.empty(3)
     for i in range(3):
         for r in range(2):
-            gt[i, r] = abs(G[i, r, 0]) * t[0] + abs(G[i, r, 1]) * t[1] + abs(G[i, r, 2]) * t[2]
+            gt[i, r] = lin_bound2(G[i, r, 0], G[i, r, 1], G[i, r, 2], V, tw, t)
         r0 = cn[i] * phi0 * phi0 / 2.0 + l1[i] * t[i] * t[i] / 2.0 + PAD * phi0
         beta[i] = 2.0 * en[i] * r0 + (math.hypot(gt[i, 0], gt[i, 1]) + r0) ** 2 + PAD * fscale[i]
         if l2sq[i] < 0.0:
@@ -173,7 +239,7 @@ def tube_test(xg, qc, t, rho_min, M, l1, l2sq, b, tube):
     for r in range(3):
         acc = abs(C[r, 0] * F[0] + C[r, 1] * F[1] + C[r, 2] * F[2])
         for j in range(3):
-            acc += aC[r, j] * beta[j] + aN[r, j] * t[j]
+            acc += aC[r, j] * (beta[j] + nd[j])
         a[r] = acc * (1.0 + 1e-12)
     rho = np.empty(3)
     for r in range(3):
@@ -222,6 +288,8 @@ def tube_test(xg, qc, t, rho_min, M, l1, l2sq, b, tube):
             tube[TUBE_K:TUBE_K + 3] = kap
             tube[TUBE_R:TUBE_R + 3] = rho
             tube[TUBE_T:TUBE_T + 3] = t
+            tube[TUBE_W:TUBE_W + 3] = tw
+            tube[TUBE_V:TUBE_V + 9] = V.ravel()
             return True
         if worst >= 1.0:
             return False
@@ -236,35 +304,20 @@ def tube_test(xg, qc, t, rho_min, M, l1, l2sq, b, tube):
     return False
 
 
-@njit(cache=True)
-def handoff(old, new, qm, h, need):
-    """Does the solution of tube ``old`` lie inside tube ``new`` for every joint vector of the box
-    ``qm +- h`` (3,)?  Writes the half-widths ``new`` would need into ``need`` (3,) and returns
-    whether its own are larger (then the two tubes' solutions agree on that box: it is the one
-    solution of ``new``'s tube)."""
-    ok = True
-    for r in range(3):
-        d = old[TUBE_X + r] - new[TUBE_X + r]
-        if r == 2:
-            d = wrap(d)
-        spread = 0.0
-        for m in range(3):
-            do = wrap(qm[m] - old[TUBE_Q + m])
-            dn = wrap(qm[m] - new[TUBE_Q + m])
-            so, sn = old[TUBE_S + 3 * r + m], new[TUBE_S + 3 * r + m]
-            d += so * do - sn * dn
-            spread += abs(so - sn) * h[m]
-        need[r] = ((abs(d) + spread + old[TUBE_K + r]) * (1.0 + SLACK) + PAD * (1.0 + abs(new[TUBE_X + r]))
-                   + 1e-15)
-        ok = ok and need[r] < new[TUBE_R + r]
-    return ok
-
-
 @njit(cache=True, inline="always")
 def spread(tube, r, t):
     """How far coordinate ``r`` of the tube's linear predictor moves over joints within ``t`` (rad) of its
     centre: ``sum_m |S_rm| t`` (m, or rad for r = 2).  The needle's hull is ``spread + kappa``."""
     return (abs(tube[TUBE_S + 3 * r]) + abs(tube[TUBE_S + 3 * r + 1]) + abs(tube[TUBE_S + 3 * r + 2])) * t
+
+
+@njit(cache=True, inline="always")
+def set_spread(tube, r):
+    """How far coordinate ``r`` of the tube's linear predictor moves over the tube's own joint set (m, or
+    rad for r = 2): :func:`lin_bound2` of row ``r`` of ``S`` over ``V``, ``tw`` and ``t``."""
+    V = tube[TUBE_V:TUBE_V + 9].reshape((3, 3))
+    return lin_bound2(tube[TUBE_S + 3 * r], tube[TUBE_S + 3 * r + 1], tube[TUBE_S + 3 * r + 2], V,
+                      tube[TUBE_W:TUBE_W + 3], tube[TUBE_T:TUBE_T + 3])
 
 
 @njit(cache=True)
@@ -275,41 +328,3 @@ def predictor(tube, q, out):
         for m in range(3):
             acc += tube[TUBE_S + 3 * r + m] * wrap(q[m] - tube[TUBE_Q + m])
         out[r] = acc
-
-
-@njit(cache=True)
-def takes_over(pieces, n, new, need):
-    """Does tube ``new`` take over from every tube of ``pieces[:n]`` (n, TUBE_SIZE) on the box where
-    their joint boxes (``q~ +- t``) meet (:func:`handoff`)?  ``need`` (3,) receives the largest
-    half-widths ``new`` would need."""
-    ok = True
-    qm, h, nd = np.empty(3), np.empty(3), np.empty(3)
-    for r in range(3):
-        need[r] = 0.0
-    for j in range(n):
-        meet = True
-        for i in range(3):
-            lo = max(pieces[j, TUBE_Q + i] - pieces[j, TUBE_T + i], new[TUBE_Q + i] - new[TUBE_T + i])
-            hi = min(pieces[j, TUBE_Q + i] + pieces[j, TUBE_T + i], new[TUBE_Q + i] + new[TUBE_T + i])
-            meet = meet and lo <= hi + PAD
-            qm[i], h[i] = 0.5 * (lo + hi), max(0.5 * (hi - lo), 0.0)
-        if meet:
-            ok = handoff(pieces[j], new, qm, h, nd) and ok
-            for r in range(3):
-                need[r] = max(need[r], nd[r])
-    return ok
-
-
-@njit(cache=True)
-def tested_takeover(pieces, n, xg, qc, t, M, l1, l2sq, b, new):
-    """A tube test of ``qc +- t`` (from the guess ``xg``) that also takes over from the tubes
-    ``pieces[:n]`` (:func:`takes_over`): when the test passes but its tube is too narrow for a
-    hand-off, it is tried once more with the half-widths the hand-offs need."""
-    need = np.zeros(3)
-    if not tube_test(xg, qc, t, need, M, l1, l2sq, b, new):
-        return False
-    if takes_over(pieces, n, new, need):
-        return True
-    for r in range(3):
-        need[r] = max(1.25 * need[r], new[TUBE_R + r])
-    return tube_test(xg, qc, t, need, M, l1, l2sq, b, new) and takes_over(pieces, n, new, need)

@@ -1,12 +1,19 @@
 """Chains and covers of tubes (:mod:`.tube`) over a tracker step, and the pose bound of a cover.
 
-A *cover* of a joint box is one tube of the whole box or, where one tube cannot hold it, the tubes
-of its 2**3 or 3**3 parts (:func:`cover_box`, :func:`cover`); every tube is checked against every
-earlier tube whose joint box meets its own (:func:`.tube.tested_takeover`), so that all of them
-hold one solution: a continuous function on the union of their boxes.  :func:`tube_chain` covers a
-tracker step's joint segment, widened by the joint tolerance, piece by piece from the previous
+A *cover* of a joint box is one tube of the whole box or, where one tube cannot hold it, slabs
+across the needle (:func:`slab_cover`: the box cut across ``v1``, the top right-singular vector of
+``S``, into :data:`SLABS` parts, each a thin parallelepiped with its tube), else the tubes of its
+2**3 or 3**3 axis-aligned parts (:func:`cover_box`, :func:`cover`).  Every tube is checked
+against every earlier tube it may meet (:func:`.handoff.tested_takeover`), so that all of them hold
+one solution: a continuous function on the union of their joint sets.  :func:`tube_chain` covers
+a tracker step's joint segment, widened by the joint tolerance, piece by piece from the previous
 step's cover, then the reading's own box; :func:`pose_bound` turns the reading's cover into a box
 about the returned pose.
+
+Why slabs: the poses of a joint box form a needle of length about ``|S| t`` along ``S v1``; a
+tube's remainder grows with the square of that length, so cutting the box across ``v1`` into N
+slabs divides it by N**2 at the cost of N tests, where axis-aligned parts cost N**3 and shorten
+the needle only by N (measured on the 16-bit + 1e-4 rad streams: design note section 2.4).
 """
 from __future__ import annotations
 
@@ -15,7 +22,9 @@ from numba import njit
 
 from .krawczyk import PAD
 from .linalg import wrap
-from .tube import (MATCH_PAD, SLACK, TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_T, predictor, tested_takeover)
+from .handoff import tested_takeover
+from .tube import (MATCH_PAD, SLACK, TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_T, TUBE_V, TUBE_W, TUBE_X, lin_bound,
+                   predictor)
 
 #: Tubes of the reading's own box, each taking over from the last, that tighten its bound.
 REFINE = 6
@@ -23,6 +32,8 @@ REFINE = 6
 MAX_PIECES = 200
 #: A joint box one tube cannot hold is split in 2**3, then 3**3 parts (a *cover*), each with its tube.
 COVER_PARTS = 3
+#: Slab counts tried (in this order) across the needle when one tube cannot hold a joint box.
+SLABS = (3, 8, 20)
 #: Most tubes of one joint box's cover (COVER_PARTS**3): what a tracker's state holds.
 MAX_COVER = 27
 
@@ -35,6 +46,7 @@ def cover_box(pieces, n, guess, qc, t, parts, M, l1, l2sq, b):
     Returns the new number of tubes, or -1 when a part fails or ``pieces`` is full."""
     q, h, xg = np.empty(3), np.empty(3), np.empty(3)
     new = np.empty(TUBE_SIZE)
+    eye = np.eye(3)
     m = n
     for k in range(parts ** 3):
         if m >= pieces.shape[0]:
@@ -44,7 +56,67 @@ def cover_box(pieces, n, guess, qc, t, parts, M, l1, l2sq, b):
             h[i] = t[i] / parts
             q[i] = qc[i] - t[i] + (2 * idx + 1) * h[i]
         predictor(guess, q, xg)
-        if not tested_takeover(pieces, m, xg, q, h, M, l1, l2sq, b, new):
+        new[TUBE_S] = np.nan
+        if not tested_takeover(pieces, m, xg, q, eye, h, h, M, l1, l2sq, b, new):
+            pieces[m, :] = new                         # scratch past the count: S for a slab cover
+            return -1
+        pieces[m, :] = new
+        m += 1
+    return m
+
+
+@njit(cache=True)
+def needle_frame(S, V):
+    """An orthonormal frame ``V`` (3, 3) whose first column is the needle's joint direction: the top
+    right-singular vector of ``S`` (3, 3; power iteration on ``S^T S``); the others complete it."""
+    A = S.T @ S
+    v = np.ones(3) / np.sqrt(3.0)
+    for _ in range(60):
+        u = A @ v
+        nu = np.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+        if not nu > 0.0:
+            break
+        u /= nu
+        if abs(u @ v) > 1.0 - 1e-14:
+            v = u
+            break
+        v = u
+    k = int(np.argmin(np.abs(v)))
+    e = np.zeros(3)
+    e[k] = 1.0
+    e -= (e @ v) * v
+    e /= np.sqrt(e @ e)
+    V[:, 0] = v
+    V[:, 1] = e
+    V[:, 2] = np.cross(v, e)
+
+
+@njit(cache=True)
+def slab_cover(pieces, n, guess, qc, t, slabs, V, M, l1, l2sq, b):
+    """Cover the joint box ``qc +- t`` (3,) with ``slabs`` slabs across ``V[:, 0]`` (the needle's joint
+    direction, :func:`needle_frame`), each a parallelepiped ``q_m + V w`` with its tube
+    (:func:`.tube.slab_test`), appended to ``pieces`` after its first ``n`` and each taking over
+    from every earlier tube it may meet.  Returns the new number of tubes, or -1."""
+    tw = np.empty(3)
+    for j in range(3):                                  # the box in the frame: |w_j| <= sum_i |V_ij| t_i
+        tw[j] = (abs(V[0, j]) * t[0] + abs(V[1, j]) * t[1] + abs(V[2, j]) * t[2]) * (1.0 + 1e-12)
+    width = tw[0]
+    tw[0] = width / slabs
+    q, xg, tq = np.empty(3), np.empty(3), np.empty(3)
+    new = np.empty(TUBE_SIZE)
+    m = n
+    for k in range(slabs):
+        if m >= pieces.shape[0]:
+            return -1
+        off = -width + (2 * k + 1) * tw[0]
+        for i in range(3):                              # the slab's centre, and the box about it holding box & slab
+            q[i] = qc[i] + V[i, 0] * off
+            hull = abs(V[i, 0]) * tw[0] + abs(V[i, 1]) * tw[1] + abs(V[i, 2]) * tw[2]
+            lo = max(qc[i] - t[i], q[i] - hull)
+            hi = min(qc[i] + t[i], q[i] + hull)
+            tq[i] = max(q[i] - lo, hi - q[i]) * (1.0 + 1e-12) + PAD
+        predictor(guess, q, xg)
+        if not tested_takeover(pieces, m, xg, q, V, tw, tq, M, l1, l2sq, b, new):
             return -1
         pieces[m, :] = new
         m += 1
@@ -53,10 +125,22 @@ def cover_box(pieces, n, guess, qc, t, parts, M, l1, l2sq, b):
 
 @njit(cache=True)
 def cover(pieces, n, guess, qc, t, M, l1, l2sq, b):
-    """:func:`cover_box` with one tube, else 2**3, else 3**3 parts.  Returns (new count, -1 when none
-    closed; tube tests used)."""
-    tests = 0
-    for parts in range(1, COVER_PARTS + 1):
+    """:func:`cover_box` with one tube, else slabs across the needle (:data:`SLABS`), else 2**3 and
+    3**3 parts.  Returns (new count, -1 when none closed; tube tests used)."""
+    tests = 1
+    m = cover_box(pieces, n, guess, qc, t, 1, M, l1, l2sq, b)
+    if m > 0:
+        return m, tests
+    if n < pieces.shape[0] and pieces[n, TUBE_S] == pieces[n, TUBE_S]:   # the failed test left S
+        V = np.empty((3, 3))
+        S = pieces[n, TUBE_S:TUBE_S + 9].reshape((3, 3)).copy()
+        needle_frame(S, V)
+        for slabs in SLABS:
+            tests += slabs
+            m = slab_cover(pieces, n, guess, qc, t, slabs, V, M, l1, l2sq, b)
+            if m > 0:
+                return m, tests
+    for parts in range(2, COVER_PARTS + 1):
         tests += parts ** 3
         m = cover_box(pieces, n, guess, qc, t, parts, M, l1, l2sq, b)
         if m > 0:
@@ -140,7 +224,7 @@ def refine(out, pieces, n, qc, t, M, l1, l2sq, b):
         predictor(out[0], qc, xg)
         tests += 1
         pieces[n, :] = out[0]
-        if not tested_takeover(pieces[n:n + 1], 1, xg, qc, t, M, l1, l2sq, b, new):
+        if not tested_takeover(pieces[n:n + 1], 1, xg, qc, np.eye(3), t, t, M, l1, l2sq, b, new):
             break
         shrink = max(new[TUBE_K] / out[0, TUBE_K], max(new[TUBE_K + 1] / out[0, TUBE_K + 1],
                                                        new[TUBE_K + 2] / out[0, TUBE_K + 2]))
@@ -158,7 +242,8 @@ def pose_bound(tubes, n, q, tol, X, out):
     ``|S| h + |X - x~ - S (c - q~)| + kappa``.  Returns whether ``X`` lies, up to
     :data:`MATCH_PAD`, in the tube of a joint box holding ``q`` (a DK solution there is the
     cover's, up to its own rounding).  The bound holds for any ``X``."""
-    p, c, h = np.empty(3), np.empty(3), np.empty(3)
+    p, c, h, tw = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    V = np.empty((3, 3))
     inside = False
     for r in range(3):
         out[r] = 0.0
@@ -169,10 +254,20 @@ def pose_bound(tubes, n, q, tol, X, out):
             lo = max(q[i] - tol, tube[TUBE_Q + i] - tube[TUBE_T + i])
             hi = min(q[i] + tol, tube[TUBE_Q + i] + tube[TUBE_T + i])
             meet = meet and lo <= hi + PAD
-            holds = holds and abs(wrap(q[i] - tube[TUBE_Q + i])) <= tube[TUBE_T + i] + PAD
             c[i], h[i] = 0.5 * (lo + hi), max(0.5 * (hi - lo), 0.0)
         if not meet:
             continue
+        for i in range(3):
+            tw[i] = tube[TUBE_W + i]
+            for m in range(3):
+                V[i, m] = tube[TUBE_V + 3 * i + m]
+        for m in range(3):                             # q in the tube's joint set: |V^T (q - q~)| <= tw
+            wm, mag = 0.0, 0.0
+            for i in range(3):
+                d = wrap(q[i] - tube[TUBE_Q + i]) * V[i, m]
+                wm += d
+                mag += abs(d)
+            holds = holds and abs(wm) <= tw[m] + PAD * (1.0 + mag)
         predictor(tube, c, p)
         for r in range(3):
             d = X[r] - p[r]
@@ -181,7 +276,11 @@ def pose_bound(tubes, n, q, tol, X, out):
             spread = 0.0
             for m in range(3):
                 spread += abs(tube[TUBE_S + 3 * r + m]) * h[m]
-            b = (spread + abs(d) + tube[TUBE_K + r]) * (1.0 + SLACK) + PAD * (1.0 + abs(X[r])) + 1e-15
+            d0 = X[r] - tube[TUBE_X + r]               # or over the tube's whole joint set (a slab's is narrower)
+            if r == 2:
+                d0 = wrap(d0)
+            whole = lin_bound(tube[TUBE_S + 3 * r], tube[TUBE_S + 3 * r + 1], tube[TUBE_S + 3 * r + 2], V, tw) + abs(d0)
+            b = (min(spread + abs(d), whole) + tube[TUBE_K + r]) * (1.0 + SLACK) + PAD * (1.0 + abs(X[r])) + 1e-15
             out[r] = max(out[r], b)
         if holds:
             predictor(tube, q, p)

@@ -1,0 +1,114 @@
+"""Hand-offs between tubes (:mod:`.tube`): where two tubes' joint sets meet, does one tube's solution lie
+inside the other's tube?  Then the two solutions agree there, and a cover or chain of tubes that
+pass these checks holds one continuous branch (:mod:`.tube_chain`).
+
+Two tubes of one slab cover share their frame ``V``: their joint sets meet in a parallelepiped found
+exactly in ``w``.  Other pairs meet inside the intersection of their joint boxes.  Both are
+supersets of the true intersection, so a hand-off checked over them holds there.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .krawczyk import PAD
+from .linalg import wrap
+from .tube import (SLACK, TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_T, TUBE_V, TUBE_W, TUBE_X, lin_bound, slab_test)
+
+
+@njit(cache=True)
+def handoff(old, new, qm, U, h, need):
+    """Does the solution of tube ``old`` lie inside tube ``new`` for every joint vector of the
+    parallelepiped ``qm + U w``, ``|w| <= h`` (3,; ``U`` (3, 3), the identity for a box)?  Writes the
+    half-widths ``new`` would need into ``need`` (3,) and returns whether its own are larger (then
+    the two tubes' solutions agree there: it is the one solution of ``new``'s tube)."""
+    ok = True
+    for r in range(3):
+        d = old[TUBE_X + r] - new[TUBE_X + r]
+        if r == 2:
+            d = wrap(d)
+        for m in range(3):
+            do = wrap(qm[m] - old[TUBE_Q + m])
+            dn = wrap(qm[m] - new[TUBE_Q + m])
+            d += old[TUBE_S + 3 * r + m] * do - new[TUBE_S + 3 * r + m] * dn
+        spread = lin_bound(old[TUBE_S + 3 * r] - new[TUBE_S + 3 * r], old[TUBE_S + 3 * r + 1] - new[TUBE_S + 3 * r + 1],
+                           old[TUBE_S + 3 * r + 2] - new[TUBE_S + 3 * r + 2], U, h)
+        need[r] = ((abs(d) + spread + old[TUBE_K + r]) * (1.0 + SLACK) + PAD * (1.0 + abs(new[TUBE_X + r]))
+                   + 1e-15)
+        ok = ok and need[r] < new[TUBE_R + r]
+    return ok
+
+
+@njit(cache=True)
+def meeting(a, b_, qm, U, h):
+    """Where the joint sets of tubes ``a`` and ``b_`` (TUBE_SIZE,) may meet, as a parallelepiped
+    ``qm + U w``, ``|w| <= h`` holding their intersection (written into ``qm`` (3,), ``U`` (3, 3),
+    ``h`` (3,)).  Tubes of one slab cover share ``V``: their meeting is exact in ``w``; otherwise it
+    is the intersection of their joint boxes (``U = I``).  Returns False when they cannot meet."""
+    same = True
+    for k in range(9):
+        same = same and a[TUBE_V + k] == b_[TUBE_V + k]
+    if same:
+        for n in range(3):
+            c, mag = 0.0, 0.0
+            for m in range(3):
+                d = wrap(a[TUBE_Q + m] - b_[TUBE_Q + m]) * b_[TUBE_V + 3 * m + n]
+                c += d
+                mag += abs(d)
+            lo = max(c - a[TUBE_W + n], -b_[TUBE_W + n])
+            hi = min(c + a[TUBE_W + n], b_[TUBE_W + n])
+            if lo > hi + PAD * (1.0 + mag):
+                return False
+            qm[n] = 0.5 * (lo + hi)                    # w for now
+            h[n] = max(0.5 * (hi - lo), 0.0) + PAD * (1.0 + mag)
+        w = qm.copy()
+        for m in range(3):
+            qm[m] = b_[TUBE_Q + m] + b_[TUBE_V + 3 * m] * w[0] + b_[TUBE_V + 3 * m + 1] * w[1] \
+                + b_[TUBE_V + 3 * m + 2] * w[2]
+            for n in range(3):
+                U[m, n] = b_[TUBE_V + 3 * m + n]
+        return True
+    for i in range(3):
+        qa = b_[TUBE_Q + i] + wrap(a[TUBE_Q + i] - b_[TUBE_Q + i])
+        lo = max(qa - a[TUBE_T + i], b_[TUBE_Q + i] - b_[TUBE_T + i])
+        hi = min(qa + a[TUBE_T + i], b_[TUBE_Q + i] + b_[TUBE_T + i])
+        if lo > hi + PAD:
+            return False
+        qm[i], h[i] = 0.5 * (lo + hi), max(0.5 * (hi - lo), 0.0)
+        for n in range(3):
+            U[i, n] = 1.0 if i == n else 0.0
+    return True
+
+
+@njit(cache=True)
+def takes_over(pieces, n, new, need):
+    """Does tube ``new`` take over from every tube of ``pieces[:n]`` (n, TUBE_SIZE) where their joint
+    sets may meet (:func:`meeting`, :func:`handoff`)?  ``need`` (3,) receives the largest
+    half-widths ``new`` would need."""
+    ok = True
+    qm, h, nd = np.empty(3), np.empty(3), np.empty(3)
+    U = np.empty((3, 3))
+    for r in range(3):
+        need[r] = 0.0
+    for j in range(n):
+        if meeting(pieces[j], new, qm, U, h):
+            ok = handoff(pieces[j], new, qm, U, h, nd) and ok
+            for r in range(3):
+                need[r] = max(need[r], nd[r])
+    return ok
+
+
+@njit(cache=True)
+def tested_takeover(pieces, n, xg, qc, V, tw, tq, M, l1, l2sq, b, new):
+    """A tube test of the joints ``qc + V w``, ``|w| <= tw``, within ``tq`` of ``qc`` (:func:`slab_test`, from the
+    guess ``xg``) that also takes over from the tubes ``pieces[:n]`` (:func:`takes_over`): when the
+    test passes but its tube is too narrow for a hand-off, it is tried once more with the
+    half-widths the hand-offs need."""
+    need = np.zeros(3)
+    if not slab_test(xg, qc, V, tw, tq, need, M, l1, l2sq, b, new):
+        return False
+    if takes_over(pieces, n, new, need):
+        return True
+    for r in range(3):
+        need[r] = max(1.25 * need[r], new[TUBE_R + r])
+    return slab_test(xg, qc, V, tw, tq, need, M, l1, l2sq, b, new) and takes_over(pieces, n, new, need)
