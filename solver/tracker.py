@@ -336,8 +336,11 @@ class Tracker(_TrackerBase):
                              self._w, int(self._params[_lay.PARAM_REACQUIRE]) or REACQUIRE_BOXES)
         start = start._replace(note=note)
         self.start = start
-        self.state = replace(st, X=start.X.copy(), anchor=start.X.copy(), uncertain_since=-1 if start.certain else 0,
-                             intact=start.certain, tube=start.tube, anchor_bound=start.pose_bound)
+        # the robot is within the proven bound of the start, or else within the start tolerance of X0 (the
+        # start's own assumption): where re-acquisition and the set-membership steps begin
+        anchor, bound = (start.X, start.pose_bound) if start.certain else (st.X, np.array(self.start_tolerance, float))
+        self.state = replace(st, X=start.X.copy(), anchor=anchor.copy(), uncertain_since=-1 if start.certain else 0,
+                             intact=start.certain, tube=start.tube, anchor_bound=bound.copy())
         return start
 
     def _encoder_tolerance(self, q0) -> str:

@@ -20,7 +20,7 @@ import numpy as np
 
 from ._kernels.certify import CERT_CONTINUATION, CERT_REACQUIRED
 from ._kernels.layout import (F_DQ, F_INNOV, I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_STATUS, MAX_REFUSED,
-                              OUT_BOUND, OUT_CANDS, OUT_INFO, OUT_N_TUBES, OUT_TUBE, OUT_X, STATE_A_SCALE,
+                              OUT_BOUND, OUT_CANDS, OUT_INFO, OUT_N_TUBES, OUT_REGION, OUT_TUBE, OUT_X, STATE_A_SCALE,
                               STATE_ANCHOR, STATE_ANCHOR_AGE, STATE_ANCHOR_BOUND, STATE_CANDS, STATE_DQ_SCALE,
                               STATE_EXT_SCALE, STATE_HAVE_Q2, STATE_HISTORY, STATE_INTACT, STATE_N_CAND,
                               STATE_N_TUBES, STATE_Q, STATE_Q2, STATE_REFUSED, STATE_STEP_DT, STATE_TUBE,
@@ -108,7 +108,9 @@ class TrackerState:
     refused : int
         Samples refused in a row since the last accepted one.
     anchor : ndarray, shape (3,) or None
-        The pose of the last certain step (m, m, rad); None before the first one.
+        The centre of a pose box known to hold the robot (m, m, rad): the pose of the last certain
+        step or, with a speed bound and joint tolerance, the box of the last uncertain step's
+        set-membership update (:func:`solver._kernels.certified.region_step`); None before the first.
     anchor_age : float
         Seconds since that step (NaN when the caller gives no time steps).
     skipped : int
@@ -123,11 +125,11 @@ class TrackerState:
     clean_lag : int
         Samples read since ``clean`` was taken.
     anchor_bound : ndarray, shape (3,)
-        The pose bound at ``anchor`` (m, m, rad; inf when none): with the speed bound, where the
-        robot can be since.
+        The half-widths of that box about ``anchor`` (m, m, rad; inf when none): with the speed
+        bound, where the robot can be since.
     tube : ndarray, shape (n, 36) or None
         While certain: the last step's cover of tubes (:mod:`solver._kernels.tube`: each a centre
-        pose, ``S``, centre joints, kappa, rho, joint half-widths; 1 <= n <= 27) that holds the
+        pose, ``S``, centre joints, kappa, rho, its joint set; 1 <= n <= 27) that holds the
         robot's pose for every joint vector within the tolerance of ``q``; the next step's tube
         chain starts from it.  None when not certain.
     """
@@ -254,15 +256,19 @@ class TrackerState:
         # a sample taken after refusals (the joints jumped and stayed): the sensor broke its
         # tolerance, so the last certain pose no longer bounds where the robot is
         anchor = None if self.refused >= MAX_REFUSED else self.anchor
+        age, anchor_bound = self._anchor_age(dt), self.anchor_bound
+        region = out_real[OUT_REGION:OUT_REGION + 6]
+        if not certain and np.all(np.isfinite(region)):    # the set-membership step's box holds the robot now
+            anchor, anchor_bound, age = 0.5 * (region[0::2] + region[1::2]), 0.5 * (region[1::2] - region[0::2]), 0.0
         return TrackerState(X, q.copy(), self.X, scale, self.steps + 1,
                             float("nan") if dt is None else float(dt) * (self.skipped + 1), self.q, cands,
                             i[I_CERTIFICATE] in (CERT_CONTINUATION, CERT_REACQUIRED), self.since(certain),
                             bool(i[I_INTACT]),
                             innov if self.steps < 2 else max(innov, 0.8 * self.a_scale + 0.2 * innov), 0,
-                            X if certain else anchor, 0.0 if certain else self._anchor_age(dt), **extra,
+                            X if certain else anchor, 0.0 if certain else age, **extra,
                             tube=_cover(out_real) if certain else None,
                             anchor_bound=out_real[OUT_BOUND:OUT_BOUND + 3].copy() if certain else
-                            (NO_BOUND if anchor is None else self.anchor_bound))
+                            (NO_BOUND if anchor is None else anchor_bound))
 
     def as_array(self) -> np.ndarray:
         """The state as :data:`STATE_FLOATS` floats (see :data:`_SAVED_FIELDS`): what an FMU serialises."""

@@ -202,6 +202,39 @@ def test_the_pose_bound_holds_on_a_noisy_stream(model, grade):
     assert n_certain > 0.9 * kept[1:].sum()
 
 
+def test_the_set_membership_box_holds_the_robot_while_uncertain(model):
+    """An ill-conditioned circle (|S| up to about 80) read by a 16-bit + 1e-4 rad encoder, with a speed
+    bound: on the uncertain steps the tracker keeps a pose box (the state's anchor +- anchor_bound,
+    from the previous box grown by the speed bound and cut to the poses reaching the reading's joint
+    box); it holds the noise-free pose wherever the sensor kept its tolerance, and certainty comes
+    back after the uncertain stretches."""
+    from experiments.suite import hard_suite
+    path = next(p for p in hard_suite(model, samplings=(1000,)) if p.name == "p1-circle-5mm/1000")
+    grade = Sensor("16-bit-1e-4", bits=16, noise=1e-4)
+    q = grade.measure(path.q, seed=1000).q
+    q[0] = path.q[0]
+    tol = grade.tolerance(3.0)
+    v = 1.25 * np.max(np.hypot(*np.diff(path.X[:, :2], axis=0).T)) / 1e-3
+    w = max(1.25 * np.max(np.abs(wrap_angle(np.diff(path.X[:, 2])))) / 1e-3, 0.5)
+    tracker = Tracker(model, coarse_map(model, 1), joint_tolerance=tol, speed_bound=(v, w),
+                      start_tolerance=(1e-9, 1e-9, 1e-9))
+    tracker.reset(path.X[0], q[0])
+    kept = np.all(np.abs(wrap_angle(q - path.q)) <= tol, axis=1)
+    boxes, certain = 0, []
+    for k in range(1, len(q)):
+        _, info = tracker.step(q[k], 1e-3)
+        certain.append(info.certain)
+        st = tracker.state
+        if not info.certain and st.anchor_age == 0.0 and kept[k]:
+            d = np.abs(path.X[k] - st.anchor)
+            d[2] = abs(wrap_angle(path.X[k, 2] - st.anchor[2]))
+            assert np.all(d <= st.anchor_bound), k
+            boxes += 1
+    assert boxes > 10
+    first = certain.index(False)
+    assert any(certain[first:])                       # certainty comes back
+
+
 def test_an_approximate_start_within_the_start_tolerance_is_certain(model):
     X = circle_path(200)
     q = ik(model, X, 1)

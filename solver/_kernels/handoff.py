@@ -2,9 +2,9 @@
 inside the other's tube?  Then the two solutions agree there, and a cover or chain of tubes that
 pass these checks holds one continuous branch (:mod:`.tube_chain`).
 
-Two tubes of one slab cover share their frame ``V``: their joint sets meet in a parallelepiped found
-exactly in ``w``.  Other pairs meet inside the intersection of their joint boxes.  Both are
-supersets of the true intersection, so a hand-off checked over them holds there.
+Two tubes meet in the frame ``V`` of the newer one: the older one's joint set, seen in that frame, is
+cut by the newer one's ``|w| <= tw`` (exact for two slabs of one cover, which share ``V``).  That
+is a superset of the true intersection, so a hand-off checked over it holds there.
 """
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from numba import njit
 
 from .krawczyk import PAD
 from .linalg import wrap
-from .tube import (SLACK, TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_T, TUBE_V, TUBE_W, TUBE_X, lin_bound, slab_test)
+from .tube import SLACK, TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_V, TUBE_W, TUBE_X, lin_bound, slab_test
 
 
 @njit(cache=True)
@@ -43,40 +43,32 @@ def handoff(old, new, qm, U, h, need):
 def meeting(a, b_, qm, U, h):
     """Where the joint sets of tubes ``a`` and ``b_`` (TUBE_SIZE,) may meet, as a parallelepiped
     ``qm + U w``, ``|w| <= h`` holding their intersection (written into ``qm`` (3,), ``U`` (3, 3),
-    ``h`` (3,)).  Tubes of one slab cover share ``V``: their meeting is exact in ``w``; otherwise it
-    is the intersection of their joint boxes (``U = I``).  Returns False when they cannot meet."""
-    same = True
-    for k in range(9):
-        same = same and a[TUBE_V + k] == b_[TUBE_V + k]
-    if same:
-        for n in range(3):
-            c, mag = 0.0, 0.0
-            for m in range(3):
-                d = wrap(a[TUBE_Q + m] - b_[TUBE_Q + m]) * b_[TUBE_V + 3 * m + n]
-                c += d
-                mag += abs(d)
-            lo = max(c - a[TUBE_W + n], -b_[TUBE_W + n])
-            hi = min(c + a[TUBE_W + n], b_[TUBE_W + n])
-            if lo > hi + PAD * (1.0 + mag):
-                return False
-            qm[n] = 0.5 * (lo + hi)                    # w for now
-            h[n] = max(0.5 * (hi - lo), 0.0) + PAD * (1.0 + mag)
-        w = qm.copy()
+    ``h`` (3,)), in the frame of ``b_`` (``U = V_b``): there ``a``'s set lies in the box about
+    ``V_b^T (q_a - q_b)`` of half-widths ``|V_b^T V_a| tw_a``, cut by ``b_``'s own ``|w| <= tw_b``.
+    (For two slabs of one cover, ``V_b^T V_a = I``: exact.)  Returns False when they cannot meet."""
+    w = np.empty(3)
+    for n in range(3):
+        c, mag, half = 0.0, 0.0, 0.0
         for m in range(3):
-            qm[m] = b_[TUBE_Q + m] + b_[TUBE_V + 3 * m] * w[0] + b_[TUBE_V + 3 * m + 1] * w[1] \
-                + b_[TUBE_V + 3 * m + 2] * w[2]
-            for n in range(3):
-                U[m, n] = b_[TUBE_V + 3 * m + n]
-        return True
-    for i in range(3):
-        qa = b_[TUBE_Q + i] + wrap(a[TUBE_Q + i] - b_[TUBE_Q + i])
-        lo = max(qa - a[TUBE_T + i], b_[TUBE_Q + i] - b_[TUBE_T + i])
-        hi = min(qa + a[TUBE_T + i], b_[TUBE_Q + i] + b_[TUBE_T + i])
-        if lo > hi + PAD:
+            d = wrap(a[TUBE_Q + m] - b_[TUBE_Q + m]) * b_[TUBE_V + 3 * m + n]
+            c += d
+            mag += abs(d)
+        for j in range(3):
+            vv = 0.0
+            for m in range(3):
+                vv += b_[TUBE_V + 3 * m + n] * a[TUBE_V + 3 * m + j]
+            half += abs(vv) * a[TUBE_W + j]
+        pad = PAD * (1.0 + mag + half)
+        lo = max(c - half, -b_[TUBE_W + n])
+        hi = min(c + half, b_[TUBE_W + n])
+        if lo > hi + pad:
             return False
-        qm[i], h[i] = 0.5 * (lo + hi), max(0.5 * (hi - lo), 0.0)
+        w[n] = 0.5 * (lo + hi)
+        h[n] = max(0.5 * (hi - lo), 0.0) + pad
+    for m in range(3):
+        qm[m] = b_[TUBE_Q + m] + b_[TUBE_V + 3 * m] * w[0] + b_[TUBE_V + 3 * m + 1] * w[1] + b_[TUBE_V + 3 * m + 2] * w[2]
         for n in range(3):
-            U[i, n] = 1.0 if i == n else 0.0
+            U[m, n] = b_[TUBE_V + 3 * m + n]
     return True
 
 

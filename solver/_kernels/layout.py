@@ -94,7 +94,8 @@ OUT_CANDS = 12            # (6, 3) the candidates after the step (as STATE_CANDS
 OUT_BOUND = 30            # (3,) the pose bound's half-widths (m, m, rad); inf when not certain
 OUT_N_TUBES = 33          # tubes in OUT_TUBE (when certain)
 OUT_TUBE = 34             # (27, 36) the step's cover (:mod:`.tube`) when certain
-OUT_SIZE = 34 + 27 * 36
+OUT_REGION = 34 + 27 * 36  # (6,) when not certain: a pose box holding the robot (x, y, phi lo/hi), NaN when none
+OUT_SIZE = OUT_REGION + 6
 # float info fields (offsets inside OUT_INFO)
 F_D_BEST, F_D_SECOND, F_COND_PREV, F_COND, F_DQ, F_INNOV = 0, 1, 2, 3, 4, 5
 INFO_F_SIZE = 6

@@ -33,7 +33,7 @@ MAX_PIECES = 200
 #: A joint box one tube cannot hold is split in 2**3, then 3**3 parts (a *cover*), each with its tube.
 COVER_PARTS = 3
 #: Slab counts tried (in this order) across the needle when one tube cannot hold a joint box.
-SLABS = (3, 8, 20)
+SLABS = (3, 8, 20, 50)
 #: Most tubes of one joint box's cover (COVER_PARTS**3): what a tracker's state holds.
 MAX_COVER = 27
 
