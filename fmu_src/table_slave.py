@@ -90,7 +90,8 @@ from pythonfmu import Boolean, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variab
 from pythonfmu.enums import Fmi2Status
 
 from . import kernel_cache
-from .fmi_states import ERROR, INITIALIZATION_MODE, INSTANTIATED, STEP_COMPLETE, STEP_FAILED, TERMINATED, FmiStates
+from .fmi_states import (ERROR, INITIALIZATION_MODE, INSTANTIATED, STEP_COMPLETE, STEP_FAILED, TERMINATED, FmiStates,
+                         behind_loader)
 from .slave_state import StateHandling, values_getter
 from .value_access import ValueAccess
 from .value_checks import _IN_PAR, _OUT, ValueChecks
@@ -204,6 +205,8 @@ class TableSlave(FmiStates, StateHandling, ValueAccess, ValueChecks, Fmi2Slave):
         # strict FMI state table only for an instance made by an FMI host (fmu_src.fmi_states)
         self._fmi_strict = bool(kwargs.pop("fmi_strict", "logger" in kwargs))
         super().__init__(**kwargs)
+        # behind the C loader, hand the FMI state and refusals over to it (fmu_src.fmi_states)
+        self._loader = self._fmi_strict and behind_loader(self.resources)
         cls = type(self)
         if not cls._table:
             raise TableError(f"{cls.__name__} has no VARIABLES table")
@@ -292,7 +295,7 @@ class TableSlave(FmiStates, StateHandling, ValueAccess, ValueChecks, Fmi2Slave):
 
     def exit_initialization_mode(self):
         """Check the parameters and start values and initialize; on a refusal the state is ``error``
-        (the reason is logged; pythonfmu 0.7 returns fmi2OK, the standard fmi2Error)."""
+        (the reason is logged; the C loader returns fmi2Error, pythonfmu 0.7 alone fmi2OK)."""
         if not self._allowed("fmi2ExitInitializationMode"):
             return
         self._init_error = None
@@ -315,9 +318,10 @@ class TableSlave(FmiStates, StateHandling, ValueAccess, ValueChecks, Fmi2Slave):
         self._enter_state(ERROR)
         self._dirty = False
         self._report(f"{type(self).__name__} instance {self.instance_name!r}: fmi2ExitInitializationMode: "
-                     f"initialization failed: {reason}; the instance is in state error (fmi2Error by the "
-                     "standard; pythonfmu 0.7 returns fmi2OK): fmi2Reset it, or free it and instantiate again, "
+                     f"initialization failed: {reason}; the instance is in state error "
+                     f"({self._returned(Fmi2Status.ok)}): fmi2Reset it, or free it and instantiate again, "
                      "and initialize with valid values", Fmi2Status.error)
+        self._hand_off(Fmi2Status.error)
 
     def terminate(self):
         if self._allowed("fmi2Terminate"):

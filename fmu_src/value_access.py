@@ -110,8 +110,9 @@ class ValueAccess:
         bad = [vr for vr in vrs if vr not in attrs]
         msg = (f"{type(self).__name__} instance {self.instance_name!r}: fmi2Get{kind}: no {kind} variable with "
                f"value reference(s) {bad} (valid: {sorted(attrs)}); answered {_MISSING[kind]!r} "
-               "(fmi2Error by the standard; pythonfmu 0.7 returns fmi2OK)")
+               f"({self._returned(Fmi2Status.ok)})")
         self.refused_calls += 1
         self.last_call_refusal = msg
         self._report(msg, Fmi2Status.error)
+        self._hand_off(Fmi2Status.error)
         return [conv(getattr(self, attrs[vr])) if vr in attrs else _MISSING[kind] for vr in vrs]
