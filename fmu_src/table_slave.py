@@ -205,8 +205,6 @@ class TableSlave(FmiStates, StateHandling, ValueAccess, ValueChecks, Fmi2Slave):
         # strict FMI state table only for an instance made by an FMI host (fmu_src.fmi_states)
         self._fmi_strict = bool(kwargs.pop("fmi_strict", "logger" in kwargs))
         super().__init__(**kwargs)
-        # behind the C loader, hand the FMI state and refusals over to it (fmu_src.fmi_states)
-        self._loader = self._fmi_strict and behind_loader(self.resources)
         cls = type(self)
         if not cls._table:
             raise TableError(f"{cls.__name__} has no VARIABLES table")
@@ -216,6 +214,10 @@ class TableSlave(FmiStates, StateHandling, ValueAccess, ValueChecks, Fmi2Slave):
         self._init_error: str | None = None
         self._broken: str | None = None
         self._enter_state(INSTANTIATED)  # the FMI state machine (fmu_src.fmi_states): _fmi_state and flags
+        # behind the C loader, hand the FMI state and refusals over to it (fmu_src.fmi_states); not the
+        # state instantiated: the loader knows it, and a message logged in the constructor stays queued
+        # until the next call (pythonfmu's wrapper crashes freeing an instance with a queued message)
+        self._loader = self._fmi_strict and behind_loader(self.resources)
         self.refused_steps = 0          # diagnostics only, not part of the FMU state
         self.refused_calls = 0          # calls the FMI state table forbids (diagnostics)
         self.last_call_refusal: str | None = None
