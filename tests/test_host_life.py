@@ -7,6 +7,8 @@ all with the first run's outputs bit for bit, and the process exits with status 
   state forbids (fmi2DoStep right after fmi2Instantiate) returns fmi2Error.
 * In fmpy with a new ``FMU2Slave`` per cycle (a child process): fmpy's ``freeInstance`` also
   unloads the FMU's library, and the next cycle loads it again from the same folder.
+
+And the FMU lists only the platform these tests run on (pythonfmu's win64 binary is dropped).
 """
 from __future__ import annotations
 
@@ -117,3 +119,17 @@ def test_fmpy_life_with_a_new_fmu2slave_per_cycle(fmus, tmp_path, name):
         f"status {run.returncode}\n{run.stdout[-1500:]}\n{run.stderr[-3000:]}"
     for what in ("cycles", "two instances", "reset"):
         assert f"{what} identical True" in run.stdout, run.stdout
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_the_fmu_lists_only_the_platform_its_tests_run_on(fmus, name):
+    """pythonfmu ships a win64 binary too, never run here (no Windows toolchain, no loader for it): the
+    FMU keeps the binaries of this platform only, the one the tests above ran."""
+    import zipfile
+
+    from fmpy import platform, supported_platforms
+
+    assert supported_platforms(str(fmus[name])) == [platform]
+    with zipfile.ZipFile(fmus[name]) as z:
+        folders = {n.split("/")[1] for n in z.namelist() if n.startswith("binaries/") and n.count("/") >= 2}
+    assert folders == {platform}

@@ -18,7 +18,12 @@ _Py_NoneStruct``.  :func:`loader_entries` turns pythonfmu's binary entries of an
   (a path to another python) comes first when it is set.
 
 Without a C compiler, or on a platform other than Linux, the entries stay pythonfmu's (the FMU runs
-in Python hosts only) and :func:`loader_entries` says so with a warning.  The compile is
+in Python hosts only) and :func:`loader_entries` says so with a warning.
+
+Platforms.  pythonfmu ships its wrapper for linux64 and win64.  The loader is built and tested for
+linux64 only (no Windows toolchain here), and pythonfmu's win64 binary alone was never run with these
+FMUs, so on Linux :func:`loader_entries` keeps the binaries of ``linux64`` only (:data:`PLATFORMS`):
+an FMU lists only a platform its tests ran on (``tests/test_host_life.py`` checks it).  The compile is
 deterministic (fixed flags, no debug info, stripped, run in a folder of fixed name), so builds stay
 byte-identical.
 """
@@ -36,11 +41,13 @@ from typing import Mapping
 
 from .sources import LOADER_SOURCE
 
-__all__ = ["LOADER_SOURCE", "LOADER_FILES", "WRAPPER_NAME", "RUNTIME_FILE", "PYTHON_ENV", "NativeBuildWarning",
+__all__ = ["LOADER_SOURCE", "LOADER_FILES", "PLATFORMS", "WRAPPER_NAME", "RUNTIME_FILE", "PYTHON_ENV", "NativeBuildWarning",
            "compiler", "compile_loader", "runtime_record", "loader_entries"]
 
 #: the loader's C sources and headers (``fmu_src/loader/``; :data:`LOADER_SOURCE` is its main file)
 LOADER_FILES = tuple(sorted(p for p in LOADER_SOURCE.parent.iterdir() if p.suffix in (".c", ".h")))
+#: the FMI platforms whose binaries an FMU built on Linux keeps (built and run by the tests)
+PLATFORMS = ("linux64",)
 #: pythonfmu's wrapper inside the FMU, beside the loader (the loader's ``WRAPPER_NAME``)
 WRAPPER_NAME = "libpythonfmu-export.so"
 #: the build-time record of the Python runtime, under resources/ (the loader's ``RUNTIME_FILE``)
@@ -96,13 +103,17 @@ def runtime_record() -> bytes:
 
 def loader_entries(entries: Mapping[str, bytes], model: str) -> dict[str, bytes]:
     """``entries`` (an FMU archive: {name: bytes}) with the Linux binary replaced by the loader,
-    pythonfmu's wrapper beside it and the runtime record; unchanged (with a
-    :class:`NativeBuildWarning`) where the loader cannot be built."""
+    pythonfmu's wrapper beside it and the runtime record, and on Linux the binaries of
+    :data:`PLATFORMS` only; the binaries unchanged (with a :class:`NativeBuildWarning`) where the
+    loader cannot be built."""
     binary = f"binaries/linux64/{model}.so"
     out = dict(entries)
     if binary not in entries:
         return out
-    if not sys.platform.startswith("linux"):
+    if sys.platform.startswith("linux"):            # only the platforms that are built and run (module doc)
+        out = {name: data for name, data in out.items()
+               if not name.startswith("binaries/") or name.split("/")[1] in PLATFORMS}
+    else:
         warnings.warn(f"{model}: the loader for hosts without Python is built on Linux only; the FMU keeps "
                       "pythonfmu's binary", NativeBuildWarning, stacklevel=2)
         return out
