@@ -10,6 +10,12 @@ Python in-process, where the loader must not start a second interpreter), and th
 to 1e-12; the C host must exit with status 0 (the exit crash of pythonfmu's wrapper, fixed in the
 loader).  Inputs: the DK gets the joints of a circle (``solver.ik`` of ``solver.circle_path``),
 the plant the reference torques, the controller its start values.
+
+Interpreter discovery (the loader's ``python_runtime.c``): ``$RRR_DK_PYTHON`` first, a wrong one
+named in a warning; the issue's moved environment (the recorded interpreter gone, its libpython
+still there) runs with a ``python3`` on ``PATH`` that has the FMU's requirements, or, with none,
+fails instantiation with every candidate and its reason, the missing interpreter and
+``$RRR_DK_PYTHON`` named.
 """
 from __future__ import annotations
 
@@ -147,7 +153,7 @@ def test_moved_environment_without_any_python_names_each_one_tried(fmus, host, t
     err = run.stderr
     assert run.returncode == 1 and "fmi2Instantiate returned NULL" in err, (run.returncode, err[-2000:])
     logged = [line for line in err.splitlines() if line.startswith("[c_host 3 logStatusError]")]
-    assert logged and "no Python interpreter fits this FMU" in logged[0], err[-2000:]
+    assert logged and "no Python interpreter fits the FMU RRRPlant" in logged[0], err[-2000:]
     for part in ("$RRR_DK_PYTHON: not set", f"(resources/python_runtime.txt) {gone}: missing",
                  "python3 on PATH: none found", "Fix: set $RRR_DK_PYTHON"):
         assert part in err, (part, err[-2000:])

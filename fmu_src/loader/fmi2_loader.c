@@ -157,7 +157,7 @@ static int load(void)
 {
     char binaries[PATH_MAX], path[PATH_MAX + 64];
     if (own_folder(binaries, sizeof binaries)) return -1;
-    if (start_python(binaries, load_error, sizeof load_error, load_note, sizeof load_note)) return -1;
+    if (start_python(binaries, model, load_error, sizeof load_error, load_note, sizeof load_note)) return -1;
     snprintf(path, sizeof path, "%s/%s", binaries, WRAPPER_NAME);
     void* wrapper = dlopen(path, RTLD_NOW | RTLD_LOCAL | RTLD_NODELETE);
     if (!wrapper) return fail("cannot open pythonfmu's wrapper %s: %s", path, dlerror());

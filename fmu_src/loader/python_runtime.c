@@ -177,7 +177,7 @@ static int initialize(const Runtime* rt, char* error, size_t size)
     return 0;
 }
 
-int start_python(const char* binaries, char* error, size_t size, char* note, size_t note_size)
+int start_python(const char* binaries, const char* model, char* error, size_t size, char* note, size_t note_size)
 {
     int (*is_initialized)(void) = (int (*)(void))dlsym(RTLD_DEFAULT, "Py_IsInitialized");
     error[0] = note[0] = '\0';
@@ -220,8 +220,9 @@ int start_python(const char* binaries, char* error, size_t size, char* note, siz
         add(tried, sizeof tried, "\n  %s %s: %s", label, candidate, why);
         ++failures;
     }
-    snprintf(error, size, "no Python interpreter fits this FMU; tried:%s\nFix: set $%s to a python built with a "
-             "shared libpython whose environment has the FMU's requirements (resources/requirements.txt: "
-             "python -m pip install -r it, or pythonfmu deploy -f <the FMU>)", tried, PYTHON_ENV);
+    snprintf(error, size, "no Python interpreter fits the FMU %s; tried:%s\nFix: set $%s to a python built "
+             "with a shared libpython whose environment has the FMU's requirements (install them with "
+             "python -m pip install -r resources/requirements.txt, or pythonfmu deploy -f %s.fmu)",
+             model, tried, PYTHON_ENV, model);
     return -1;
 }

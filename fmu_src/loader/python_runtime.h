@@ -13,7 +13,9 @@
 /* Use the process's Python if it has one; else find the first interpreter that fits (module
  * comment of python_runtime.c), open its libpython globally and initialize it.  Returns 0 on
  * success (``note``: "" or a line saying which interpreter was chosen instead of the recorded one),
- * -1 with the reason and the fix in ``error``.  ``binaries``: the folder of the loader. */
-int start_python(const char* binaries, char* error, size_t error_size, char* note, size_t note_size);
+ * -1 with the reason and the fix in ``error``.  ``binaries``: the folder of the loader; ``model``: the
+ * modelIdentifier (named in the fix). */
+int start_python(const char* binaries, const char* model, char* error, size_t error_size, char* note,
+                 size_t note_size);
 
 #endif
