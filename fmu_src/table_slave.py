@@ -215,8 +215,8 @@ class TableSlave(FmiStates, StateHandling, ValueAccess, ValueChecks, Fmi2Slave):
         self._broken: str | None = None
         self._enter_state(INSTANTIATED)  # the FMI state machine (fmu_src.fmi_states): _fmi_state and flags
         # behind the C loader, hand the FMI state and refusals over to it (fmu_src.fmi_states); not the
-        # state instantiated: the loader knows it, and a message logged in the constructor stays queued
-        # until the next call (pythonfmu's wrapper crashes freeing an instance with a queued message)
+        # state instantiated: the loader knows it (a message logged in the constructor waits in
+        # pythonfmu's queue until the next call)
         self._loader = self._fmi_strict and behind_loader(self.resources)
         self.refused_steps = 0          # diagnostics only, not part of the FMU state
         self.refused_calls = 0          # calls the FMI state table forbids (diagnostics)

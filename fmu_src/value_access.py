@@ -94,7 +94,10 @@ class ValueAccess:
             self._dirty = True
 
     def _get(self, kind: str, vrs, conv) -> list:
-        """The values of ``vrs`` (what each variable's getter returns), or the refusal's values."""
+        """The values of ``vrs`` (what each variable's getter returns), or the refusal's values.  An
+        empty get reads nothing, in every state (the C loader makes one before fmi2FreeInstance)."""
+        if not len(vrs):
+            return []
         attrs = self._attrs.get(kind, {})
         if not self._can_get and not self._allowed("fmi2Get" + kind):
             return [conv(getattr(self, attrs[vr])) if vr in attrs else _MISSING[kind] for vr in vrs]

@@ -133,3 +133,48 @@ def test_the_fmu_lists_only_the_platform_its_tests_run_on(fmus, name):
     with zipfile.ZipFile(fmus[name]) as z:
         folders = {n.split("/")[1] for n in z.namelist() if n.startswith("binaries/") and n.count("/") >= 2}
     assert folders == {platform}
+
+
+#: a slave that logs in its constructor: the message waits in pythonfmu's queue until the next call
+QUEUED_SLAVE = """
+from fmu_src.table_slave import TableSlave, Var
+
+class FmuQueuedLog(TableSlave):
+    VARIABLES = (Var("u", "Real", "input", start=0.0, unit="m"),
+                 Var("y", "Real", "output", unit="m", depends_on=()))
+
+    def setup(self):
+        self.log("a message logged in the constructor")
+
+    def step(self, t, dt):
+        self.y += self.u * dt
+"""
+
+#: instantiate and free at once, with and without loggingOn, in one process
+FREE_AT_ONCE = """
+    import sys
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    md = read_model_description(sys.argv[1])
+    folder = extract(sys.argv[1])
+    for logging_on in (True, False, True):
+        fmu = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier="FmuQueuedLog", instanceName="q")
+        fmu.instantiate(loggingOn=logging_on)
+        fmu.fmi2FreeInstance(fmu.component)
+        print("freed", logging_on, flush=True)
+    print("end", flush=True)
+"""
+
+
+def test_free_right_after_instantiate_with_a_queued_message(tmp_path):
+    """pythonfmu 0.7's wrapper crashes (SIGSEGV) freeing an instance whose constructor's message is
+    still queued while its logging is on; the loader turns the wrapper's logging off before the free."""
+    from cosim.fmus.packaging import build_fmu
+
+    script = tmp_path / "FmuQueuedLog.py"
+    script.write_text(QUEUED_SLAVE)
+    fmu = build_fmu(script, tmp_path / "out")
+    run = run_python(FREE_AT_ONCE, fmu, timeout=300)
+    assert run.returncode == 0 and run.stdout.count("freed") == 3 and "end" in run.stdout, \
+        f"status {run.returncode}\n{run.stdout}\n{run.stderr[-2000:]}"

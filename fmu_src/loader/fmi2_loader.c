@@ -219,6 +219,12 @@ EXPORT void fmi2FreeInstance(fmi2Component c)
 {
     Instance* in = c;
     if (!loaded || !in) return;
+    /* pythonfmu 0.7's wrapper may crash (SIGSEGV in clearLogBuffer) freeing an instance whose slave
+     * left a message queued since its last call (one logged in its constructor): an empty get
+     * reaches Python (TableSlave answers it in every state), and the wrapper hands the queue on. */
+    fmi2ValueReference none = 0;
+    fmi2String ignored = NULL;
+    real_fmi2GetString(in->real, &none, 0, &ignored);
     real_fmi2FreeInstance(in->real);
     free(in);
 }
