@@ -273,3 +273,28 @@ def test_fmpy_simulate_reports_an_invalid_parameter(fmus):
     assert out.returncode == 0, out.stderr[-2000:]
     assert "raised FMICallException" in out.stdout and "fmi2ExitInitializationMode" in out.stdout, out.stdout
     assert "substeps" in out.stderr, out.stderr[-2000:]
+
+
+def test_the_loader_keeps_the_same_state_table():
+    """The C loader's table (``fmu_src/loader/fmi2_loader.c``, FMI2_FUNCTIONS) allows each call in the
+    states of :data:`fmu_src.fmi_states.ALLOWED`, read from its source."""
+    import re
+    from pathlib import Path
+
+    loader = Path(__file__).resolve().parents[1] / "fmu_src" / "loader"
+    source = (loader / "fmi2_loader.c").read_text()
+    header = (loader / "fmi2_loader.h").read_text()
+    bits = {f"S_{m.group(1)}": m.group(2) for m in re.finditer(r"S_([A-Z_]+) = (\d+)", header)}
+    names = {"S_INSTANTIATED": INSTANTIATED, "S_INITIALIZATION_MODE": INITIALIZATION_MODE,
+             "S_STEP_COMPLETE": STEP_COMPLETE, "S_STEP_FAILED": STEP_FAILED, "S_TERMINATED": TERMINATED,
+             "S_ERROR": ERROR}
+    assert set(names) <= set(bits), bits
+    groups = {g: set(re.search(rf"#define {g} \(([^)]*)\)", header).group(1).replace(" ", "").split("|"))
+              for g in ("S_ANY", "S_GET", "S_SET")}
+    table = {m.group(1): m.group(2) for m in re.finditer(r"X\((fmi2\w+), ([^,]+),", source)}
+    for call, states in ALLOWED.items():
+        if call == "fmi2FreeInstance":
+            continue                                  # answered apart (always allowed)
+        masks = set(table[call].replace(" ", "").split("|"))
+        c_states = {names[b] for m in masks for b in groups.get(m, {m})}
+        assert c_states == set(states), (call, c_states, set(states))
