@@ -157,3 +157,14 @@ def test_moved_environment_without_any_python_names_each_one_tried(fmus, host, t
     for part in ("$RRR_DK_PYTHON: not set", f"(resources/python_runtime.txt) {gone}: missing",
                  "python3 on PATH: none found", "Fix: set $RRR_DK_PYTHON"):
         assert part in err, (part, err[-2000:])
+
+
+def test_the_loader_compiles_without_warnings(tmp_path):
+    """The loader's C files (cosim.fmus.native.LOADER_FILES) under -Wall -Wextra -Werror."""
+    from cosim.fmus.native import LOADER_FILES
+
+    sources = [str(p) for p in LOADER_FILES if p.suffix == ".c"]
+    proc = subprocess.run([CC, "-std=c11", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror",
+                           "-Wno-format-truncation", "-o", str(tmp_path / "loader.so"), *sources, "-ldl", "-lpthread"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0 and not proc.stderr.strip(), proc.stderr
