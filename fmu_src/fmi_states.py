@@ -17,17 +17,32 @@ States and transitions (``->`` after a successful call)::
     any                --fmi2SetFMUstate-->               the state the FMU state was taken in
     any                --fmi2Reset-->                     instantiated (pythonfmu: a new Python instance)
 
-What a refused call returns.  FMI prescribes fmi2Error for a call its table forbids.  pythonfmu 0.7
-has no path from Python to fmi2Error: its C wrapper maps a normal return to fmi2OK, ``do_step``
-returning False to fmi2Discard, and *any* Python exception to fmi2Fatal (and then releases the
-Python instance, so that every later call on it is undefined).  So a refused call:
+What a refused call returns.  FMI 2.0 prescribes fmi2Error for a call its table forbids.
+pythonfmu 0.7 alone has no path from Python to fmi2Error: its C wrapper maps a normal return to
+fmi2OK, ``do_step`` returning False to fmi2Discard, and *any* Python exception to fmi2Fatal (and
+then releases the Python instance).  Every FMU built here on Linux has the project's C loader in
+front of that wrapper (``fmu_src/loader/``), and the loader answers for the states:
 
-* ``fmi2DoStep``: returns fmi2Discard (the nearest status), nothing changes;
-* every other call: returns fmi2OK and changes nothing (a refused ``fmi2Get*`` answers NaN for
-  each Real and the current, unrefreshed value of each Integer/Boolean);
-* and always logs one message, status fmi2Error, naming the call, the state and the states that
-  allow it (FMI logger when the instance was created with loggingOn, and the Python logger
-  ``fmu_src.<Model>``).
+* it keeps the same table per instance and refuses a forbidden call itself: fmi2Error and one
+  log message (status fmi2Error, always sent to the host's logger) naming the call, the state and
+  the states that allow it; the call never reaches Python;
+* the slave hands its state and the status of the current call over to the loader
+  (:meth:`FmiStates._hand_off`: a log message of category :data:`HAND_OFF_CATEGORY`,
+  ``"<state> <status>[ <reason>]"``, which the loader consumes and never shows to the host), so a
+  call allowed in the state that the slave refuses returns fmi2Error too: fmi2ExitInitializationMode
+  with an invalid parameter or start value (the instance goes to state error), fmi2Set* of a
+  variable not settable in the state, fmi2Get* of an unknown value reference;
+* an allowed ``fmi2DoStep`` that the slave cannot complete (a non-finite or out-of-range input or
+  parameter, a negative step, a refused step) returns fmi2Discard (FMI 2.0: the step was not
+  carried out, the state is kept at its start, fmi2GetRealStatus(fmi2LastSuccessfulTime) tells
+  where; the instance is in stepFailed: fmi2SetFMUstate, fmi2Terminate or fmi2Reset).  A doStep
+  the state table forbids (in stepFailed, error, terminated, ...) returns fmi2Error like every
+  forbidden call.
+
+Without the loader (an FMU built without a C compiler, in a Python host) the slave refuses a
+forbidden call itself, changes nothing and logs the same message; pythonfmu then returns fmi2OK
+(fmi2Discard for doStep), and a refused ``fmi2Get*`` answers NaN for each Real
+(:data:`REFUSED_STATUS`).
 
 Only an instance made by an FMI host keeps the table strictly: pythonfmu's C wrapper constructs the
 slave with a ``logger`` argument.  A slave class constructed directly in Python (unit tests, the
@@ -36,14 +51,18 @@ logged as a warning and then carried out as it would be in the state the call ex
 
 Calls that never reach Python cannot be refused here: fmi2Reset (pythonfmu re-creates the
 instance), fmi2FreeInstance, fmi2SetDebugLogging, fmi2FreeFMUstate, fmi2(De)SerializeFMUstate and
-the fmi2Get*Status functions (answered by the C wrapper in every state).
+the fmi2Get*Status functions (answered by the C wrapper in every state); the loader refuses
+fmi2CancelStep (allowed in stepInProgress only, which never occurs).
 """
 from __future__ import annotations
+
+import sys
+from pathlib import Path
 
 from pythonfmu.enums import Fmi2Status
 
 __all__ = ["FmiStates", "ALLOWED", "STATES", "INSTANTIATED", "INITIALIZATION_MODE", "STEP_COMPLETE",
-           "STEP_FAILED", "TERMINATED", "ERROR", "settable", "REFUSED_STATUS"]
+           "STEP_FAILED", "TERMINATED", "ERROR", "settable", "REFUSED_STATUS", "HAND_OFF_CATEGORY", "behind_loader"]
 
 INSTANTIATED = "instantiated"
 INITIALIZATION_MODE = "initializationMode"
@@ -73,8 +92,23 @@ ALLOWED: dict[str, frozenset] = {
     "fmi2Reset": _ALL, "fmi2FreeInstance": _ALL,
 }
 
-#: what pythonfmu 0.7 returns for a refused call (FMI prescribes fmi2Error for all of them)
+#: the log category of the slave's hand-off to the C loader (the loader's ``STATUS_CATEGORY``)
+HAND_OFF_CATEGORY = "rrrdkCallStatus"
+#: pythonfmu's wrapper beside the loader in ``binaries/linux64/`` (:data:`cosim.fmus.native.WRAPPER_NAME`)
+_WRAPPER = "libpythonfmu-export.so"
+
+#: what pythonfmu 0.7 returns for a refused call without the loader (FMI prescribes fmi2Error; the
+#: loader returns it)
 REFUSED_STATUS = {name: (Fmi2Status.discard if name == "fmi2DoStep" else Fmi2Status.ok) for name in ALLOWED}
+
+
+def behind_loader(resources) -> bool:
+    """Whether an instance whose FMU's ``resources`` folder is ``resources`` runs behind the project's C
+    loader: on Linux, when pythonfmu's wrapper sits in ``binaries/linux64/`` beside the loader (the
+    build puts it there only with the loader; :mod:`cosim.fmus.native`)."""
+    if not resources or not sys.platform.startswith("linux"):
+        return False
+    return (Path(resources).parent / "binaries" / "linux64" / _WRAPPER).is_file()
 
 
 def settable(var, state: str) -> bool:
@@ -109,6 +143,7 @@ class FmiStates:
     """
 
     _settable: dict = {}
+    _loader = False          # behind the C loader: hand the state and the call's status over to it
     _NONE = {"Real": frozenset(), "Integer": frozenset(), "Boolean": frozenset(), "String": frozenset()}
 
     @classmethod
@@ -125,6 +160,24 @@ class FmiStates:
         self._can_step = state == STEP_COMPLETE
         self._settable_now = self._settable.get(state, self._NONE)
         self._settable_real = self._settable_now["Real"]
+        if self._loader:
+            self._hand_off()
+
+    def _hand_off(self, status: Fmi2Status = Fmi2Status.ok) -> None:
+        """Tell the C loader the state and the least status of the current call (module docstring);
+        in state error with the reason, which the loader repeats when it refuses a later call."""
+        if not self._loader:
+            return
+        reason = f" {self._init_error}" if self._fmi_state == ERROR and self._init_error else ""
+        self.log(f"{self._fmi_state} {int(status)}{reason}".replace("%", "%%"), Fmi2Status.ok,
+                 category=HAND_OFF_CATEGORY)
+
+    def _returned(self, status: Fmi2Status) -> str:
+        """What the host gets for a refusal: fmi2Error through the loader, else pythonfmu's ``status``."""
+        if self._loader:
+            return "fmi2Error"
+        name = "fmi2Discard" if status == Fmi2Status.discard else "fmi2OK"
+        return f"fmi2Error by the standard; pythonfmu 0.7 returns {name}"
 
     def _allowed(self, call: str) -> bool:
         """True if ``call`` is allowed in the current state (or the instance is lenient, module
@@ -142,14 +195,14 @@ class FmiStates:
     def _refuse_call(self, call: str, detail: str = "") -> None:
         """Log the refusal of ``call`` in the current state (the caller changes nothing)."""
         allowed = ", ".join(s for s in STATES if s in ALLOWED[call]) or "no state"
-        returned = "fmi2Discard" if REFUSED_STATUS[call] == Fmi2Status.discard else "fmi2OK"
         why = f" ({self._init_error})" if self._fmi_state == ERROR and self._init_error else ""
         msg = (f"{type(self).__name__} instance {self.instance_name!r}: {call} refused in state "
                f"{self._fmi_state}{why}{detail}: FMI 2.0 allows it in {allowed} only; nothing changed "
-               f"(fmi2Error by the standard; pythonfmu 0.7 returns {returned})")
+               f"({self._returned(REFUSED_STATUS[call])})")
         self.refused_calls += 1
         self.last_call_refusal = msg
         self._report(msg, Fmi2Status.error)
+        self._hand_off(Fmi2Status.error)
 
     def _set_refused(self, kind: str, vrs) -> bool:
         """fmi2Set<kind> of ``vrs``: True (and logged) if the call must be refused as a whole."""

@@ -90,7 +90,8 @@ from pythonfmu import Boolean, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variab
 from pythonfmu.enums import Fmi2Status
 
 from . import kernel_cache
-from .fmi_states import ERROR, INITIALIZATION_MODE, INSTANTIATED, STEP_COMPLETE, STEP_FAILED, TERMINATED, FmiStates
+from .fmi_states import (ERROR, INITIALIZATION_MODE, INSTANTIATED, STEP_COMPLETE, STEP_FAILED, TERMINATED, FmiStates,
+                         behind_loader)
 from .slave_state import StateHandling, values_getter
 from .value_access import ValueAccess
 from .value_checks import _IN_PAR, _OUT, ValueChecks
@@ -213,6 +214,10 @@ class TableSlave(FmiStates, StateHandling, ValueAccess, ValueChecks, Fmi2Slave):
         self._init_error: str | None = None
         self._broken: str | None = None
         self._enter_state(INSTANTIATED)  # the FMI state machine (fmu_src.fmi_states): _fmi_state and flags
+        # behind the C loader, hand the FMI state and refusals over to it (fmu_src.fmi_states); not the
+        # state instantiated: the loader knows it (a message logged in the constructor waits in
+        # pythonfmu's queue until the next call)
+        self._loader = self._fmi_strict and behind_loader(self.resources)
         self.refused_steps = 0          # diagnostics only, not part of the FMU state
         self.refused_calls = 0          # calls the FMI state table forbids (diagnostics)
         self.last_call_refusal: str | None = None
@@ -292,7 +297,7 @@ class TableSlave(FmiStates, StateHandling, ValueAccess, ValueChecks, Fmi2Slave):
 
     def exit_initialization_mode(self):
         """Check the parameters and start values and initialize; on a refusal the state is ``error``
-        (the reason is logged; pythonfmu 0.7 returns fmi2OK, the standard fmi2Error)."""
+        (the reason is logged; the C loader returns fmi2Error, pythonfmu 0.7 alone fmi2OK)."""
         if not self._allowed("fmi2ExitInitializationMode"):
             return
         self._init_error = None
@@ -315,9 +320,10 @@ class TableSlave(FmiStates, StateHandling, ValueAccess, ValueChecks, Fmi2Slave):
         self._enter_state(ERROR)
         self._dirty = False
         self._report(f"{type(self).__name__} instance {self.instance_name!r}: fmi2ExitInitializationMode: "
-                     f"initialization failed: {reason}; the instance is in state error (fmi2Error by the "
-                     "standard; pythonfmu 0.7 returns fmi2OK): fmi2Reset it, or free it and instantiate again, "
+                     f"initialization failed: {reason}; the instance is in state error "
+                     f"({self._returned(Fmi2Status.ok)}): fmi2Reset it, or free it and instantiate again, "
                      "and initialize with valid values", Fmi2Status.error)
+        self._hand_off(Fmi2Status.error)
 
     def terminate(self):
         if self._allowed("fmi2Terminate"):

@@ -94,7 +94,10 @@ class ValueAccess:
             self._dirty = True
 
     def _get(self, kind: str, vrs, conv) -> list:
-        """The values of ``vrs`` (what each variable's getter returns), or the refusal's values."""
+        """The values of ``vrs`` (what each variable's getter returns), or the refusal's values.  An
+        empty get reads nothing, in every state (the C loader makes one before fmi2FreeInstance)."""
+        if not len(vrs):
+            return []
         attrs = self._attrs.get(kind, {})
         if not self._can_get and not self._allowed("fmi2Get" + kind):
             return [conv(getattr(self, attrs[vr])) if vr in attrs else _MISSING[kind] for vr in vrs]
@@ -110,8 +113,9 @@ class ValueAccess:
         bad = [vr for vr in vrs if vr not in attrs]
         msg = (f"{type(self).__name__} instance {self.instance_name!r}: fmi2Get{kind}: no {kind} variable with "
                f"value reference(s) {bad} (valid: {sorted(attrs)}); answered {_MISSING[kind]!r} "
-               "(fmi2Error by the standard; pythonfmu 0.7 returns fmi2OK)")
+               f"({self._returned(Fmi2Status.ok)})")
         self.refused_calls += 1
         self.last_call_refusal = msg
         self._report(msg, Fmi2Status.error)
+        self._hand_off(Fmi2Status.error)
         return [conv(getattr(self, attrs[vr])) if vr in attrs else _MISSING[kind] for vr in vrs]

@@ -1,12 +1,17 @@
-"""Shared by the tests of the FMUs in other hosts (test_ssp.py, test_hosts.py, test_exit.py).
+"""Shared by the tests of the FMUs in other hosts (test_ssp.py, test_hosts.py, test_exit.py,
+test_c_host.py, test_host_life.py).
 
 * :func:`session_fmus`: the three FMUs (DK map 40 mm / 6 deg), built once per test session into the
   session's temporary folder (:func:`cosim.fmus.builds.build_fmus` reuses what is there).
 * :func:`run_python`: a script in a child process (an FMU host of its own: the child loads the
   FMUs, not this process), with its exit status, stdout and stderr.
+* The C host (``tests/c_host/fmi2_host.c``, no Python in its process): :func:`compile_host`,
+  :func:`host_case` (its arguments for one FMU), :func:`no_python_env`, :func:`output_table`.
 """
 from __future__ import annotations
 
+import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -31,3 +36,69 @@ def run_python(code: str, *args, python: str | Path = sys.executable, cwd: Path 
     """Run ``code`` (dedented) as a script with ``args`` in a child ``python``; never raises on its status."""
     return subprocess.run([str(python), "-c", textwrap.dedent(code), *map(str, args)], capture_output=True,
                           text=True, timeout=timeout, cwd=str(cwd or REPO))
+
+
+# ---------------------------------------------------------------------- the C host
+HOST_SOURCE = Path(__file__).resolve().parent / "c_host" / "fmi2_host.c"
+#: the system C compiler (None: the C host tests are skipped with that reason)
+CC = shutil.which("cc") or shutil.which("gcc")
+H = 1e-3
+#: outputs compared per FMU
+OUTPUTS = {"RRRDirectKinematics": ("x", "y", "phi", "cond", "uncertain_since"),
+           "RRRPlant": ("q1", "q2", "q3", "dq1", "dq2", "dq3", "x_true", "y_true", "phi_true", "energy"),
+           "ComputedTorqueController": ("tau1", "tau2", "tau3", "x_ref", "y_ref", "q1_ref")}
+
+
+def compile_host(folder: Path) -> Path:
+    """The C host, compiled with the system compiler into ``folder``; it links neither libpython nor
+    anything else of Python."""
+    exe = folder / "fmi2_host"
+    proc = subprocess.run([CC, "-std=c11", "-O1", "-Wall", "-o", str(exe), str(HOST_SOURCE), "-ldl"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert b"libpython" not in exe.read_bytes(), "the C host must not link libpython"
+    return exe
+
+
+def host_case(name: str, fmu: Path, work: Path, steps: int, folder: Path | None = None):
+    """(extracted folder, guid, inputs file or "-", output vrs, start values) of one FMU's run of
+    ``steps`` steps: the DK gets the joints of a circle (``solver.ik`` of ``solver.circle_path``), the
+    plant smooth torques, the controller its start values.  ``folder``: extract there (default
+    ``work/<name>-unzipped``)."""
+    from fmpy import extract, read_model_description
+
+    md = read_model_description(str(fmu))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    folder = extract(str(fmu), unzipdir=str(folder or work / f"{name}-unzipped"))
+    starts, inputs = "-", "-"
+    rows, names = None, ()
+    if name == "RRRDirectKinematics":
+        from solver import Manipulator, circle_path, ik
+
+        X = circle_path(steps)
+        q = ik(Manipulator.paper(), np.vstack([X, X[:1]]), 1)          # once round, back to the start
+        rows, names = q, ("q1", "q2", "q3")
+        starts = ",".join(f"{vr[n]}={v!r}" for n, v in zip(("x0", "y0", "phi0"), map(float, X[0])))
+    elif name == "RRRPlant":
+        t = np.arange(steps + 1) * H
+        rows, names = np.column_stack([0.05 * np.sin(3 * t), -0.04 * np.cos(2 * t), 0.03 * np.sin(5 * t)]), \
+            ("tau1", "tau2", "tau3")
+    if rows is not None:
+        inputs = work / f"{name}-inputs.txt"
+        inputs.write_text(" ".join(str(vr[n]) for n in names) + "\n"
+                          + "\n".join(" ".join(repr(float(v)) for v in row) for row in rows) + "\n")
+    outputs = ",".join(str(vr[n]) for n in OUTPUTS[name])
+    return folder, md.guid, str(inputs), outputs, starts
+
+
+def no_python_env(**extra) -> dict:
+    """This process's environment without anything that would point an interpreter elsewhere, plus ``extra``."""
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith("PYTHON") and k not in ("RRR_DK_PYTHON", "VIRTUAL_ENV")}
+    return {**env, **extra}
+
+
+def output_table(stdout: str) -> np.ndarray:
+    """The rows "t out..." of the C host's (or its fmpy twin's) stdout."""
+    lines = [line for line in stdout.splitlines() if line and line[0].isdigit()]
+    return np.array([[float(v) for v in line.split()] for line in lines])

@@ -10,11 +10,15 @@ Python in-process, where the loader must not start a second interpreter), and th
 to 1e-12; the C host must exit with status 0 (the exit crash of pythonfmu's wrapper, fixed in the
 loader).  Inputs: the DK gets the joints of a circle (``solver.ik`` of ``solver.circle_path``),
 the plant the reference torques, the controller its start values.
+
+Interpreter discovery (the loader's ``python_runtime.c``): ``$RRR_DK_PYTHON`` first, a wrong one
+named in a warning; the issue's moved environment (the recorded interpreter gone, its libpython
+still there) runs with a ``python3`` on ``PATH`` that has the FMU's requirements, or, with none,
+fails instantiation with every candidate and its reason, the missing interpreter and
+``$RRR_DK_PYTHON`` named.
 """
 from __future__ import annotations
 
-import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -23,16 +27,10 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from host_support import CC, H, OUTPUTS, compile_host, host_case, no_python_env, output_table  # noqa: E402
 from host_support import run_python, session_fmus  # noqa: E402
 
-HOST_SOURCE = Path(__file__).resolve().parent / "c_host" / "fmi2_host.c"
 STEPS = 100
-H = 1e-3
-#: outputs compared per FMU
-OUTPUTS = {"RRRDirectKinematics": ("x", "y", "phi", "cond", "uncertain_since"),
-           "RRRPlant": ("q1", "q2", "q3", "dq1", "dq2", "dq3", "x_true", "y_true", "phi_true", "energy"),
-           "ComputedTorqueController": ("tau1", "tau2", "tau3", "x_ref", "y_ref", "q1_ref")}
-CC = shutil.which("cc") or shutil.which("gcc")
 pytestmark = pytest.mark.skipif(CC is None, reason="no C compiler (cc or gcc) on PATH: the C host cannot be built")
 
 #: fmpy's run of the C host's call sequence; same arguments, same output format
@@ -75,52 +73,11 @@ def fmus(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def host(tmp_path_factory) -> Path:
-    """The C host, compiled with the system compiler; it links neither libpython nor anything else of Python."""
-    exe = tmp_path_factory.mktemp("c_host") / "fmi2_host"
-    proc = subprocess.run([CC, "-std=c11", "-O1", "-Wall", "-o", str(exe), str(HOST_SOURCE), "-ldl"],
-                          capture_output=True, text=True)
-    assert proc.returncode == 0, proc.stderr
-    assert b"libpython" not in exe.read_bytes(), "the C host must not link libpython"
-    return exe
+    return compile_host(tmp_path_factory.mktemp("c_host"))
 
 
 def _case(name: str, fmu: Path, work: Path):
-    """(extracted folder, guid, inputs file or "-", output vrs, start values) of one FMU's run."""
-    from fmpy import extract, read_model_description
-
-    md = read_model_description(str(fmu))
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    folder = extract(str(fmu), unzipdir=str(work / f"{name}-unzipped"))
-    starts, inputs = "-", "-"
-    rows, names = None, ()
-    if name == "RRRDirectKinematics":
-        from solver import Manipulator, circle_path, ik
-
-        X = circle_path(STEPS)
-        q = ik(Manipulator.paper(), np.vstack([X, X[:1]]), 1)          # once round, back to the start
-        rows, names = q, ("q1", "q2", "q3")
-        starts = ",".join(f"{vr[n]}={v!r}" for n, v in zip(("x0", "y0", "phi0"), map(float, X[0])))
-    elif name == "RRRPlant":
-        t = np.arange(STEPS + 1) * H
-        rows, names = np.column_stack([0.05 * np.sin(3 * t), -0.04 * np.cos(2 * t), 0.03 * np.sin(5 * t)]), \
-            ("tau1", "tau2", "tau3")
-    if rows is not None:
-        inputs = work / f"{name}-inputs.txt"
-        inputs.write_text(" ".join(str(vr[n]) for n in names) + "\n"
-                          + "\n".join(" ".join(repr(float(v)) for v in row) for row in rows) + "\n")
-    outputs = ",".join(str(vr[n]) for n in OUTPUTS[name])
-    return folder, md.guid, str(inputs), outputs, starts
-
-
-def _no_python_env() -> dict:
-    """This process's environment without anything that would point an interpreter elsewhere."""
-    return {k: v for k, v in os.environ.items()
-            if not k.startswith("PYTHON") and k not in ("RRR_DK_PYTHON", "VIRTUAL_ENV")}
-
-
-def _table(stdout: str) -> np.ndarray:
-    lines = [line for line in stdout.splitlines() if line and line[0].isdigit()]
-    return np.array([[float(v) for v in line.split()] for line in lines])
+    return host_case(name, fmu, work, STEPS)
 
 
 @pytest.mark.parametrize("name", list(OUTPUTS))
@@ -129,13 +86,13 @@ def test_c_host_runs_the_fmu_without_python_as_fmpy_does(fmus, host, tmp_path, n
     args = [folder, name, guid, repr(H), str(STEPS), inputs, outputs, starts]
     py = run_python(FMPY_HOST, *args, timeout=600)
     assert py.returncode == 0 and "end" in py.stdout, py.stderr[-3000:]
-    c = subprocess.run([str(host), *args], capture_output=True, text=True, timeout=600, env=_no_python_env(),
+    c = subprocess.run([str(host), *args], capture_output=True, text=True, timeout=600, env=no_python_env(),
                        cwd=str(tmp_path))
     assert c.returncode == 0 and c.stdout.rstrip().endswith("end"), \
         f"status {c.returncode}\n{c.stdout[-1500:]}\n{c.stderr[-3000:]}"
     assert "python_before 0" in c.stdout, "the C host had Python before the FMU was loaded"
     assert "python_after 1" in c.stdout, "the FMU's loader did not bring in Python"
-    a, b = _table(c.stdout), _table(py.stdout)
+    a, b = output_table(c.stdout), output_table(py.stdout)
     assert a.shape == b.shape == (STEPS, 1 + len(OUTPUTS[name]))
     assert np.isfinite(a).all()
     diff = float(np.max(np.abs(a - b)))
@@ -148,15 +105,66 @@ def test_c_host_runs_the_fmu_without_python_as_fmpy_does(fmus, host, tmp_path, n
 
 
 def test_c_host_with_another_python_or_none(fmus, host, tmp_path):
-    """$RRR_DK_PYTHON picks the interpreter (here the test's own); a wrong one is refused with a message
-    that names the variable, and the host gets NULL from fmi2Instantiate, not a crash."""
+    """$RRR_DK_PYTHON comes first (here the test's own interpreter); a wrong one is tried, named in a
+    warning with why it failed, and the recorded interpreter runs the FMU instead."""
     name = "ComputedTorqueController"
     folder, guid, inputs, outputs, starts = _case(name, fmus[name], tmp_path)
     args = [str(host), folder, name, guid, repr(H), "5", inputs, outputs, starts]
     good = subprocess.run(args, capture_output=True, text=True, timeout=600,
-                          env={**_no_python_env(), "RRR_DK_PYTHON": sys.executable})
+                          env=no_python_env(RRR_DK_PYTHON=sys.executable))
     assert good.returncode == 0 and good.stdout.rstrip().endswith("end"), good.stderr[-3000:]
-    bad = subprocess.run(args, capture_output=True, text=True, timeout=600,
-                         env={**_no_python_env(), "RRR_DK_PYTHON": str(tmp_path / "no-such-python")})
-    assert bad.returncode == 1, (bad.returncode, bad.stderr[-2000:])
-    assert "RRR_DK_PYTHON" in bad.stderr and "fmi2Instantiate returned NULL" in bad.stderr, bad.stderr[-2000:]
+    assert "not usable before it" not in good.stderr, good.stderr[-2000:]
+    wrong = tmp_path / "no-such-python"
+    bad = subprocess.run(args, capture_output=True, text=True, timeout=600, env=no_python_env(RRR_DK_PYTHON=str(wrong)))
+    assert bad.returncode == 0 and bad.stdout.rstrip().endswith("end"), bad.stderr[-3000:]
+    assert f"$RRR_DK_PYTHON {wrong}: missing" in bad.stderr and "using the interpreter recorded" in bad.stderr, \
+        bad.stderr[-2000:]
+
+
+def _moved(name: str, fmus, tmp_path: Path):
+    """The issue's moved environment: the FMU's recorded interpreter no longer exists (its libpython does)."""
+    folder, guid, inputs, outputs, starts = _case(name, fmus[name], tmp_path)
+    record = Path(folder) / "resources" / "python_runtime.txt"
+    gone = tmp_path / "moved-venv" / "bin" / "python"
+    record.write_text("".join(f"python={gone}\n" if line.startswith("python=") else line + "\n"
+                              for line in record.read_text().splitlines()))
+    return [folder, name, guid, repr(H), "5", inputs, outputs, starts], gone
+
+
+def test_moved_environment_runs_with_a_python3_on_path(fmus, host, tmp_path):
+    """The recorded interpreter is gone, $RRR_DK_PYTHON unset: a python3 on PATH with the FMU's
+    requirements (this test's interpreter's folder) runs the FMU, and a warning says which and why."""
+    args, gone = _moved("RRRPlant", fmus, tmp_path)
+    run = subprocess.run([str(host), *args], capture_output=True, text=True, timeout=600,
+                         env=no_python_env(PATH=str(Path(sys.executable).parent)))
+    assert run.returncode == 0 and run.stdout.rstrip().endswith("end"), run.stderr[-3000:]
+    assert "using python3 on PATH" in run.stderr and f"{gone}: missing" in run.stderr, run.stderr[-2000:]
+    assert np.isfinite(output_table(run.stdout)).all()
+
+
+def test_moved_environment_without_any_python_names_each_one_tried(fmus, host, tmp_path):
+    """Nothing fits: fmi2Instantiate returns NULL (no crash) and the host's logger gets every candidate
+    with why it failed, the missing recorded interpreter among them, and the fix ($RRR_DK_PYTHON)."""
+    args, gone = _moved("RRRPlant", fmus, tmp_path)
+    empty = tmp_path / "empty-bin"
+    empty.mkdir()
+    run = subprocess.run([str(host), *args], capture_output=True, text=True, timeout=600,
+                         env=no_python_env(PATH=str(empty)))
+    err = run.stderr
+    assert run.returncode == 1 and "fmi2Instantiate returned NULL" in err, (run.returncode, err[-2000:])
+    logged = [line for line in err.splitlines() if line.startswith("[c_host 3 logStatusError]")]
+    assert logged and "no Python interpreter fits the FMU RRRPlant" in logged[0], err[-2000:]
+    for part in ("$RRR_DK_PYTHON: not set", f"(resources/python_runtime.txt) {gone}: missing",
+                 "python3 on PATH: none found", "Fix: set $RRR_DK_PYTHON"):
+        assert part in err, (part, err[-2000:])
+
+
+def test_the_loader_compiles_without_warnings(tmp_path):
+    """The loader's C files (cosim.fmus.native.LOADER_FILES) under -Wall -Wextra -Werror."""
+    from cosim.fmus.native import LOADER_FILES
+
+    sources = [str(p) for p in LOADER_FILES if p.suffix == ".c"]
+    proc = subprocess.run([CC, "-std=c11", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror",
+                           "-Wno-format-truncation", "-o", str(tmp_path / "loader.so"), *sources, "-ldl", "-lpthread"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0 and not proc.stderr.strip(), proc.stderr

@@ -7,14 +7,15 @@ inputs (valid, NaN, huge), a parameter set to a valid or an invalid value, doSte
 zero and negative step, getReal, get/setFMUstate, terminate, and a new instance.  An oracle
 (:data:`fmu_src.fmi_states.ALLOWED`) knows the state after every call and checks:
 
-* the status: never fmi2Fatal or fmi2Error (pythonfmu 0.7 cannot return it); a forbidden call returns
-  fmi2OK, or fmi2Discard for doStep; an allowed doStep with a non-finite input or a negative step
-  returns fmi2Discard;
+* the status (checked, not only the log): never fmi2Fatal; every call FMI 2.0 forbids in the state
+  returns fmi2Error (the FMU's C loader answers it, ``fmu_src/loader/``), including fmi2Set* of a
+  variable not settable in the state; an allowed doStep with a non-finite input or a negative step
+  returns fmi2Discard; every other allowed call fmi2OK;
 * exactly one message "<call> refused in state <state>" for every forbidden call, none otherwise;
 * a forbidden call changes nothing (the oracle's state, then the statuses of the next calls, agree);
-  a refused getReal answers NaN;
-* exitInitializationMode with an invalid parameter or start value logs the reason and goes to state
-  error (the next doStep is refused there);
+  a refused getReal returns fmi2Error (fmpy raises), not values;
+* exitInitializationMode with an invalid parameter or start value returns fmi2Error, logs the reason
+  and goes to state error (the next doStep is refused there with the reason);
 * after every sequence a fresh instance runs a legal initialization and steps without a refusal.
 """
 from __future__ import annotations
@@ -30,7 +31,7 @@ from fmu_src.fmi_states import (ALLOWED, ERROR, INITIALIZATION_MODE, INSTANTIATE
                                 TERMINATED)
 from cosim.unit import FMUUnit
 
-from host_support import session_fmus
+from host_support import run_python, session_fmus
 
 SEED = 17
 SEQUENCES = 70            # per FMU
@@ -62,6 +63,7 @@ class Oracle:
         self.fresh()
         self.calls = 0
         self.refusals = 0
+        self.forbidden_ok = 0         # forbidden calls answered fmi2OK (the target: none)
 
     def fresh(self):
         self.state, self.bad_param, self.bad_input = INSTANTIATED, frozenset(), False
@@ -69,7 +71,8 @@ class Oracle:
         self.t = 0.0
 
     # ------------------------------------------------------------------ one call
-    def call(self, fmi_name: str, fn, *args, expect_discard=False, may_discard=False, allowed=None):
+    def call(self, fmi_name: str, fn, *args, expect_discard=False, may_discard=False, expect_error=False,
+             allowed=None):
         """Make the call; check the status and the refusal messages; return (status, result, allowed,
         new messages).  ``allowed``: the oracle's verdict when the variables matter (fmi2Set*)."""
         allowed = self.state in ALLOWED[fmi_name] if allowed is None else allowed
@@ -83,15 +86,18 @@ class Oracle:
         new = self.unit.messages[before:]
         where = f"{self.name}: {fmi_name}{args!r} in state {self.state}"
         assert all(s < 4 for s, _ in new), f"{where}: fatal {new}"
-        assert status != fmi2Error and status < 4, f"{where}: status {status}"
+        assert status < 4, f"{where}: status {status}"
         refusals = [m for s, m in new if f"{fmi_name} refused in state {self.state}" in m]
         if not allowed:
-            assert status == (fmi2Discard if fmi_name == "fmi2DoStep" else fmi2OK), f"{where}: status {status}"
+            self.forbidden_ok += status == fmi2OK
+            assert status == fmi2Error, f"{where}: status {status}"
             assert len(refusals) == 1 and all(s == fmi2Error for s, m in new if m in refusals), f"{where}: {new}"
             self.refusals += 1
         else:
             assert not refusals, f"{where}: {refusals}"
-            if expect_discard:
+            if expect_error:
+                assert status == fmi2Error, f"{where}: status {status} {new}"
+            elif expect_discard:
                 assert status == fmi2Discard, f"{where}: status {status}"
             elif not may_discard:
                 assert status == fmi2OK, f"{where}: status {status} {new}"
@@ -108,12 +114,14 @@ class Oracle:
             self.state = INITIALIZATION_MODE
 
     def exit(self):
-        _, _, ok, new = self.call("fmi2ExitInitializationMode", self.unit.fmu.exitInitializationMode)
+        bad = bool(self.bad_param or self.bad_input)
+        status, _, ok, new = self.call("fmi2ExitInitializationMode", self.unit.fmu.exitInitializationMode,
+                                       expect_error=bad)
         if not ok:
             return
         failed = [m for s, m in new if s == fmi2Error and "initialization failed" in m]
-        if self.bad_param or self.bad_input:
-            assert failed, f"{self.name}: invalid values accepted at exitInitializationMode: {new}"
+        if bad:
+            assert failed and status == fmi2Error, f"{self.name}: invalid values accepted at exit: {status} {new}"
             self.state = ERROR
         else:
             assert not failed, f"{self.name}: valid values refused: {failed}"
@@ -140,7 +148,7 @@ class Oracle:
         _, _, ok, new = self.call("fmi2Set" + kind, fn, [vr], [conv(value)], allowed=allowed)
         if ok:
             self.bad_param = self.bad_param - {name} if good else self.bad_param | {name}
-        elif self.state == STEP_COMPLETE:   # the call is allowed there, the variable is not
+        elif self.state == STEP_COMPLETE:   # the call is allowed there, the variable is not: the slave says
             assert any("not settable in this state" in m for _, m in new), f"{self.name}: {name} in {self.state}"
 
     def step(self):
@@ -155,9 +163,9 @@ class Oracle:
                 self.state = STEP_FAILED
 
     def get(self):
-        _, values, ok, _ = self.call("fmi2GetReal", self.unit.fmu.getReal, self.outputs)
+        status, values, ok, _ = self.call("fmi2GetReal", self.unit.fmu.getReal, self.outputs)
         if not ok:
-            assert all(math.isnan(v) for v in values), f"{self.name}: a refused getReal answered {values}"
+            assert status == fmi2Error and values is None, f"{self.name}: a refused getReal answered {values}"
 
     def get_state(self):
         _, handle, _, _ = self.call("fmi2GetFMUstate", self.unit.fmu.getFMUstate)
@@ -209,7 +217,9 @@ def test_random_call_sequences_keep_the_state_table(fmus, name):
                 # mostly the legal next call, often any call: the forbidden ones are many
                 getattr(oracle, rng.choice(ACTIONS))()
             oracle.legal_run()
-        print(f"{name}: {oracle.calls} calls, {oracle.refusals} refused as the state table says")
+        print(f"{name}: {oracle.calls} calls, {oracle.refusals} forbidden, all refused with fmi2Error; "
+              f"{oracle.forbidden_ok} forbidden calls answered fmi2OK")
+        assert oracle.forbidden_ok == 0
         assert oracle.calls >= SEQUENCES * CALLS and oracle.refusals > SEQUENCES
     finally:
         unit.close()
@@ -217,20 +227,23 @@ def test_random_call_sequences_keep_the_state_table(fmus, name):
 
 @pytest.mark.parametrize("name", ["RRRDirectKinematics", "RRRPlant", "ComputedTorqueController"])
 def test_invalid_parameter_is_refused_at_initialization_and_the_instance_recovers(fmus, name):
-    """The issue's case: an invalid parameter fails exitInitializationMode (not the first doStep),
-    with the variable named; the same instance, reset, initializes with valid values."""
+    """The issue's case: an invalid parameter makes fmi2ExitInitializationMode return fmi2Error (fmpy
+    raises), with the variable named; a doStep in state error is refused with fmi2Error and the
+    reason; the same instance, reset, initializes with valid values."""
     unit = FMUUnit(fmus[name], f"bad-{name}", logging_on=True)
     try:
         for param, _, value in BAD[name]:
             before = len(unit.messages)
-            unit.initialize(0.0, {param: value})
+            with pytest.raises(FMICallException) as info:
+                unit.initialize(0.0, {param: value})
+            assert info.value.status == fmi2Error and "fmi2ExitInitializationMode" in str(info.value)
             failed = [m for s, m in unit.messages[before:] if s == fmi2Error and "initialization failed" in m]
             assert failed and param in failed[0] and "state error" in failed[0], (param, unit.messages[before:])
             with pytest.raises(FMICallException) as info:
                 unit.fmu.doStep(0.0, H)
-            assert info.value.status == fmi2Discard
-            assert "fmi2DoStep refused in state error" in unit.messages[-1][1]
-            unit.reset()
+            assert info.value.status == fmi2Error
+            assert "fmi2DoStep refused in state error" in unit.messages[-1][1] and param in unit.messages[-1][1]
+            unit.fmu.reset()
             before = len(unit.messages)
             unit.initialize(0.0, {})
             for k in range(5):
@@ -239,3 +252,49 @@ def test_invalid_parameter_is_refused_at_initialization_and_the_instance_recover
             unit.reset()
     finally:
         unit.close()
+
+
+#: fmpy's own driver (simulate_fmu) on an invalid parameter, in a child process (it extracts its own copy)
+SIMULATE_BAD = """
+    import sys
+    from fmpy import simulate_fmu
+    try:
+        simulate_fmu(sys.argv[1], stop_time=0.01, output_interval=1e-3, start_values={sys.argv[2]: int(sys.argv[3])})
+    except Exception as exc:
+        print("raised", type(exc).__name__, exc)
+    else:
+        print("ran")
+"""
+
+
+def test_fmpy_simulate_reports_an_invalid_parameter(fmus):
+    """fmpy.simulate_fmu (no custom master) stops at fmi2ExitInitializationMode with fmi2Error."""
+    out = run_python(SIMULATE_BAD, fmus["RRRPlant"], "substeps", 0, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "raised FMICallException" in out.stdout and "fmi2ExitInitializationMode" in out.stdout, out.stdout
+    assert "substeps" in out.stderr, out.stderr[-2000:]
+
+
+def test_the_loader_keeps_the_same_state_table():
+    """The C loader's table (``fmu_src/loader/fmi2_loader.c``, FMI2_FUNCTIONS) allows each call in the
+    states of :data:`fmu_src.fmi_states.ALLOWED`, read from its source."""
+    import re
+    from pathlib import Path
+
+    loader = Path(__file__).resolve().parents[1] / "fmu_src" / "loader"
+    source = (loader / "fmi2_loader.c").read_text()
+    header = (loader / "fmi2_loader.h").read_text()
+    bits = {f"S_{m.group(1)}": m.group(2) for m in re.finditer(r"S_([A-Z_]+) = (\d+)", header)}
+    names = {"S_INSTANTIATED": INSTANTIATED, "S_INITIALIZATION_MODE": INITIALIZATION_MODE,
+             "S_STEP_COMPLETE": STEP_COMPLETE, "S_STEP_FAILED": STEP_FAILED, "S_TERMINATED": TERMINATED,
+             "S_ERROR": ERROR}
+    assert set(names) <= set(bits), bits
+    groups = {g: set(re.search(rf"#define {g} \(([^)]*)\)", header).group(1).replace(" ", "").split("|"))
+              for g in ("S_ANY", "S_GET", "S_SET")}
+    table = {m.group(1): m.group(2) for m in re.finditer(r"X\((fmi2\w+), ([^,]+),", source)}
+    for call, states in ALLOWED.items():
+        if call == "fmi2FreeInstance":
+            continue                                  # answered apart (always allowed)
+        masks = set(table[call].replace(" ", "").split("|"))
+        c_states = {names[b] for m in masks for b in groups.get(m, {m})}
+        assert c_states == set(states), (call, c_states, set(states))

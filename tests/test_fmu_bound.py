@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import fmi2Discard
+from fmpy.fmi2 import fmi2Error
 
 from experiments.sensors import Sensor
 from fmu_src.dk_variables import NO_BOUND
@@ -124,13 +124,21 @@ def _fmu_run_from(m, stream):
 
 @pytest.mark.parametrize("name, value", [("start_tolerance_linear", 0.0), ("start_tolerance_linear", -0.01),
                                          ("start_tolerance_angular", 0.0), ("start_tolerance_angular", -1.0)])
-def test_a_bad_start_tolerance_is_refused(make, name, value):
-    m = make(**_start(**{name: value}))
-    assert any(f"parameter {name!r} = {value!r}: expected a finite number > 0" in msg for msg in m.errors())
-    assert m.get_values(["status"]) == [3]
-    with pytest.raises(FMICallException) as info:
-        m.step(STREAM[1])
-    assert info.value.status == fmi2Discard
+def test_a_bad_start_tolerance_is_refused(fmu, unzipdir, name, value):
+    """fmi2ExitInitializationMode returns fmi2Error with the reason; a doStep in state error too."""
+    from cosim.unit import FMUUnit
+    m = FMUUnit(fmu, "dk-bad-tolerance", unzip_dir=unzipdir, logging_on=True)
+    try:
+        with pytest.raises(FMICallException) as init:
+            m.initialize(0.0, _start(**{name: value}))
+        assert init.value.status == fmi2Error
+        assert any(f"parameter {name!r} = {value!r}: expected a finite number > 0" in msg for msg in m.errors())
+        assert m.get_values(["status"]) == [3]
+        with pytest.raises(FMICallException) as info:
+            m.fmu.doStep(0.0, H)
+        assert info.value.status == fmi2Error
+    finally:
+        m.close()
 
 
 def test_outputs_list_bound_and_trust():

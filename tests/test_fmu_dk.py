@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import fmi2Discard
+from fmpy.fmi2 import fmi2Discard, fmi2Error
 
 from cosim.fmus import builds, references
 from cosim.fmus.checks import smoke_check, validate
@@ -222,16 +222,22 @@ def test_several_postures_and_the_mode_build_option(built_multi, tmp, make):
     assert [m.step(q) for q in q2[:150]] == tracker_rows(map2, q2[:150], mode="paper")
     m1 = make("p1", fmu_=built_multi.fmu, dir_=dir2, **circle_start(), posture=1, mode=0)
     assert [m1.step(q) for q in Q[:150]] == tracker_rows(MapTensor.load(built_multi.maps[1]), Q[:150])
-    # a posture without an embedded map: exitInitializationMode refuses it (state error), and every
-    # step is refused with the state and the reason
-    m3 = make("p3", fmu_=built_multi.fmu, dir_=dir2, posture=3)
-    assert any("fmi2ExitInitializationMode: initialization failed" in msg
-               and "embeds maps of posture(s) [1, 2] only" in msg for msg in m3.errors())
-    assert m3.outputs()[OUTPUTS.index("status")] == 3
-    with pytest.raises(FMICallException) as info:
-        m3.step(Q[0])
-    assert info.value.status == fmi2Discard
-    assert any("fmi2DoStep refused in state error" in msg and "embeds maps" in msg for msg in m3.errors())
+    # a posture without an embedded map: exitInitializationMode refuses it with fmi2Error (state error),
+    # and every step is refused (fmi2Error, by the loader's state table) with the state and the reason
+    m3 = FMUUnit(built_multi.fmu, "p3", unzip_dir=dir2, logging_on=True)
+    try:
+        with pytest.raises(FMICallException) as init:
+            m3.initialize(0.0, {"posture": 3})
+        assert init.value.status == fmi2Error
+        assert any("fmi2ExitInitializationMode: initialization failed" in msg
+                   and "embeds maps of posture(s) [1, 2] only" in msg for msg in m3.errors())
+        assert m3.get_values(OUTPUTS)[OUTPUTS.index("status")] == 3
+        with pytest.raises(FMICallException) as info:
+            m3.fmu.doStep(0.0, H)
+        assert info.value.status == fmi2Error
+        assert any("fmi2DoStep refused in state error" in msg and "embeds maps" in msg for msg in m3.errors())
+    finally:
+        m3.close()
 
 
 # ---------------------------------------------------------------------- damaged map resources

@@ -13,7 +13,7 @@ import fmpy
 import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import fmi2Discard, fmi2Fatal, fmi2LastSuccessfulTime, fmi2Terminated
+from fmpy.fmi2 import fmi2Discard, fmi2Error, fmi2Fatal, fmi2LastSuccessfulTime, fmi2Terminated
 
 from cosim.simulation import StepRefusedError, input_table, simulate
 from solver import STATUS, Tracker, ik
@@ -105,13 +105,26 @@ def test_inconsistent_initial_joints_warn_and_start_from_the_ik(make, map1):
 
 
 # ---------------------------------------------------------------------- bad input
-def test_initial_pose_outside_the_tool_space(make):
-    m = make(x0=5.0)
-    assert any("outside the tool space of posture 1" in msg for msg in m.errors())
-    assert m.outputs()[OUTPUTS.index("status")] == 3
-    with pytest.raises(FMICallException) as info:
-        m.step(Q[0])
-    assert info.value.status == fmi2Discard and not [msg for s, msg in m.messages if s >= fmi2Fatal]
+def _refused_initialization(fmu, unzipdir, **start):
+    """An instance whose fmi2ExitInitializationMode returned fmi2Error (state error), and its messages."""
+    from cosim.unit import FMUUnit
+    unit = FMUUnit(fmu, "dk-refused", unzip_dir=unzipdir, logging_on=True)
+    with pytest.raises(FMICallException) as init:
+        unit.initialize(0.0, start)
+    assert init.value.status == fmi2Error
+    return unit
+
+
+def test_initial_pose_outside_the_tool_space(fmu, unzipdir):
+    m = _refused_initialization(fmu, unzipdir, x0=5.0)
+    try:
+        assert any("outside the tool space of posture 1" in msg for msg in m.errors())
+        assert m.get_values(OUTPUTS)[OUTPUTS.index("status")] == 3
+        with pytest.raises(FMICallException) as info:
+            m.fmu.doStep(0.0, H)
+        assert info.value.status == fmi2Error and not [msg for s, msg in m.messages if s >= fmi2Fatal]
+    finally:
+        m.close()
 
 
 @pytest.mark.parametrize("name, value", [("q1", math.nan), ("q2", math.inf), ("q3", -math.inf)])
@@ -125,7 +138,7 @@ def test_non_finite_input_refuses_the_step(make, map1, caplog, name, value):
     m.set(**bad)
     with pytest.raises(FMICallException) as info:
         m.fmu.doStep(m.t, H)
-    assert info.value.status == fmi2Discard                   # pythonfmu 0.7: not fmi2Error, never fmi2Fatal
+    assert info.value.status == fmi2Discard                   # the step was not made (FMI 2.0), never fmi2Fatal
     text = f"'{name}' = {value!r}"
     assert any(text in msg and "refused" in msg for msg in m.errors())          # FMI logger
     assert any(text in r.getMessage() for r in caplog.records if r.levelno == logging.ERROR)   # Python logging
@@ -136,11 +149,15 @@ def test_non_finite_input_refuses_the_step(make, map1, caplog, name, value):
     after = m.outputs()
     assert after[:3] == before[:3] and after[OUTPUTS.index("status")] == 3 and STATUS[3] == "rejected"
     expected = tracker_rows(map1, Q[:120])
-    # now in state stepFailed: FMI 2.0 forbids fmi2SetReal and fmi2DoStep there (refused with the call
-    # and the state named, nothing changed; pythonfmu 0.7 returns fmi2OK and fmi2Discard)
+    # now in state stepFailed: FMI 2.0 forbids fmi2SetReal and fmi2DoStep there (refused by the FMU's
+    # loader with fmi2Error, the call and the state named, nothing changed)
     with pytest.raises(FMICallException) as again:
         m.step(Q[50])
-    assert again.value.status == fmi2Discard
+    assert again.value.status == fmi2Error
+    assert any("fmi2SetReal refused in state stepFailed" in msg for msg in m.errors())
+    with pytest.raises(FMICallException) as again:
+        m.fmu.doStep(m.t, H)
+    assert again.value.status == fmi2Error
     assert any("fmi2DoStep refused in state stepFailed" in msg for msg in m.errors())
     assert m.outputs()[:3] == before[:3]
     # roll back with setFMUstate and continue: as if the bad step never was
@@ -260,13 +277,16 @@ def test_a_noisy_stream_with_an_outlier_and_a_stuck_joint_matches_the_tracker(ma
     assert [k + 1 for k, s in enumerate(statuses) if s == rejected] == [150] + list(range(300 + stuck - 1, 321))
 
 
-def test_sensor_parameters_are_checked_at_initialization(make):
-    m = make(**circle_start(), speed_bound_linear=1.0)        # an angular bound is missing
-    assert any("'speed_bound_angular' = 0.0" in msg for msg in m.errors())
-    assert m.outputs()[OUTPUTS.index("status")] == 3
-    with pytest.raises(FMICallException) as info:
-        m.step(Q[0])
-    assert info.value.status == fmi2Discard
+def test_sensor_parameters_are_checked_at_initialization(fmu, unzipdir):
+    m = _refused_initialization(fmu, unzipdir, **circle_start(), speed_bound_linear=1.0)   # no angular bound
+    try:
+        assert any("'speed_bound_angular' = 0.0" in msg for msg in m.errors())
+        assert m.get_values(OUTPUTS)[OUTPUTS.index("status")] == 3
+        with pytest.raises(FMICallException) as info:
+            m.fmu.doStep(0.0, H)
+        assert info.value.status == fmi2Error
+    finally:
+        m.close()
 
 
 def test_outputs_hold_the_initial_pose_in_initialization_mode(fmu, unzipdir, map1):

@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 import fmpy
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import fmi2Discard, fmi2LastSuccessfulTime, fmi2Terminated
+from fmpy.fmi2 import fmi2Discard, fmi2Error, fmi2LastSuccessfulTime, fmi2Terminated
 from fmpy.validation import validate_fmu
 
 from cosim.fmus.checks import smoke_check, validate, value_references
@@ -335,12 +335,15 @@ def test_non_finite_input_refuses_the_step(make, caplog, name, value):
     assert inst.fmu.getBooleanStatus(fmi2Terminated) is True
     assert inst.fmu.getRealStatus(fmi2LastSuccessfulTime) == pytest.approx(inst.t)
     assert inst.outputs()[0] == before[0] and inst.outputs()[2:] == before[2:]
-    # the instance is in state stepFailed: FMI 2.0 forbids fmi2SetReal and fmi2DoStep there (refused,
-    # logged with the call and the state, nothing changed; pythonfmu 0.7: fmi2OK and fmi2Discard) ...
+    # the instance is in state stepFailed: FMI 2.0 forbids fmi2SetReal and fmi2DoStep there (refused by
+    # the FMU's loader with fmi2Error, logged with the call and the state, nothing changed) ...
     with pytest.raises(FMICallException) as again:
         inst.step(omega[5], torque[5])
-    assert again.value.status == fmi2Discard
+    assert again.value.status == fmi2Error
     assert any("fmi2SetReal refused in state stepFailed" in m for _, m in inst.messages)
+    with pytest.raises(FMICallException) as again:
+        inst.fmu.doStep(inst.t, DT)
+    assert again.value.status == fmi2Error
     assert any("fmi2DoStep refused in state stepFailed" in m for _, m in inst.messages)
     assert inst.outputs()[0] == before[0] and inst.outputs()[2:] == before[2:]
     # ... roll back with setFMUstate and continue: as if the bad step never was
@@ -361,7 +364,7 @@ def test_internal_exception_is_refused_not_fatal(make):
     inst.set(fail_at_step=5)
     with pytest.raises(FMICallException) as info:
         inst.step(omega[4], torque[4])
-    assert info.value.status == fmi2Discard   # pythonfmu 0.7 has no way to return fmi2Error from doStep
+    assert info.value.status == fmi2Discard   # the step was not made (FMI 2.0); never fmi2Fatal
     logged = [m for s, m in inst.messages if "RuntimeError" in m]
     assert logged and "test failure at step 5 (100% reproducible, not %s)" in logged[-1]
     after = inst.outputs()                    # force follows the new torque (feedthrough); the state
@@ -441,8 +444,10 @@ def test_libcosim_stops_at_a_refused_step(fmu):
         manipulator.slave_real_values(slave, [vr["omega"]], [omega])
         ok = ex.step()
         assert ok == (k < 2)
-        if not ok:
-            assert "Step not complete" in get_last_error_message()
+        if not ok:            # the refused step, then the input set in stepFailed (fmi2Error, FMU's loader)
+            message = get_last_error_message()
+            assert "Step not complete" in message if k == 2 else \
+                ("fmi2SetReal refused in state stepFailed" in message and "(fmi2Error)" in message), message
             assert ex.status().current_time == int(2 * DT * 1e9)
             continue
         angles.append(observer.last_real_values(slave, [vr["angle"]])[0])

@@ -219,7 +219,7 @@ def is_stale(name: str, fmu: Path) -> bool:
     packages = {SLAVE_DIR.name: SLAVE_DIR, **{p.name: p for p in project_packages()}}
     bundled = bundled_files(script, packages).values()
     here = Path(__file__).resolve().parent
-    build_code = (LOADER_SOURCE, slave_readme(name), *(here / f for f in ("native.py", "packaging.py",
+    build_code = (*LOADER_SOURCE.parent.glob("*.[ch]"), slave_readme(name), *(here / f for f in ("native.py", "packaging.py",
                                                                           "model_description.py", "builds.py")))
     return fmu.stat().st_mtime < max(p.stat().st_mtime for p in (script, *bundled, *build_code))
 

@@ -5,17 +5,25 @@ pythonfmu's wrapper library calls the Python C API but is not linked against lib
 process that already has Python can load it; a C host fails with ``undefined symbol:
 _Py_NoneStruct``.  :func:`loader_entries` turns pythonfmu's binary entries of an FMU archive into
 
-- ``binaries/linux64/<modelIdentifier>.so``: the loader, ``fmu_src/loader/fmi2_loader.c`` compiled
-  with the system C compiler (``$CC``, else ``cc``, else ``gcc``).  In the first ``fmi2Instantiate``
-  it uses the process's Python if it has one (fmpy: no second interpreter), else it opens libpython
-  globally and starts the interpreter recorded below, then forwards every fmi2* function to
+- ``binaries/linux64/<modelIdentifier>.so``: the loader, the C files of ``fmu_src/loader/``
+  (:data:`LOADER_FILES`) compiled with the system C compiler (``$CC``, else ``cc``, else ``gcc``).
+  In the first ``fmi2Instantiate`` it uses the process's Python if it has one (fmpy: no second
+  interpreter), else it finds an interpreter that fits the FMU (``$RRR_DK_PYTHON``, the one recorded
+  below, ``python3`` on PATH), opens its libpython globally and starts it; it keeps FMI 2.0's state
+  table per instance (a forbidden call returns fmi2Error without reaching Python) and forwards
+  every allowed fmi2* function to
 - ``binaries/linux64/libpythonfmu-export.so``: pythonfmu's wrapper, unchanged;
 - ``resources/python_runtime.txt``: ``python=`` the interpreter that built the FMU (its venv and
   site-packages are what the FMU imports) and ``libpython=`` its shared library.  ``$RRR_DK_PYTHON``
-  (a path to another python) overrides it when the FMU runs.
+  (a path to another python) comes first when it is set.
 
 Without a C compiler, or on a platform other than Linux, the entries stay pythonfmu's (the FMU runs
-in Python hosts only) and :func:`loader_entries` says so with a warning.  The compile is
+in Python hosts only) and :func:`loader_entries` says so with a warning.
+
+Platforms.  pythonfmu ships its wrapper for linux64 and win64.  The loader is built and tested for
+linux64 only (no Windows toolchain here), and pythonfmu's win64 binary alone was never run with these
+FMUs, so on Linux :func:`loader_entries` keeps the binaries of ``linux64`` only (:data:`PLATFORMS`):
+an FMU lists only a platform its tests ran on (``tests/test_host_life.py`` checks it).  The compile is
 deterministic (fixed flags, no debug info, stripped, run in a folder of fixed name), so builds stay
 byte-identical.
 """
@@ -33,9 +41,13 @@ from typing import Mapping
 
 from .sources import LOADER_SOURCE
 
-__all__ = ["LOADER_SOURCE", "WRAPPER_NAME", "RUNTIME_FILE", "PYTHON_ENV", "NativeBuildWarning",
+__all__ = ["LOADER_SOURCE", "LOADER_FILES", "PLATFORMS", "WRAPPER_NAME", "RUNTIME_FILE", "PYTHON_ENV", "NativeBuildWarning",
            "compiler", "compile_loader", "runtime_record", "loader_entries"]
 
+#: the loader's C sources and headers (``fmu_src/loader/``; :data:`LOADER_SOURCE` is its main file)
+LOADER_FILES = tuple(sorted(p for p in LOADER_SOURCE.parent.iterdir() if p.suffix in (".c", ".h")))
+#: the FMI platforms whose binaries an FMU built on Linux keeps (built and run by the tests)
+PLATFORMS = ("linux64",)
 #: pythonfmu's wrapper inside the FMU, beside the loader (the loader's ``WRAPPER_NAME``)
 WRAPPER_NAME = "libpythonfmu-export.so"
 #: the build-time record of the Python runtime, under resources/ (the loader's ``RUNTIME_FILE``)
@@ -60,7 +72,7 @@ def compiler() -> str | None:
 
 
 def compile_loader(cc: str | None = None) -> bytes:
-    """The loader library, compiled from :data:`LOADER_SOURCE`; raises RuntimeError with the compiler's
+    """The loader library, compiled from :data:`LOADER_FILES`; raises RuntimeError with the compiler's
     message on failure."""
     cc = cc or compiler()
     if cc is None:
@@ -68,11 +80,13 @@ def compile_loader(cc: str | None = None) -> bytes:
     with tempfile.TemporaryDirectory(prefix="fmu_src_native_") as tmp:
         work = Path(tmp) / "loader"                   # fixed relative names: the same bytes every build
         work.mkdir()
-        shutil.copyfile(LOADER_SOURCE, work / LOADER_SOURCE.name)
-        proc = subprocess.run([cc, *_FLAGS, "-o", "loader.so", LOADER_SOURCE.name, *_LIBS], cwd=work,
+        for source in LOADER_FILES:
+            shutil.copyfile(source, work / source.name)
+        sources = [p.name for p in LOADER_FILES if p.suffix == ".c"]
+        proc = subprocess.run([cc, *_FLAGS, "-o", "loader.so", *sources, *_LIBS], cwd=work,
                               capture_output=True, text=True)
         if proc.returncode != 0:
-            raise RuntimeError(f"{cc} failed on {LOADER_SOURCE.name}:\n{proc.stderr.strip()}")
+            raise RuntimeError(f"{cc} failed on {', '.join(sources)}:\n{proc.stderr.strip()}")
         return (work / "loader.so").read_bytes()
 
 
@@ -83,19 +97,23 @@ def runtime_record() -> bytes:
         candidate = Path(sysconfig.get_config_var("LIBDIR") or "") / (sysconfig.get_config_var("INSTSONAME") or "")
         libpython = str(candidate) if candidate.is_file() else ""
     return (f"# The Python runtime this FMU's binary starts in a host process without Python "
-            f"(${PYTHON_ENV}=/path/to/python overrides it)\n"
+            f"(${PYTHON_ENV}=/path/to/python comes first; then this one; then python3 on PATH)\n"
             f"python={sys.executable}\nlibpython={libpython}\n").encode()
 
 
 def loader_entries(entries: Mapping[str, bytes], model: str) -> dict[str, bytes]:
     """``entries`` (an FMU archive: {name: bytes}) with the Linux binary replaced by the loader,
-    pythonfmu's wrapper beside it and the runtime record; unchanged (with a
-    :class:`NativeBuildWarning`) where the loader cannot be built."""
+    pythonfmu's wrapper beside it and the runtime record, and on Linux the binaries of
+    :data:`PLATFORMS` only; the binaries unchanged (with a :class:`NativeBuildWarning`) where the
+    loader cannot be built."""
     binary = f"binaries/linux64/{model}.so"
     out = dict(entries)
     if binary not in entries:
         return out
-    if not sys.platform.startswith("linux"):
+    if sys.platform.startswith("linux"):            # only the platforms that are built and run (module doc)
+        out = {name: data for name, data in out.items()
+               if not name.startswith("binaries/") or name.split("/")[1] in PLATFORMS}
+    else:
         warnings.warn(f"{model}: the loader for hosts without Python is built on Linux only; the FMU keeps "
                       "pythonfmu's binary", NativeBuildWarning, stacklevel=2)
         return out

@@ -1,41 +1,43 @@
 /*
  * The FMU's binary: a loader that brings the Python runtime into a host process without Python,
- * then forwards every FMI 2.0 Co-Simulation function to pythonfmu's wrapper.
+ * keeps FMI 2.0's state table per instance, and forwards the FMI 2.0 Co-Simulation functions it
+ * allows to pythonfmu's wrapper.
  *
  * Why.  pythonfmu's wrapper (shipped beside this file as libpythonfmu-export.so) calls the Python
  * C API but is not linked against libpython: it works only in a process that already has Python
  * (fmpy, libcosimpy, ecospy).  A C host (OMSimulator's command line, OpenModelica, Dymola, ...)
- * fails with "undefined symbol: _Py_NoneStruct".
+ * fails with "undefined symbol: _Py_NoneStruct".  And pythonfmu 0.7 cannot return fmi2Error: a
+ * normal Python return is fmi2OK, do_step returning False is fmi2Discard, an exception fmi2Fatal.
  *
- * What it does, once per process, in the first fmi2Instantiate (serialized by a mutex):
- *  1. If the process already has an initialized Python (Py_IsInitialized visible globally and true:
- *     fmpy and other Python hosts), it uses that one and starts nothing.
- *  2. Otherwise it opens libpython with RTLD_GLOBAL (the one recorded at build time in
- *     resources/python_runtime.txt, or the one of the interpreter named by $RRR_DK_PYTHON), sets
- *     the program name to that interpreter (so sys.prefix, the venv and its site-packages are the
- *     interpreter's own), initializes Python without signal handlers and releases the GIL.
- *     It never finalizes Python: numpy, numba and scipy cannot be re-initialized in one process,
- *     and a finalize at library unload runs while the host may still hold threads.
- *  3. It opens pythonfmu's wrapper (RTLD_LOCAL | RTLD_NODELETE: its symbols do not clash with ours,
- *     and it is never unmapped under a live interpreter) and resolves its fmi2* functions.
- * pythonfmu's wrapper starts (and later finalizes) an interpreter only if Py_IsInitialized() is
- * false when it is first used, so with this loader it never does either.
- *
- * The exit crash ("corrupted double-linked list" at process exit).  The wrapper keeps a static
- * std::shared_ptr<PyState> and resets it in a __attribute__((destructor)) function.  At dlclose the
- * destructor runs first and the static's destructor then finds it empty: fine.  But when the
- * wrapper is still loaded at exit (a host that keeps the library, or a library dlclose does not
- * unmap), exit() runs the static's destructor first (registered with __cxa_atexit, which runs before
- * _dl_fini) and then the destructor function resets the destroyed shared_ptr: it decrements the
- * use count inside the freed control block (8 bytes in: the "bk" pointer of a free chunk), and
- * glibc aborts later on the corrupted free list (valgrind: "Invalid read of size 4 ... in
- * finalizePythonInterpreter ... inside a block of size 128 free'd").  So after opening the wrapper
- * the loader registers an atexit handler (run before the wrapper's static destructor, LIFO; or at the
- * loader's own dlclose) that calls the wrapper's finalizePythonInterpreter: the shared_ptr is then
- * empty before either destructor runs.  It never finalizes Python (the wrapper did not start it).
- *
+ * Loading, once per process, in the first fmi2Instantiate (serialized by a mutex):
+ *  1. start_python (python_runtime.c): the process's Python if it has one, else the first
+ *     interpreter that fits the FMU ($RRR_DK_PYTHON, the recorded one, python3 on PATH), started
+ *     from its shared libpython and never finalized;
+ *  2. pythonfmu's wrapper is opened RTLD_LOCAL | RTLD_NODELETE (its symbols do not clash with
+ *     ours; never unmapped under a live interpreter) and its fmi2* functions resolved; this library
+ *     pins itself (RTLD_NODELETE), so a host that unloads it (fmpy's freeInstance) and loads it
+ *     again finds the same loaded state.
  * Errors never crash the host: fmi2Instantiate returns NULL after logging, through the host's
  * logger (and stderr), what is missing and how to fix it.
+ *
+ * The state table.  Each instance is a loader Instance around the wrapper's component.  A call FMI
+ * 2.0 forbids in the instance's state (fmi2_states: the same table as fmu_src/fmi_states.py's
+ * ALLOWED) returns fmi2Error and logs why, without reaching Python.  The slave (TableSlave) hands
+ * its state and the status of the current call to the loader through the logger the loader gives
+ * the wrapper: a message of category STATUS_CATEGORY, "<state> <status>[ <reason>]", which the
+ * loader consumes (never shown to the host).  So an fmi2ExitInitializationMode that the slave
+ * refuses (invalid parameter or start value) returns fmi2Error and leaves the instance in state
+ * error, and an fmi2Set* of a variable not settable in the state returns fmi2Error.  A slave that
+ * reports nothing (another pythonfmu slave) gets the standard transitions of the returned status.
+ *
+ * The exit crash ("corrupted double-linked list" at process exit).  The wrapper keeps a static
+ * std::shared_ptr<PyState> and resets it in a __attribute__((destructor)) function.  When the
+ * wrapper is still loaded at exit, exit() runs the static's destructor first (__cxa_atexit, before
+ * _dl_fini) and the destructor function then resets the destroyed shared_ptr: it decrements the
+ * use count inside the freed control block and glibc aborts later on the corrupted free list.  So
+ * after opening the wrapper the loader registers an atexit handler (run before the wrapper's static
+ * destructor, LIFO) that calls the wrapper's finalizePythonInterpreter: the shared_ptr is then
+ * empty before either destructor runs.  It never finalizes Python (the wrapper did not start it).
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
@@ -46,79 +48,61 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <wchar.h>
+
+#include "fmi2_loader.h"
+#include "python_runtime.h"
 
 #define EXPORT __attribute__((visibility("default")))
-
-/* FMI 2.0 types (fmi2TypesPlatform.h, fmi2FunctionTypes.h), "default" platform */
-typedef void* fmi2Component;
-typedef void* fmi2ComponentEnvironment;
-typedef void* fmi2FMUstate;
-typedef unsigned int fmi2ValueReference;
-typedef double fmi2Real;
-typedef int fmi2Integer;
-typedef int fmi2Boolean;
-typedef char fmi2Char;
-typedef const fmi2Char* fmi2String;
-typedef char fmi2Byte;
-typedef enum { fmi2OK, fmi2Warning, fmi2Discard, fmi2Error, fmi2Fatal, fmi2Pending } fmi2Status;
-typedef enum { fmi2ModelExchange, fmi2CoSimulation } fmi2Type;
-typedef enum { fmi2DoStepStatus, fmi2PendingStatus, fmi2LastSuccessfulTime, fmi2Terminated } fmi2StatusKind;
-typedef void (*fmi2CallbackLogger)(fmi2ComponentEnvironment, fmi2String, fmi2Status, fmi2String, fmi2String, ...);
-typedef struct {
-    fmi2CallbackLogger logger;
-    void* (*allocateMemory)(size_t, size_t);
-    void (*freeMemory)(void*);
-    void (*stepFinished)(fmi2ComponentEnvironment, fmi2Status);
-    fmi2ComponentEnvironment componentEnvironment;
-} fmi2CallbackFunctions;
-
 #define WRAPPER_NAME "libpythonfmu-export.so"
-#define RUNTIME_FILE "python_runtime.txt"
-#define PYTHON_ENV "RRR_DK_PYTHON"
 
-/* ---- the wrapper's functions ------------------------------------------------------------------ */
+/* ---- the wrapper's functions: name, the states that allow it, the transition, parameters, arguments ---- */
 
 #define FMI2_FUNCTIONS(X) \
-    X(fmi2SetDebugLogging, (fmi2Component c, fmi2Boolean on, size_t n, const fmi2String cat[]), (c, on, n, cat)) \
-    X(fmi2SetupExperiment, (fmi2Component c, fmi2Boolean tolDef, fmi2Real tol, fmi2Real t0, fmi2Boolean stopDef, \
-                            fmi2Real t1), (c, tolDef, tol, t0, stopDef, t1)) \
-    X(fmi2EnterInitializationMode, (fmi2Component c), (c)) \
-    X(fmi2ExitInitializationMode, (fmi2Component c), (c)) \
-    X(fmi2Terminate, (fmi2Component c), (c)) \
-    X(fmi2Reset, (fmi2Component c), (c)) \
-    X(fmi2GetReal, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real v[]), (c, vr, n, v)) \
-    X(fmi2GetInteger, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Integer v[]), (c, vr, n, v)) \
-    X(fmi2GetBoolean, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Boolean v[]), (c, vr, n, v)) \
-    X(fmi2GetString, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String v[]), (c, vr, n, v)) \
-    X(fmi2SetReal, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Real v[]), (c, vr, n, v)) \
-    X(fmi2SetInteger, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Integer v[]), \
+    X(fmi2SetupExperiment, S_INSTANTIATED, T_NONE, (fmi2Component c, fmi2Boolean tolDef, fmi2Real tol, \
+      fmi2Real t0, fmi2Boolean stopDef, fmi2Real t1), (c, tolDef, tol, t0, stopDef, t1)) \
+    X(fmi2EnterInitializationMode, S_INSTANTIATED, T_ENTER, (fmi2Component c), (c)) \
+    X(fmi2ExitInitializationMode, S_INITIALIZATION_MODE, T_EXIT, (fmi2Component c), (c)) \
+    X(fmi2Terminate, S_STEP_COMPLETE | S_STEP_FAILED, T_TERMINATE, (fmi2Component c), (c)) \
+    X(fmi2Reset, S_ANY, T_RESET, (fmi2Component c), (c)) \
+    X(fmi2GetReal, S_GET, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real v[]), \
       (c, vr, n, v)) \
-    X(fmi2SetBoolean, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Boolean v[]), \
+    X(fmi2GetInteger, S_GET, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Integer v[]), \
       (c, vr, n, v)) \
-    X(fmi2SetString, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2String v[]), \
+    X(fmi2GetBoolean, S_GET, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Boolean v[]), \
       (c, vr, n, v)) \
-    X(fmi2GetFMUstate, (fmi2Component c, fmi2FMUstate* s), (c, s)) \
-    X(fmi2SetFMUstate, (fmi2Component c, fmi2FMUstate s), (c, s)) \
-    X(fmi2FreeFMUstate, (fmi2Component c, fmi2FMUstate* s), (c, s)) \
-    X(fmi2SerializedFMUstateSize, (fmi2Component c, fmi2FMUstate s, size_t* n), (c, s, n)) \
-    X(fmi2SerializeFMUstate, (fmi2Component c, fmi2FMUstate s, fmi2Byte b[], size_t n), (c, s, b, n)) \
-    X(fmi2DeSerializeFMUstate, (fmi2Component c, const fmi2Byte b[], size_t n, fmi2FMUstate* s), (c, b, n, s)) \
-    X(fmi2GetDirectionalDerivative, (fmi2Component c, const fmi2ValueReference u[], size_t nu, \
+    X(fmi2GetString, S_GET, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String v[]), \
+      (c, vr, n, v)) \
+    X(fmi2SetReal, S_SET, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Real v[]), \
+      (c, vr, n, v)) \
+    X(fmi2SetInteger, S_SET, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, \
+      const fmi2Integer v[]), (c, vr, n, v)) \
+    X(fmi2SetBoolean, S_SET, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, \
+      const fmi2Boolean v[]), (c, vr, n, v)) \
+    X(fmi2SetString, S_SET, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, \
+      const fmi2String v[]), (c, vr, n, v)) \
+    X(fmi2GetFMUstate, S_ANY, T_NONE, (fmi2Component c, fmi2FMUstate* s), (c, s)) \
+    X(fmi2SetFMUstate, S_ANY, T_NONE, (fmi2Component c, fmi2FMUstate s), (c, s)) \
+    X(fmi2FreeFMUstate, S_ANY, T_NONE, (fmi2Component c, fmi2FMUstate* s), (c, s)) \
+    X(fmi2SerializedFMUstateSize, S_ANY, T_NONE, (fmi2Component c, fmi2FMUstate s, size_t* n), (c, s, n)) \
+    X(fmi2SerializeFMUstate, S_ANY, T_NONE, (fmi2Component c, fmi2FMUstate s, fmi2Byte b[], size_t n), (c, s, b, n)) \
+    X(fmi2DeSerializeFMUstate, S_ANY, T_NONE, (fmi2Component c, const fmi2Byte b[], size_t n, fmi2FMUstate* s), \
+      (c, b, n, s)) \
+    X(fmi2GetDirectionalDerivative, S_ANY, T_NONE, (fmi2Component c, const fmi2ValueReference u[], size_t nu, \
       const fmi2ValueReference z[], size_t nz, const fmi2Real du[], fmi2Real dz[]), (c, u, nu, z, nz, du, dz)) \
-    X(fmi2SetRealInputDerivatives, (fmi2Component c, const fmi2ValueReference vr[], size_t n, \
+    X(fmi2SetRealInputDerivatives, S_ANY, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, \
       const fmi2Integer order[], const fmi2Real v[]), (c, vr, n, order, v)) \
-    X(fmi2GetRealOutputDerivatives, (fmi2Component c, const fmi2ValueReference vr[], size_t n, \
+    X(fmi2GetRealOutputDerivatives, S_ANY, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, \
       const fmi2Integer order[], fmi2Real v[]), (c, vr, n, order, v)) \
-    X(fmi2DoStep, (fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noPrior), (c, t, h, noPrior)) \
-    X(fmi2CancelStep, (fmi2Component c), (c)) \
-    X(fmi2GetStatus, (fmi2Component c, const fmi2StatusKind k, fmi2Status* v), (c, k, v)) \
-    X(fmi2GetRealStatus, (fmi2Component c, const fmi2StatusKind k, fmi2Real* v), (c, k, v)) \
-    X(fmi2GetIntegerStatus, (fmi2Component c, const fmi2StatusKind k, fmi2Integer* v), (c, k, v)) \
-    X(fmi2GetBooleanStatus, (fmi2Component c, const fmi2StatusKind k, fmi2Boolean* v), (c, k, v)) \
-    X(fmi2GetStringStatus, (fmi2Component c, const fmi2StatusKind k, fmi2String* v), (c, k, v))
+    X(fmi2DoStep, S_STEP_COMPLETE, T_STEP, (fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noPrior), \
+      (c, t, h, noPrior)) \
+    X(fmi2CancelStep, 0u /* stepInProgress: never (no fmi2Pending) */, T_NONE, (fmi2Component c), (c)) \
+    X(fmi2GetStatus, S_ANY, T_NONE, (fmi2Component c, const fmi2StatusKind k, fmi2Status* v), (c, k, v)) \
+    X(fmi2GetRealStatus, S_ANY, T_NONE, (fmi2Component c, const fmi2StatusKind k, fmi2Real* v), (c, k, v)) \
+    X(fmi2GetIntegerStatus, S_ANY, T_NONE, (fmi2Component c, const fmi2StatusKind k, fmi2Integer* v), (c, k, v)) \
+    X(fmi2GetBooleanStatus, S_ANY, T_NONE, (fmi2Component c, const fmi2StatusKind k, fmi2Boolean* v), (c, k, v)) \
+    X(fmi2GetStringStatus, S_ANY, T_NONE, (fmi2Component c, const fmi2StatusKind k, fmi2String* v), (c, k, v))
 
-#define DECLARE_POINTER(name, params, args) static fmi2Status (*real_##name) params;
+#define DECLARE_POINTER(name, allowed, transition, params, args) static fmi2Status (*real_##name) params;
 FMI2_FUNCTIONS(DECLARE_POINTER)
 static fmi2Component (*real_fmi2Instantiate)(fmi2String, fmi2Type, fmi2String, fmi2String,
                                              const fmi2CallbackFunctions*, fmi2Boolean, fmi2Boolean);
@@ -128,8 +112,10 @@ static void (*release_py_state)(void);   /* the wrapper's finalizePythonInterpre
 static pthread_mutex_t load_lock = PTHREAD_MUTEX_INITIALIZER;
 static int loaded;                 /* the wrapper's functions are resolved */
 static char load_error[8192];      /* why loading failed (kept: every later instantiate reports it) */
+static char load_note[8192];       /* which interpreter was chosen, when not the recorded one (logged once) */
+static char model[256];            /* the modelIdentifier: this library's file name without ".so" */
 
-/* ---- helpers ------------------------------------------------------------------------------------ */
+/* ---- loading ------------------------------------------------------------------------------------ */
 
 static int fail(const char* fmt, ...)
 {
@@ -140,113 +126,38 @@ static int fail(const char* fmt, ...)
     return -1;
 }
 
-/* The folder of this library (binaries/linux64), without the trailing slash. */
+/* The folder of this library (binaries/linux64), without the trailing slash; pins the library. */
 static int own_folder(char* out, size_t size)
 {
     Dl_info info;
     if (!dladdr((void*)&own_folder, &info) || !info.dli_fname)
         return fail("the FMU's binary cannot find its own path (dladdr failed)");
+    dlopen(info.dli_fname, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE);    /* never unmapped: see the top */
     snprintf(out, size, "%s", info.dli_fname);
     char* slash = strrchr(out, '/');
     if (!slash)
         return fail("the FMU's binary was loaded without a path (%s)", info.dli_fname);
     *slash = '\0';
+    snprintf(model, sizeof model, "%s", slash + 1);
+    char* dot = strrchr(model, '.');
+    if (dot) *dot = '\0';
     return 0;
 }
 
-static void strip(char* s)
-{
-    size_t n = strlen(s);
-    while (n && (s[n - 1] == '\n' || s[n - 1] == '\r' || s[n - 1] == ' ')) s[--n] = '\0';
-}
-
-/* Read "python=" and "libpython=" from the build-time record or, with $RRR_DK_PYTHON, ask that
- * interpreter (it prints the same two lines). */
-static int python_runtime(const char* binaries, char* python, char* libpython, size_t size)
-{
-    char source[PATH_MAX + 64];
-    const char* chosen = getenv(PYTHON_ENV);
-    FILE* f;
-    int from_env = chosen && *chosen;
-    if (from_env) {
-        if (strchr(chosen, '\'')) return fail("$%s must not contain a quote: %s", PYTHON_ENV, chosen);
-        char cmd[PATH_MAX + 512];
-        snprintf(cmd, sizeof cmd,
-                 "'%s' -c 'import os, sys, sysconfig as s; print(\"python=\" + sys.executable); "
-                 "print(\"libpython=\" + (os.path.join(s.get_config_var(\"LIBDIR\"), s.get_config_var(\"INSTSONAME\")) "
-                 "if s.get_config_var(\"Py_ENABLE_SHARED\") else \"\"))' 2>/dev/null", chosen);
-        snprintf(source, sizeof source, "$%s=%s", PYTHON_ENV, chosen);
-        f = popen(cmd, "r");
-    } else {
-        snprintf(source, sizeof source, "%s/../../resources/%s", binaries, RUNTIME_FILE);
-        f = fopen(source, "r");
-    }
-    if (!f) return fail("cannot read %s", source);
-    char line[PATH_MAX + 64];
-    python[0] = libpython[0] = '\0';
-    while (fgets(line, sizeof line, f)) {
-        strip(line);
-        if (!strncmp(line, "python=", 7)) snprintf(python, size, "%s", line + 7);
-        else if (!strncmp(line, "libpython=", 10)) snprintf(libpython, size, "%s", line + 10);
-    }
-    int status = from_env ? pclose(f) : fclose(f);
-    if (!python[0])
-        return fail("%s does not name a Python interpreter%s", source,
-                    from_env ? " that runs (set it to the python of the environment that has the FMU's "
-                               "requirements)" : " (rebuild the FMU, or set $" PYTHON_ENV " to a python)");
-    if (!libpython[0])
-        return fail("the Python of %s (%s) has no shared libpython (a build without --enable-shared); "
-                    "set $%s to a Python built with a shared library", source, python, PYTHON_ENV);
-    (void)status;
-    return 0;
-}
-
-/* Open libpython globally and start an interpreter unless the process has one. */
-static int ensure_python(const char* binaries)
-{
-    int (*is_initialized)(void) = (int (*)(void))dlsym(RTLD_DEFAULT, "Py_IsInitialized");
-    if (is_initialized && is_initialized())
-        return 0;                                           /* a Python host: use its interpreter */
-    char python[PATH_MAX], libpython[PATH_MAX];
-    if (python_runtime(binaries, python, libpython, sizeof python)) return -1;
-    void* lib = dlopen(libpython, RTLD_NOW | RTLD_GLOBAL | RTLD_NODELETE);
-    if (!lib)
-        return fail("cannot open the Python library %s (%s); set $%s to a python whose environment has the "
-                    "FMU's requirements (resources/requirements.txt)", libpython, dlerror(), PYTHON_ENV);
-    is_initialized = (int (*)(void))dlsym(lib, "Py_IsInitialized");
-    void (*initialize)(int) = (void (*)(int))dlsym(lib, "Py_InitializeEx");
-    void* (*save_thread)(void) = (void* (*)(void))dlsym(lib, "PyEval_SaveThread");
-    void (*set_program_name)(const wchar_t*) = (void (*)(const wchar_t*))dlsym(lib, "Py_SetProgramName");
-    wchar_t* (*decode)(const char*, size_t*) = (wchar_t* (*)(const char*, size_t*))dlsym(lib, "Py_DecodeLocale");
-    if (!is_initialized || !initialize || !save_thread || !set_program_name || !decode)
-        return fail("%s lacks Py_InitializeEx, PyEval_SaveThread, Py_SetProgramName or Py_DecodeLocale "
-                    "(Python 3.8-3.13 has them); set $%s to such a python", libpython, PYTHON_ENV);
-    if (is_initialized())
-        return 0;
-    /* the program name stays referenced by the interpreter: never freed */
-    wchar_t* name = decode(python, NULL);
-    if (!name) return fail("cannot decode the interpreter path %s", python);
-    set_program_name(name);     /* sys.executable, sys.prefix, the venv: those of that interpreter */
-    initialize(0);              /* no signal handlers: the host owns SIGINT */
-    if (!is_initialized())
-        return fail("Python (%s, %s) did not initialize", python, libpython);
-    save_thread();              /* release the GIL: pythonfmu takes it per call (PyGILState_Ensure) */
-    return 0;
-}
-
-/* see "The exit crash" above; runs at exit, or when the host unloads this library */
+/* see "The exit crash" above; runs at exit */
 static void release_wrapper_state(void)
 {
     if (release_py_state) release_py_state();
 }
 
-#define RESOLVE(name, params, args) \
+#define RESOLVE(name, allowed, transition, params, args) \
     if (!(real_##name = (fmi2Status(*) params)dlsym(wrapper, #name))) return fail("%s lacks %s", path, #name);
 
 static int load(void)
 {
     char binaries[PATH_MAX], path[PATH_MAX + 64];
-    if (own_folder(binaries, sizeof binaries) || ensure_python(binaries)) return -1;
+    if (own_folder(binaries, sizeof binaries)) return -1;
+    if (start_python(binaries, model, load_error, sizeof load_error, load_note, sizeof load_note)) return -1;
     snprintf(path, sizeof path, "%s/%s", binaries, WRAPPER_NAME);
     void* wrapper = dlopen(path, RTLD_NOW | RTLD_LOCAL | RTLD_NODELETE);
     if (!wrapper) return fail("cannot open pythonfmu's wrapper %s: %s", path, dlerror());
@@ -269,26 +180,74 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
                                      fmi2String fmuResourceLocation, const fmi2CallbackFunctions* functions,
                                      fmi2Boolean visible, fmi2Boolean loggingOn)
 {
+    const char* name = instanceName ? instanceName : "";
     pthread_mutex_lock(&load_lock);
-    if (!loaded && !load_error[0])
-        loaded = load() == 0;
+    int first = !loaded && !load_error[0];
+    if (first) loaded = load() == 0;
     pthread_mutex_unlock(&load_lock);
     if (!loaded) {
-        const char* name = instanceName ? instanceName : "";
         fprintf(stderr, "FMU instance %s: %s\n", name, load_error);
         if (functions && functions->logger)
             functions->logger(functions->componentEnvironment, name, fmi2Error, "logStatusError", "%s", load_error);
         return NULL;
     }
-    return real_fmi2Instantiate(instanceName, fmuType, fmuGUID, fmuResourceLocation, functions, visible, loggingOn);
+    Instance* in = calloc(1, sizeof *in);
+    if (!in) return NULL;
+    if (functions) in->host = *functions;
+    in->mine = in->host;
+    in->mine.logger = fmi2_relay;
+    in->mine.componentEnvironment = in;
+    in->mine.stepFinished = NULL;                 /* no asynchronous steps */
+    in->state = S_INSTANTIATED;
+    in->log_mask = fmi2_log_mask(loggingOn);
+    in->model = model;
+    snprintf(in->name, sizeof in->name, "%s", name);
+    if (first && load_note[0])
+        fmi2_say(in, fmi2Warning, "%s: %s", model, load_note);
+    fmi2_begin(in);
+    /* loggingOn for the wrapper always: the slave's hand-off passes through fmi2_relay */
+    in->real = real_fmi2Instantiate(instanceName, fmuType, fmuGUID, fmuResourceLocation, &in->mine, visible, 1);
+    if (!in->real) {
+        free(in);
+        return NULL;
+    }
+    fmi2_settle(in, T_NONE, fmi2OK);
+    return in;
 }
 
 EXPORT void fmi2FreeInstance(fmi2Component c)
 {
-    if (loaded && c) real_fmi2FreeInstance(c);
+    Instance* in = c;
+    if (!loaded || !in) return;
+    /* pythonfmu 0.7's wrapper may crash (SIGSEGV in clearLogBuffer) freeing an instance whose slave
+     * left a message queued since its last call (one logged in its constructor): an empty get
+     * reaches Python (TableSlave answers it in every state), and the wrapper hands the queue on. */
+    fmi2ValueReference none = 0;
+    fmi2String ignored = NULL;
+    real_fmi2GetString(in->real, &none, 0, &ignored);
+    real_fmi2FreeInstance(in->real);
+    free(in);
 }
 
-/* every other function needs a component, which only a loaded wrapper hands out */
-#define FORWARD(name, params, args) \
-    EXPORT fmi2Status name params { return loaded ? real_##name args : fmi2Error; }
+EXPORT fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n, const fmi2String categories[])
+{
+    return loaded && c ? fmi2_debug_logging((Instance*)c, on, n, categories) : fmi2Error;
+}
+
+/* every other function: a component (only a loaded wrapper hands one out), the state table, the
+ * wrapper with its own component (the inner ``c`` shadows the parameter), the new state */
+#define FORWARD(name, allowed, transition, params, args) \
+    EXPORT fmi2Status name params \
+    { \
+        Instance* in = c; \
+        if (!loaded || !in) return fmi2Error; \
+        if (!fmi2_admit(in, #name, (allowed))) return fmi2Error; \
+        fmi2_begin(in); \
+        fmi2Status status; \
+        { \
+            fmi2Component c = in->real; \
+            status = real_##name args; \
+        } \
+        return fmi2_settle(in, (transition), status); \
+    }
 FMI2_FUNCTIONS(FORWARD)
