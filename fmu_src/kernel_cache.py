@@ -63,7 +63,7 @@ import tempfile
 import weakref
 from pathlib import Path
 
-__all__ = ["install", "attach", "cache_root", "bundle_of", "bundle_key", "shipped_problem", "manifest",
+__all__ = ["install", "attach", "cache_root", "bundle_of", "bundle_key", "key_of", "shipped_problem", "manifest",
            "BUNDLE_MARK", "SHIPPED", "MANIFEST", "GENERIC_CPU"]
 
 #: the file pythonfmu writes at the top of an FMU's resources folder
@@ -117,19 +117,24 @@ def bundle_of(py_file: str) -> str | None:
     return _BUNDLES[start]
 
 
+def key_of(files) -> str:
+    """The key of ``files``, ``(path relative to resources, bytes)`` pairs: SHA-256 (hex, 24 digits) of
+    the names and bytes of the ``.py`` files in subfolders (the packages; the slave script at the top
+    is left out, see the module docstring)."""
+    h = hashlib.sha256()
+    for name, data in sorted(files):
+        if name.endswith(".py") and "/" in name:
+            h.update(name.encode() + b"\0")
+            h.update(data + b"\0")
+    return h.hexdigest()[:24]
+
+
 def bundle_key(resources: str) -> str:
-    """SHA-256 (hex, 24 digits) of the names and bytes of every ``.py`` file in the subfolders of
-    ``resources`` (the packages; the slave script at the top is left out, see the module docstring)."""
+    """The key (:func:`key_of`) of the FMU bundle in the folder ``resources`` (one hash per folder and process)."""
     key = _KEYS.get(resources)
     if key is None:
-        h = hashlib.sha256()
         base = Path(resources)
-        for path in sorted(base.rglob("*.py")):
-            if path.parent == base:
-                continue
-            h.update(path.relative_to(base).as_posix().encode() + b"\0")
-            h.update(path.read_bytes() + b"\0")
-        key = _KEYS[resources] = h.hexdigest()[:24]
+        key = _KEYS[resources] = key_of((p.relative_to(base).as_posix(), p.read_bytes()) for p in base.rglob("*.py"))
     return key
 
 

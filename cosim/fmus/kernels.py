@@ -8,34 +8,46 @@ it to :func:`shipped_kernels` and builds it again with the entries returned:
    x86-64 CPU, no CPU features) and ``NUMBA_CACHE_DIR`` = :func:`generic_root` extracts the FMU
    and runs it through fmpy along the runs of a :class:`Scenario` (instantiate, initialize, the
    steps; its reference run, so every kernel its slave calls on that path is compiled);
-2. the child's numba cache of the FMU's key (``<generic root>/<key>/``, :func:`fmu_src.kernel_cache.
+2. the child's numba cache of the FMU's key (``<generic root>/<model>/<key>/``, :func:`fmu_src.kernel_cache.
    bundle_key`) becomes ``resources/kernels/`` with ``resources/kernels/manifest.json``: numba and
    Python versions, machine, key, and the compile seconds of each outermost kernel (what the
    runtime quotes when it must compile one after all).
 
-The generic cache lives under the project's cache root (``cache_dir("fmu-kernels-generic")``),
+The generic cache lives under the project's cache root (``cache_dir("fmu-kernels-generic")``), one
+folder per model (an FMU ships its own kernels, not those another FMU of the same code warmed up),
 keyed by the bundled code: a rebuild of unchanged code compiles nothing (the child loads every
 kernel) and ships the same bytes, and FMUs of one code that differ only in start values (the DK
-FMU's posture and mode) share it.  The seconds measured when a kernel was first compiled are kept
-beside it (``seconds.json``), so a rebuild quotes them unchanged.
+FMU's posture and mode) share it.  Beside it, ``warm-up.json`` keeps the compile seconds measured
+when each kernel was first compiled (a rebuild quotes them unchanged) and which scenarios (with the
+numba and Python versions) were run: a rebuild of the same code and scenario starts no child at all.
+The shipped bytes are those of the generic cache, so a build is byte-identical to the previous one
+while that cache is kept; numba writes object addresses and closure hashes into its cache files,
+so a fresh generic cache gives the same kernels in other bytes.
 """
 from __future__ import annotations
 
+import contextlib
+import fcntl
+import hashlib
 import json
 import os
 import platform
+import shutil
 import subprocess
 import sys
 import tempfile
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from fmu_src.kernel_cache import GENERIC_CPU, MANIFEST, SHIPPED
+import numba
+
+from fmu_src.kernel_cache import GENERIC_CPU, MANIFEST, SHIPPED, key_of
 from solver import cache_dir
 
-__all__ = ["Run", "Scenario", "generic_root", "shipped_kernels", "warm_up", "KernelBuildError"]
+__all__ = ["Run", "Scenario", "generic_root", "fmu_key", "shipped_kernels", "warm_up", "KernelBuildError"]
 
-_SECONDS = "seconds.json"
+_KEPT = "warm-up.json"
 
 #: the child: runs the FMU (argv: FMU, scenario JSON, extraction folder) and prints what it compiled
 _CHILD = r"""
@@ -114,13 +126,29 @@ def generic_root() -> Path:
     return cache_dir("fmu-kernels-generic")
 
 
+@contextlib.contextmanager
+def _extraction_folder(fmu: Path):
+    """The one folder the warm-up extracts ``fmu`` into (its path ends up in the compiled code: a fixed
+    one keeps builds byte-identical), held with a lock against a concurrent build."""
+    base = Path(tempfile.gettempdir()) / f"rrr-dk-warm-up-{os.getuid()}"
+    base.mkdir(exist_ok=True)
+    with open(base / f"{fmu.stem}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        folder = base / fmu.stem
+        shutil.rmtree(folder, ignore_errors=True)
+        try:
+            yield folder
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+
+
 def _run_child(fmu: Path, scenario: Scenario, root: Path) -> dict:
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CPU_FEATURES")}
-    env.update(NUMBA_CPU_NAME=GENERIC_CPU, NUMBA_CPU_FEATURES="", NUMBA_CACHE_DIR=str(root))
-    with tempfile.TemporaryDirectory(prefix="fmu_kernels_") as tmp:
+    env.update(NUMBA_CPU_NAME=GENERIC_CPU, NUMBA_CPU_FEATURES="", NUMBA_CACHE_DIR=str(root), PYTHONHASHSEED="0")
+    with tempfile.TemporaryDirectory(prefix="fmu_kernels_") as tmp, _extraction_folder(fmu) as folder:
         runs = Path(tmp) / "runs.json"
         runs.write_text(json.dumps([r.as_json() for r in scenario.runs]))
-        proc = subprocess.run([sys.executable, "-c", _CHILD, str(fmu), str(runs), str(Path(tmp) / "x")],
+        proc = subprocess.run([sys.executable, "-c", _CHILD, str(fmu), str(runs), str(folder)],
                               capture_output=True, text=True, env=env, cwd=tmp)
     for line in proc.stdout.splitlines():
         if line.startswith("KERNELS "):
@@ -129,26 +157,47 @@ def _run_child(fmu: Path, scenario: Scenario, root: Path) -> dict:
                            f"{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
 
 
-def shipped_kernels(fmu: Path, scenario: Scenario, root: Path | None = None) -> dict[str, bytes]:
-    """Run ``fmu`` along ``scenario`` in a generic-CPU child (module docstring) and return the
-    entries ``{"resources/kernels/...": bytes}`` of its compiled kernels and their manifest.
+def fmu_key(fmu: Path) -> str:
+    """The kernel key of the FMU file ``fmu`` (:func:`fmu_src.kernel_cache.key_of` of its ``resources/``)."""
+    with zipfile.ZipFile(fmu) as z:
+        return key_of((i.filename[len("resources/"):], z.read(i)) for i in z.infolist()
+                      if i.filename.startswith("resources/") and i.filename.endswith(".py"))
 
-    ``root``: the generic kernel cache (default :func:`generic_root`).
+
+def _warmed(scenario: Scenario) -> str:
+    """What a warm-up of ``scenario`` compiles for: its runs, numba, Python, the generic CPU (a digest)."""
+    text = json.dumps([[r.as_json() for r in scenario.runs], numba.__version__, sys.version_info[:2], GENERIC_CPU])
+    return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+def shipped_kernels(fmu: Path, scenario: Scenario, root: Path | None = None) -> dict[str, bytes]:
+    """The entries ``{"resources/kernels/...": bytes}`` of the kernels ``fmu`` calls along ``scenario``,
+    compiled for a generic CPU, and their manifest (the module docstring).
+
+    ``root``: the generic kernel cache (default :func:`generic_root`).  The child runs only when
+    this key has not been warmed up along this scenario, numba and Python before (``warm-up.json``).
     """
-    root = Path(root) if root is not None else generic_root()
-    found = _run_child(Path(fmu), scenario, root)
-    folder = root / found["key"]
-    kept = folder / _SECONDS
-    seconds = json.loads(kept.read_text()) if kept.is_file() else {}
-    if found["seconds"]:
-        seconds.update({k: round(v, 1) for k, v in found["seconds"].items()})
-        kept.write_text(json.dumps(seconds, indent=1, sort_keys=True) + "\n")
+    root = (Path(root) if root is not None else generic_root()) / Path(fmu).stem     # one FMU's kernels only
+    key, done = fmu_key(Path(fmu)), _warmed(scenario)
+    folder = root / key
+    kept = folder / _KEPT
+    record = json.loads(kept.read_text()) if kept.is_file() else {"seconds": {}, "warmed": []}
+    if done not in record["warmed"]:
+        found = _run_child(Path(fmu), scenario, root)
+        if found["key"] != key:
+            raise KernelBuildError(f"{Path(fmu).name}: the warm-up ran key {found['key']}, the FMU's is {key}")
+        record["seconds"].update({k: round(v, 1) for k, v in found["seconds"].items()})
+        record["warmed"] = sorted({*record["warmed"], done})
+        folder.mkdir(parents=True, exist_ok=True)
+        kept.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
     entries = {f"resources/{SHIPPED}/{p.relative_to(folder).as_posix()}": p.read_bytes()
                for p in sorted(folder.rglob("*")) if p.suffix in (".nbi", ".nbc")}
     if not entries:
         raise KernelBuildError(f"the warm-up run of {Path(fmu).name} compiled no kernel into {folder}")
-    manifest = {"numba": found["numba"], "python": found["python"], "machine": platform.machine().lower(), "cpu": GENERIC_CPU,
-                "key": found["key"], "seconds": seconds, "total_seconds": round(sum(seconds.values()), 1)}
+    seconds = record["seconds"]
+    manifest = {"numba": numba.__version__, "python": "%d.%d" % sys.version_info[:2], "cpu": GENERIC_CPU,
+                "machine": platform.machine().lower(), "key": key, "seconds": seconds,
+                "total_seconds": round(sum(seconds.values()), 1)}
     entries[f"resources/{SHIPPED}/{MANIFEST}"] = (json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode()
     return entries
 
