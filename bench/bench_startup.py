@@ -335,7 +335,7 @@ def _cold_fmus(build: Path, tmp: Path) -> None:
             if line is None:
                 raise RuntimeError(f"{name}: the cold-start probe failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
             r = json.loads(line[5:])
-            compiled = sum(1 for _ in caches.rglob("*.nbi"))
+            compiled = sum(1 for sub in ("numba", "rrr-dk") for _ in (caches / sub).rglob("*.nbi"))
             row.append(f"{what} {r['total']:5.2f} s (instantiate {r['instantiate']:.2f}, initialize "
                        f"{r['initialize']:.2f}, 10 steps {r['steps']:.2f}; process {wall:.2f} s; kernels compiled "
                        f"so far {compiled}{', announced' if 'compiling' in proc.stderr else ''}"
