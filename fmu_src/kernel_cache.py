@@ -13,10 +13,11 @@ extraction, so every process compiled the kernels again (35 s and more for the D
 Two places, one key.  :func:`install` puts one more cache locator in front of numba's
 (:class:`BundleLocator`).  It answers only for source files inside an FMU's ``resources/`` folder
 (recognized by pythonfmu's ``slavemodule.txt``).  Their *key* is the SHA-256 of the names and
-bytes of every ``.py`` file in the packages of that folder (its subfolders; the slave script at
-the top imports the kernels but holds none, so FMUs of one code that differ only in a start value
-share kernels): the same content finds its kernels wherever it is extracted, any change to a
-bundled module (a kernel inlines its callees from other files) gets a new key.  The key is also
+bytes of every ``.py`` file in the packages of that folder that hold kernels (``solver``,
+``dynamics``; not the slave script at the top, this runtime ``fmu_src`` or ``pythonfmu``: kernels
+never import them, so FMUs of one code that differ in a start value or in the runtime share
+kernels): the same content finds its kernels wherever it is extracted, any change to a module of
+those packages (a kernel inlines its callees from other files) gets a new key.  The key is also
 the index's source stamp, in place of numba's mtime and size, so extraction dates do not matter.
 
 1. *Shipped* (read only): ``resources/kernels/<folder inside resources>/``, numba's index and data
@@ -64,7 +65,7 @@ import weakref
 from pathlib import Path
 
 __all__ = ["install", "attach", "cache_root", "bundle_of", "bundle_key", "key_of", "shipped_problem", "manifest",
-           "BUNDLE_MARK", "SHIPPED", "MANIFEST", "GENERIC_CPU"]
+           "BUNDLE_MARK", "SHIPPED", "MANIFEST", "GENERIC_CPU", "NO_KERNELS"]
 
 #: the file pythonfmu writes at the top of an FMU's resources folder
 BUNDLE_MARK = "slavemodule.txt"
@@ -117,13 +118,17 @@ def bundle_of(py_file: str) -> str | None:
     return _BUNDLES[start]
 
 
+#: the packages of a bundle that hold no kernel and are left out of its key: this runtime, pythonfmu
+NO_KERNELS = ("fmu_src", "pythonfmu")
+
+
 def key_of(files) -> str:
     """The key of ``files``, ``(path relative to resources, bytes)`` pairs: SHA-256 (hex, 24 digits) of
-    the names and bytes of the ``.py`` files in subfolders (the packages; the slave script at the top
-    is left out, see the module docstring)."""
+    the names and bytes of the ``.py`` files of the packages that hold kernels (the slave script at the
+    top and the packages :data:`NO_KERNELS` are left out, see the module docstring)."""
     h = hashlib.sha256()
     for name, data in sorted(files):
-        if name.endswith(".py") and "/" in name:
+        if name.endswith(".py") and "/" in name and name.split("/")[0] not in NO_KERNELS:
             h.update(name.encode() + b"\0")
             h.update(data + b"\0")
     return h.hexdigest()[:24]
@@ -304,14 +309,12 @@ def _announce(resources: str, kernel: str) -> None:
                                             f"{shipped_problem(resources) or 'a signature the FMU did not ship'}")
 
 
-def _bundled_in_use(resources: str) -> bool:
-    """Whether a package of ``resources`` (other than the runtime) is the one this process imported."""
-    for name in ("solver", "dynamics"):
-        module = sys.modules.get(name)
-        if module is not None and os.path.abspath(getattr(module, "__file__", "") or "").startswith(
-                os.path.join(os.path.abspath(resources), "")):
-            return True
-    return False
+def _hosts_own_packages(resources: str) -> bool:
+    """Whether this process imported ``solver`` or ``dynamics`` from elsewhere than ``resources`` (the FMU
+    then runs those, with their own kernels, never its bundled ones)."""
+    inside = os.path.join(os.path.abspath(resources), "")
+    return any(not os.path.abspath(getattr(sys.modules[name], "__file__", None) or inside).startswith(inside)
+               for name in ("solver", "dynamics") if name in sys.modules)
 
 
 def attach(slave) -> None:
@@ -321,7 +324,7 @@ def attach(slave) -> None:
     if not resources:
         return
     _SLAVES.append(weakref.ref(slave))
-    problem = shipped_problem(resources) if _bundled_in_use(resources) else None
+    problem = None if _hosts_own_packages(resources) else shipped_problem(resources)
     if problem and (resources, None) not in _ANNOUNCED:
         _ANNOUNCED.add((resources, None))
         total = manifest(resources).get("total_seconds")
