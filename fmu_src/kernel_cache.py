@@ -309,6 +309,15 @@ def _announce(resources: str, kernel: str) -> None:
                                             f"{shipped_problem(resources) or 'a signature the FMU did not ship'}")
 
 
+def _has_kernel_packages(resources: str) -> bool:
+    """Whether the bundle in ``resources`` has a package that may hold kernels (not :data:`NO_KERNELS`)."""
+    try:
+        return any(e.is_dir() and e.name not in NO_KERNELS and os.path.isfile(os.path.join(e.path, "__init__.py"))
+                   for e in os.scandir(resources))
+    except OSError:
+        return False
+
+
 def _hosts_own_packages(resources: str) -> bool:
     """Whether this process imported ``solver`` or ``dynamics`` from elsewhere than ``resources`` (the FMU
     then runs those, with their own kernels, never its bundled ones)."""
@@ -323,8 +332,9 @@ def attach(slave) -> None:
     resources = getattr(slave, "resources", None)
     if not resources:
         return
-    _SLAVES.append(weakref.ref(slave))
-    problem = None if _hosts_own_packages(resources) else shipped_problem(resources)
+    _SLAVES[:] = [ref for ref in _SLAVES if ref() is not None] + [weakref.ref(slave)]
+    problem = (shipped_problem(resources) if _has_kernel_packages(resources)
+               and not _hosts_own_packages(resources) else None)
     if problem and (resources, None) not in _ANNOUNCED:
         _ANNOUNCED.add((resources, None))
         total = manifest(resources).get("total_seconds")

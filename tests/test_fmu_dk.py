@@ -305,6 +305,6 @@ def test_the_fmu_bundles_only_what_its_slave_imports(fmu):
     with zipfile.ZipFile(fmu) as z:
         packages = {n.split("/")[1] for n in z.namelist() if n.startswith("resources/") and n.count("/") > 1}
         names = set(z.namelist())
-    assert packages == {"fmu_src", "maps", "pythonfmu", "solver"}    # no dynamics
+    assert packages == {"fmu_src", "kernels", "maps", "pythonfmu", "solver"}    # no dynamics (kernels: compiled)
     assert "resources/fmu_src/table_slave.py" in names and "resources/cosim/fmus/packaging.py" not in names
     assert not {"resources/solver/__main__.py"} & names
