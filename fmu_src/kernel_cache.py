@@ -10,6 +10,13 @@ source (``__pycache__``) or, with ``NUMBA_CACHE_DIR``, in a folder named after t
 *directory path*, and stamps them with the source file's mtime and size: all new for every
 extraction, so every process compiled the kernels again (35 s and more for the DK FMU).
 
+What numba's cache keys on (numba 0.68, ``numba/core/caching.py``): one index file per function
+and Python version, ``<module>.<qualname>-<first line>.py<XY>.nbi``, and one data file per entry,
+``....<n>.nbc``, in the locator's folder; the index starts with numba's version (another version
+reads it as empty) and the locator's *source stamp* (numba's: the file's mtime and size; another
+stamp reads it as empty); each entry's key is (signature, the codegen's (target triple, CPU name,
+CPU features), SHA-256 of the function's bytecode and of its closure variables).
+
 Two places, one key.  :func:`install` puts one more cache locator in front of numba's
 (:class:`BundleLocator`).  It answers only for source files inside an FMU's ``resources/`` folder
 (recognized by pythonfmu's ``slavemodule.txt``).  Their *key* is the SHA-256 of the names and
