@@ -27,7 +27,6 @@ so a fresh generic cache gives the same kernels in other bytes.
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import hashlib
 import json
 import os
@@ -44,6 +43,11 @@ import numba
 
 from fmu_src.kernel_cache import GENERIC_CPU, MANIFEST, SHIPPED, key_of
 from solver import cache_dir
+
+try:
+    import fcntl                        # POSIX: builds of one user wait for each other's warm-up
+except ImportError:                     # pragma: no cover - Windows: no lock
+    fcntl = None
 
 __all__ = ["Run", "Scenario", "generic_root", "fmu_key", "shipped_kernels", "warm_up", "KernelBuildError"]
 
@@ -130,10 +134,11 @@ def generic_root() -> Path:
 def _extraction_folder(fmu: Path):
     """The one folder the warm-up extracts ``fmu`` into (its path ends up in the compiled code: a fixed
     one keeps builds byte-identical), held with a lock against a concurrent build."""
-    base = Path(tempfile.gettempdir()) / f"rrr-dk-warm-up-{os.getuid()}"
+    base = Path(tempfile.gettempdir()) / f"rrr-dk-warm-up-{getattr(os, 'getuid', lambda: 0)()}"
     base.mkdir(exist_ok=True)
     with open(base / f"{fmu.stem}.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
+        if fcntl is not None:
+            fcntl.flock(lock, fcntl.LOCK_EX)
         folder = base / fmu.stem
         shutil.rmtree(folder, ignore_errors=True)
         try:
