@@ -10,12 +10,11 @@ source (``__pycache__``) or, with ``NUMBA_CACHE_DIR``, in a folder named after t
 *directory path*, and stamps them with the source file's mtime and size: all new for every
 extraction, so every process compiled the kernels again (35 s and more for the DK FMU).
 
-What numba's cache keys on (numba 0.68, ``numba/core/caching.py``): one index file per function
-and Python version, ``<module>.<qualname>-<first line>.py<XY>.nbi``, and one data file per entry,
-``....<n>.nbc``, in the locator's folder; the index starts with numba's version (another version
-reads it as empty) and the locator's *source stamp* (numba's: the file's mtime and size; another
-stamp reads it as empty); each entry's key is (signature, the codegen's (target triple, CPU name,
-CPU features), SHA-256 of the function's bytecode and of its closure variables).
+What numba's cache keys on (numba 0.68, ``numba/core/caching.py``): one index per function and
+Python version (``<module>.<qualname>-<line>.py<XY>.nbi``, data in ``....<n>.nbc``); it starts with
+numba's version and the locator's *source stamp* (numba's: mtime and size; either differing reads
+as empty); an entry's key is (signature, the codegen's (target triple, CPU name, CPU features),
+SHA-256 of the function's bytecode and of its closure variables).
 
 Two places, one key.  :func:`install` puts one more cache locator in front of numba's
 (:class:`BundleLocator`).  It answers only for source files inside an FMU's ``resources/`` folder
@@ -49,7 +48,10 @@ an estimate (the manifest's build-time seconds) go to the log of the FMU instanc
 (:func:`attach`: pythonfmu's ``log``, the host's logger) and to the Python logger
 ``fmu_src.<ModelName>`` (stderr): ``compiling <kernel>, about N s``.  Only the outermost compile is
 announced (numba compiles the callees inside it).  :func:`attach` also says at instantiation when
-the shipped kernels cannot serve this process at all (other numba, Python or machine).
+the shipped kernels cannot serve this process at all (other numba, Python or machine).  pythonfmu
+hands an instance's log to the host when the FMI call returns: the instantiation's message reaches
+the host's logger before the calls that compile (kernels first run in initialization or a step);
+a single kernel's message comes with the call that compiled it (stderr has it at once).
 
 :func:`install` runs when :mod:`fmu_src.table_slave` is imported, before a slave imports its
 packages: if numba is already imported it patches it at once, otherwise when
@@ -318,11 +320,8 @@ def _announce(resources: str, kernel: str) -> None:
 
 def _has_kernel_packages(resources: str) -> bool:
     """Whether the bundle in ``resources`` has a package that may hold kernels (not :data:`NO_KERNELS`)."""
-    try:
-        return any(e.is_dir() and e.name not in NO_KERNELS and os.path.isfile(os.path.join(e.path, "__init__.py"))
-                   for e in os.scandir(resources))
-    except OSError:
-        return False
+    return any(os.path.isfile(os.path.join(resources, e, "__init__.py")) for e in os.listdir(resources)
+               if e not in NO_KERNELS)
 
 
 def _hosts_own_packages(resources: str) -> bool:
@@ -337,7 +336,7 @@ def attach(slave) -> None:
     """Send the compile announcements of ``slave``'s FMU to ``slave`` (a pythonfmu slave, weakly held),
     and say now if its shipped kernels cannot serve this process (called before ``setup()``)."""
     resources = getattr(slave, "resources", None)
-    if not resources:
+    if not resources or not os.path.isdir(resources):
         return
     _SLAVES[:] = [ref for ref in _SLAVES if ref() is not None] + [weakref.ref(slave)]
     problem = (shipped_problem(resources) if _has_kernel_packages(resources)
