@@ -257,14 +257,14 @@ def is_stale(name: str, fmu: Path) -> bool:
     return fmu.stat().st_mtime < max(p.stat().st_mtime for p in (script, *bundled, *build_code))
 
 
-#: What a first build of each FMU does, and about how long it takes (2 cores; the DK FMU's build took
-#: 55 s with its map built under load, the map alone 20 s on an idle machine and 52-88 s on a loaded
-#: one; the others 3 s): said when the build starts.
+#: What a first build of each FMU does, and about how long it takes (2 cores; the map alone 20 s on an
+#: idle machine and 52-88 s on a loaded one; the kernels the DK FMU ships 115-176 s, the others' 10-30 s,
+#: once per code version; a rebuild 3-8 s): said when the build starts.
 FIRST_BUILD = {
-    DK_NAME: "the first time it builds the map tensor (procedure 1) and compiles kernels: 1 to 2 min; "
-             "later builds reuse both",
-    "ComputedTorqueController": "a few seconds",
-    "RRRPlant": "a few seconds",
+    DK_NAME: "the first time it builds the map tensor (procedure 1) and compiles the kernels it ships: 2 to 5 "
+             "min; later builds reuse both",
+    "ComputedTorqueController": "the first time it compiles the kernels it ships: about 30 s; later a few seconds",
+    "RRRPlant": "the first time it compiles the kernels it ships: about 30 s; later a few seconds",
 }
 
 
