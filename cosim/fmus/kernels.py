@@ -42,7 +42,7 @@ from pathlib import Path
 import numba
 
 from fmu_src.kernel_cache import GENERIC_CPU, MANIFEST, SHIPPED, key_of
-from solver import cache_dir
+from solver import cache_dir, progress
 
 try:
     import fcntl                        # POSIX: builds of one user wait for each other's warm-up
@@ -188,7 +188,10 @@ def shipped_kernels(fmu: Path, scenario: Scenario, root: Path | None = None) -> 
     kept = folder / _KEPT
     record = json.loads(kept.read_text()) if kept.is_file() else {"seconds": {}, "warmed": []}
     if done not in record["warmed"]:
-        found = _run_child(Path(fmu), scenario, root)
+        total = sum(record["seconds"].values())
+        with progress.phase(f"compiling the kernels {Path(fmu).stem} ships (generic x86-64 CPU)",
+                            f"about {total:.0f} s" if total else "a first build: up to a few minutes, once per code"):
+            found = _run_child(Path(fmu), scenario, root)
         if found["key"] != key:
             raise KernelBuildError(f"{Path(fmu).name}: the warm-up ran key {found['key']}, the FMU's is {key}")
         record["seconds"].update({k: round(v, 1) for k, v in found["seconds"].items()})
