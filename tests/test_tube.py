@@ -38,6 +38,18 @@ def deviation(tube, X, q):
     return d
 
 
+def assert_holds_the_solution(model, tube, q):
+    """At joints ``q`` of the tube's joint set: the solution Newton finds from the predictor deviates by
+    at most kappa from it, and every other real DK solution lies outside the tube."""
+    p = np.empty(3)
+    predictor(tube, q, p)
+    X = newton(model, p, q)
+    assert np.all(np.abs(deviation(tube, X, q)) <= tube[TUBE_K:TUBE_K + 3])
+    for other in dk_all(model, q).real_poses():
+        if pose_distance(other, X) > 1e-9:
+            assert np.any(np.abs(deviation(tube, other, q)) >= tube[TUBE_R:TUBE_R + 3])
+
+
 @pytest.mark.parametrize("tol", [0.0, 1e-4, 1e-3])
 def test_the_tube_holds_the_solution_of_every_joint_vector_of_its_box(model, geo, rng, tol):
     """At random joints of the box: the solution Newton finds from the predictor deviates by at most
@@ -48,13 +60,7 @@ def test_the_tube_holds_the_solution_of_every_joint_vector_of_its_box(model, geo
     assert tube_test(X0.copy(), q0, np.full(3, tol), np.zeros(3), *geo, tube)
     assert np.all(tube[TUBE_K:TUBE_K + 3] < tube[TUBE_R:TUBE_R + 3])
     for q in q0 + tol * rng.uniform(-1, 1, (40, 3)):
-        p = np.empty(3)
-        predictor(tube, q, p)
-        X = newton(model, p, q)
-        assert np.all(np.abs(deviation(tube, X, q)) <= tube[TUBE_K:TUBE_K + 3])
-        for other in dk_all(model, q).real_poses():
-            if pose_distance(other, X) > 1e-9:
-                assert np.any(np.abs(deviation(tube, other, q)) >= tube[TUBE_R:TUBE_R + 3])
+        assert_holds_the_solution(model, tube, q)
 
 
 def test_handoff_needs_the_old_enclosure_inside_the_new_tube(model, geo):
@@ -131,13 +137,7 @@ def test_a_slab_tube_holds_the_solution_of_every_joint_vector_of_its_parallelepi
     for w in tw * rng.uniform(-1, 1, (40, 3)):
         q = q0 + V @ w
         assert in_slab(tube, q)
-        p = np.empty(3)
-        predictor(tube, q, p)
-        X = newton(model, p, q)
-        assert np.all(np.abs(deviation(tube, X, q)) <= tube[TUBE_K:TUBE_K + 3])
-        for other in dk_all(model, q).real_poses():
-            if pose_distance(other, X) > 1e-9:
-                assert np.any(np.abs(deviation(tube, other, q)) >= tube[TUBE_R:TUBE_R + 3])
+        assert_holds_the_solution(model, tube, q)
 
 
 def test_slabs_across_the_needle_hold_a_box_one_tube_cannot(model, geo, rng):

@@ -124,6 +124,28 @@ def in_region(X, region):
     return False
 
 
+@njit(cache=True, inline="always")
+def posture_misses(box, q, eps, posture_bits, M, l1, l2sq, b):
+    """No pose of ``box`` (6,) reaches ``q +- eps`` (3,) in posture ``posture_bits + 1``: some leg misses."""
+    for i in range(3):
+        sign = 1.0 - 2.0 * ((posture_bits >> i) & 1)
+        if leg_misses(box, i, sign, q[i] - eps, q[i] + eps, M, l1, l2sq, b):
+            return True
+    return False
+
+
+@njit(cache=True, inline="always")
+def bisect(stack, top, box, k):
+    """Push the two halves of ``box`` (6,) split across coordinate pair ``k`` (0, 2, 4) onto ``stack``
+    above ``top``; returns the new top."""
+    mid = 0.5 * (box[k] + box[k + 1])
+    stack[top, :] = box
+    stack[top, k + 1] = mid
+    stack[top + 1, :] = box
+    stack[top + 1, k] = mid
+    return top + 2
+
+
 @njit(cache=True)
 def posture_preimage_in(c, rho, q, eps, posture_bits, root, M, l1, l2sq, b, max_boxes):
     """Every pose in the region ``root`` with inverse kinematics (posture ``posture_bits + 1``)
@@ -148,24 +170,13 @@ def posture_preimage_in(c, rho, q, eps, posture_bits, root, M, l1, l2sq, b, max_
             return -seen
         if _inside(box, c, rho):
             continue
-        dropped = False
-        for i in range(3):
-            sign = 1.0 - 2.0 * ((posture_bits >> i) & 1)
-            if leg_misses(box, i, sign, q[i] - eps, q[i] + eps, M, l1, l2sq, b):
-                dropped = True
-                break
-        if dropped:
+        if posture_misses(box, q, eps, posture_bits, M, l1, l2sq, b):
             continue
         wx, wy, wp = box[1] - box[0], box[3] - box[2], (box[5] - box[4]) * scale_phi
         if max(wx, max(wy, wp)) < 1e-7 or top + 2 > 64:
             return -seen
         k = 0 if wx >= wy and wx >= wp else (2 if wy >= wp else 4)
-        mid = 0.5 * (box[k] + box[k + 1])
-        stack[top, :] = box
-        stack[top, k + 1] = mid
-        stack[top + 1, :] = box
-        stack[top + 1, k] = mid
-        top += 2
+        top = bisect(stack, top, box, k)
     return seen
 
 
@@ -191,13 +202,7 @@ def preimage_hull(q, eps, posture_bits, root, res, max_boxes, M, l1, l2sq, b, ou
         seen += 1
         if seen > max_boxes:
             return -seen
-        dropped = False
-        for i in range(3):
-            sign = 1.0 - 2.0 * ((posture_bits >> i) & 1)
-            if leg_misses(box, i, sign, q[i] - eps, q[i] + eps, M, l1, l2sq, b):
-                dropped = True
-                break
-        if dropped:
+        if posture_misses(box, q, eps, posture_bits, M, l1, l2sq, b):
             continue
         wx, wy, wp = box[1] - box[0], box[3] - box[2], box[5] - box[4]
         if (wx <= res[0] and wy <= res[0] and wp <= res[1]) or top + 2 > 64:
@@ -207,12 +212,7 @@ def preimage_hull(q, eps, posture_bits, root, res, max_boxes, M, l1, l2sq, b, ou
             continue
         nx, ny, nphi = wx / res[0], wy / res[0], wp / res[1]
         k = 0 if nx >= ny and nx >= nphi else (2 if ny >= nphi else 4)
-        mid = 0.5 * (box[k] + box[k + 1])
-        stack[top, :] = box
-        stack[top, k + 1] = mid
-        stack[top + 1, :] = box
-        stack[top + 1, k] = mid
-        top += 2
+        top = bisect(stack, top, box, k)
     return seen if kept > 0 else 0
 
 
