@@ -113,7 +113,8 @@ def test_master_omsimulator_order(fmus):
 
 def _run(*args, cwd):
     proc = subprocess.run([OMSIMULATOR, *map(str, args)], capture_output=True, text=True, cwd=cwd, timeout=900)
-    assert proc.returncode == 0, f"OMSimulator {' '.join(map(str, args))}: exit {proc.returncode}\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}"
+    assert proc.returncode == 0, (f"OMSimulator {' '.join(map(str, args))}: exit {proc.returncode}\n"
+                                  f"{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
     return proc
 
 

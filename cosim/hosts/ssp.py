@@ -39,8 +39,8 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping
 from xml.etree import ElementTree as ET
 
-__all__ = ["PARAMETER_SET", "OMS", "OMS_ANNOTATION_TYPE", "OMS_FIXED_STEP_MASTER", "SSPError", "SchemaUnavailable", "system_structure", "write_ssp",
-           "read_system_structure", "schema_problems"]
+__all__ = ["PARAMETER_SET", "OMS", "OMS_ANNOTATION_TYPE", "OMS_FIXED_STEP_MASTER", "SSPError", "SchemaUnavailable",
+           "system_structure", "write_ssp", "read_system_structure", "schema_problems"]
 
 SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"

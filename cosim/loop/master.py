@@ -31,10 +31,11 @@ plant gets ``tau_{k-1}``).
 ``order="omsimulator"``: OMSimulator's fixed-step master (``oms-ma``): the inputs are set along the
 connections in the data-flow order, each direct-feedthrough output read after its inputs are set,
 and then all instances step; so the controller sees the pose of ``q_k`` (the DK answers its
-fmi2GetReal for the new joints) but the plant gets ``tau_{k-1}`` (the controller's held torque).  Which input comes from which output is :data:`~cosim.loop.wiring.
-CONNECTIONS`, nothing else.  The ModelStructure of each FMU declares which outputs depend on which
-inputs (the DK pose on q1..q3; the plant's outputs on no input; the controller's held torque on no
-input at the communication point), so a master that sorts the graph finds no algebraic loop.
+fmi2GetReal for the new joints) but the plant gets ``tau_{k-1}`` (the controller's held torque).
+Which input comes from which output is :data:`~cosim.loop.wiring.CONNECTIONS`, nothing else.
+The ModelStructure of each FMU declares which outputs depend on which inputs (the DK pose on
+q1..q3; the plant's outputs on no input; the controller's held torque on no input at the
+communication point), so a master that sorts the graph finds no algebraic loop.
 
 Dynamics simulation (Fig. 3), :func:`simulate_fig3`
 --------------------------------------------------
