@@ -1,7 +1,7 @@
 """Cold start: ``python -m cosim`` from process start to exit, where its time goes, the
 first run of a batch worker, and the FMUs' own compiled kernels in a host without our packages.
 
-    python bench/bench_startup.py [--build-dir build] [--repeat 5] [--skip-compile]
+    python bench/bench_startup.py [--build-dir build] [--repeat 5] [--skip-compile] [--only-cold]
 
 The FMUs are built into ``--build-dir`` first if missing.  Every measurement runs in fresh
 processes (``sys.executable``, the environment of this one, so ``PYTHONPATH=<another tree>``
@@ -21,10 +21,14 @@ measures that tree); each figure is the median over ``--repeat`` processes.  Pri
    task's ``load_seconds``), the first-run warm-up (its ``init_seconds`` minus the second task's,
    as ``bench/bench_batch.py`` counts it; target: a few tenths of a second) and the whole
    start-up;
-4. (unless ``--skip-compile``) the DK FMU in a host that has not imported ``solver``, so the FMU
-   runs its bundled copy: ``fmpy.simulate_fmu`` of 10 steps in a fresh process with an empty
-   kernel cache (``NUMBA_CACHE_DIR`` = a new folder: numba compiles), then in a second and a third
-   fresh process (the kernels of that FMU content load from the cache);
+4. (unless ``--skip-compile``; ``--only-cold`` runs just this) the cold start of each FMU in a host
+   that has not imported ``solver`` (fmpy's ``FMU2Slave`` in a fresh process: extract into a new
+   folder, instantiate, initialize, 10 steps of 1 ms, timed inside): *cold* with empty caches
+   (``NUMBA_CACHE_DIR`` and ``RRR_DK_CACHE`` = new empty folders: a machine that never ran it; the
+   kernels come from the FMU's ``resources/kernels/``, :mod:`fmu_src.kernel_cache`), then *warm*
+   (a second process with those caches); with the kernels compiled here (index files written to
+   the caches: 0 when the FMU's own served every call) and whether the FMU announced a compile.
+   Target: cold within 5 s for each;
 5. (unless ``--skip-hosts``) each FMU's instantiate + initialize (setup, enter/exit initialization),
    timed inside fresh host processes that have not imported ``solver``: fmpy (``FMU2Slave``, Python
    in the process) and the C host of ``tests/test_c_host.py`` (no Python in the process: the FMU's
@@ -126,14 +130,25 @@ from cosim.unit import exit_process
 exit_process(0)
 """
 
-#: the DK FMU in a host without our packages (argv: the FMU)
-BARE_HOST = r"""
+#: an FMU's cold start in fmpy: extract, instantiate, initialize, 10 steps (argv: the FMU, extraction folder)
+COLD_FMU = r"""
 import sys, time, json
-import fmpy
 t0 = time.perf_counter()
-fmpy.simulate_fmu(sys.argv[1], stop_time=0.01, step_size=1e-3, output_interval=1e-3, fmi_type="CoSimulation")
-print("BARE " + json.dumps({"seconds": time.perf_counter() - t0, "bundled": "solver" not in sys.modules
-                            or "resources" in (sys.modules["solver"].__file__ or "")}))
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+md = read_model_description(sys.argv[1])
+fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(sys.argv[1], unzipdir=sys.argv[2]),
+                modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
+fmu.instantiate()
+t1 = time.perf_counter()
+fmu.setupExperiment(startTime=0.0); fmu.enterInitializationMode(); fmu.exitInitializationMode()
+t2 = time.perf_counter()
+for k in range(10):
+    fmu.doStep(k * 1e-3, 1e-3)
+t3 = time.perf_counter()
+solver = sys.modules.get("solver")
+print("COLD " + json.dumps({"instantiate": t1 - t0, "initialize": t2 - t1, "steps": t3 - t2, "total": t3 - t0,
+                            "bundled": solver is None or sys.argv[2] in (solver.__file__ or "")}))
 import os
 os._exit(0)
 """
@@ -229,6 +244,7 @@ def main(argv=None) -> int:
     ap.add_argument("--skip-compile", action="store_true", help="skip the cold kernel compilation (4.)")
     ap.add_argument("--skip-hosts", action="store_true", help="skip the fmpy and C host start-up (5.)")
     ap.add_argument("--only-hosts", action="store_true", help="only the fmpy and C host start-up (5.)")
+    ap.add_argument("--only-cold", action="store_true", help="only each FMU's cold start (4.)")
     args = ap.parse_args(argv)
     build = Path(args.build_dir).resolve()
     proc = subprocess.run([sys.executable, "-c", "import sys; from cosim import build_fmus; "
@@ -239,13 +255,15 @@ def main(argv=None) -> int:
     print(f"python {platform.python_version()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}; "
           f"FMUs in {build}; {args.repeat} fresh processes per figure (medians)")
     tmp = Path(tempfile.mkdtemp(prefix="bench_startup_"))
-    if not args.only_hosts:
+    if args.only_cold:
+        _cold_fmus(build, tmp)
+    elif not args.only_hosts:
         _command_walls(build, tmp, args.repeat)
         _cold_split(build, tmp, args.repeat)
         _worker_start(build, args.repeat)
         if not args.skip_compile:
-            _bare_host_compile(build, tmp)
-    if args.only_hosts or not args.skip_hosts:
+            _cold_fmus(build, tmp)
+    if not args.only_cold and (args.only_hosts or not args.skip_hosts):
         _host_starts(build, tmp, dict(os.environ))
     shutil.rmtree(tmp, ignore_errors=True)
     return 0
@@ -299,17 +317,31 @@ def _worker_start(build: Path, repeat: int) -> None:
           f"{w['imports'] + w['load'] + w['init1']:.2f} s (+ interpreter start)")
 
 
-def _bare_host_compile(build: Path, tmp: Path) -> None:
-    """4. The DK FMU's bundled kernels in a host without ``solver``: an empty numba cache, then warm."""
-    cache = tmp / "numba-cache"
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
-    dk = str(build / "RRRDirectKinematics.fmu")
-    runs = [_python(BARE_HOST, dk, env=env, marker="BARE") for _ in range(3)]
-    print(f"\n4. the DK FMU's bundled kernels, host without `solver` (fmpy.simulate_fmu, 10 steps, fresh "
-          f"processes, NUMBA_CACHE_DIR={cache}):")
-    for (r, wall), what in zip(runs, ("empty cache (compiles)", "second process", "third process")):
-        print(f"   {what:24s}: simulate_fmu {r['seconds']:6.2f} s, process {wall:6.2f} s"
-              f"{'' if r['bundled'] else '  (the FMU did not use its bundled solver!)'}")
+def _cold_fmus(build: Path, tmp: Path) -> None:
+    """4. Each FMU's instantiate + initialize + 10 steps in fmpy, empty caches (cold), then warm."""
+    print("\n4. cold start of each FMU in fmpy, host without `solver` (extract + instantiate + initialize + "
+          "10 steps, timed inside a fresh process; cold: NUMBA_CACHE_DIR and RRR_DK_CACHE new empty folders):")
+    for name in ("RRRDirectKinematics", "RRRPlant", "ComputedTorqueController"):
+        caches = tmp / f"cold-{name}"
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(caches / "numba"), RRR_DK_CACHE=str(caches / "rrr-dk"))
+        env.pop("PYTHONPATH", None)                  # the FMU's own packages, as in a host without ours
+        row = []
+        for run, what in enumerate(("cold", "warm")):
+            t0 = time.perf_counter()
+            proc = subprocess.run([sys.executable, "-c", COLD_FMU, str(build / f"{name}.fmu"),
+                                   str(caches / f"x{run}")], capture_output=True, text=True, env=env, cwd=_NEUTRAL)
+            wall = time.perf_counter() - t0
+            line = next((x for x in proc.stdout.splitlines() if x.startswith("COLD ")), None)
+            if line is None:
+                raise RuntimeError(f"{name}: the cold-start probe failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
+            r = json.loads(line[5:])
+            compiled = sum(1 for sub in ("numba", "rrr-dk") for _ in (caches / sub).rglob("*.nbi"))
+            row.append(f"{what} {r['total']:5.2f} s (instantiate {r['instantiate']:.2f}, initialize "
+                       f"{r['initialize']:.2f}, 10 steps {r['steps']:.2f}; process {wall:.2f} s; kernels compiled "
+                       f"so far {compiled}{', announced' if 'compiling' in proc.stderr else ''}"
+                       f"{'' if r['bundled'] else '; NOT the bundled solver'})")
+        cold = float(row[0].split()[1])
+        print(f"   {name:25s} {row[0]}\n   {'':25s} {row[1]}  [target cold < 5 s: {'meets' if cold < 5 else 'MISSES'}]")
 
 
 if __name__ == "__main__":

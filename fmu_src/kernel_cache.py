@@ -1,4 +1,4 @@
-"""Compiled kernels of an FMU's bundled packages, cached on disk by the FMU's content.
+"""Compiled kernels of an FMU's bundled packages: shipped in the FMU, cached on disk by its content.
 
 Part of the FMU runtime (bundled into every FMU): it imports the standard library only (numba is
 patched when it is imported, never imported here).
@@ -7,41 +7,90 @@ The problem.  An FMU carries its own copies of ``solver`` and ``dynamics`` under
 A host that has not imported those packages itself runs the copies, and every host extracts the
 FMU into a fresh temporary folder.  numba's ``cache=True`` keeps compiled kernels next to the
 source (``__pycache__``) or, with ``NUMBA_CACHE_DIR``, in a folder named after the source's
-*directory path*: both are new for every extraction, so every process (every batch worker, every
-``fmpy.simulate_fmu`` run) compiled the kernels again, seconds per FMU.
+*directory path*, and stamps them with the source file's mtime and size: all new for every
+extraction, so every process compiled the kernels again (35 s and more for the DK FMU).
 
-The cache.  :func:`install` puts one more cache locator in front of numba's
+What numba's cache keys on (numba 0.68, ``numba/core/caching.py``): one index per function and
+Python version (``<module>.<qualname>-<line>.py<XY>.nbi``, data in ``....<n>.nbc``); it starts with
+numba's version and the locator's *source stamp* (numba's: mtime and size; either differing reads
+as empty); an entry's key is (signature, the codegen's (target triple, CPU name, CPU features),
+SHA-256 of the function's bytecode and of its closure variables).
+
+Two places, one key.  :func:`install` puts one more cache locator in front of numba's
 (:class:`BundleLocator`).  It answers only for source files inside an FMU's ``resources/`` folder
-(recognized by pythonfmu's ``slavemodule.txt``) and keeps their kernels in
-``<root>/<key>/<folder inside resources>``, where ``key`` is the SHA-256 of every ``.py`` file of
-that ``resources/`` folder (names and bytes): the same FMU content finds its kernels wherever it
-is extracted, and any change to any bundled module (a kernel inlines its callees from other
-files) gets a new folder.  ``root`` is ``$NUMBA_CACHE_DIR`` if set, else ``fmu-kernels`` under the
-project's one cache root (the rule of :func:`solver.cache_dir`: ``$RRR_DK_CACHE``, else
-``$XDG_CACHE_HOME/rrr-dk``, else ``~/.cache/rrr-dk``; written out here because the runtime must not
-import :mod:`solver`, which imports numba, before numba is patched); if it cannot be
-written numba's own locators take over (compile per extraction, as before).  Source files outside
-FMUs are left to numba's locators.  Old keys are never deleted (a few MB each).
+(recognized by pythonfmu's ``slavemodule.txt``).  Their *key* is the SHA-256 of the names and
+bytes of every ``.py`` file in the packages of that folder that hold kernels (``solver``,
+``dynamics``; not the slave script at the top, this runtime ``fmu_src`` or ``pythonfmu``: kernels
+never import them, so FMUs of one code that differ in a start value or in the runtime share
+kernels): the same content finds its kernels wherever it is extracted, any change to a module of
+those packages (a kernel inlines its callees from other files) gets a new key.  The key is also
+the index's source stamp, in place of numba's mtime and size, so extraction dates do not matter.
+
+1. *Shipped* (read only): ``resources/kernels/<folder inside resources>/``, numba's index and data
+   files written at build time (:mod:`cosim.fmus.kernels`) by a process with
+   ``NUMBA_CPU_NAME=generic`` (machine code for any x86-64 CPU), and ``resources/kernels/
+   manifest.json`` (numba and Python versions, machine, key, compile seconds per kernel).  numba's
+   index keys an entry on the signature, the bytecode and the *codegen's* (target triple, CPU
+   name, CPU features); the host's CPU is not ``generic``, so a shipped entry is looked up with the
+   generic CPU in the key.  Generic code is plain x86-64 (what the CPU runs is the object code,
+   loaded as it is), so it runs on any x86-64 CPU, slower only by the vector extensions it does not use.
+2. *User cache* (written): ``<root>/<key>/<folder inside resources>``, ``root`` being
+   ``$NUMBA_CACHE_DIR`` if set, else ``fmu-kernels`` under the project's one cache root (the rule
+   of :func:`solver.cache_dir`: ``$RRR_DK_CACHE``, else ``$XDG_CACHE_HOME/rrr-dk``, else
+   ``~/.cache/rrr-dk``; written out here because the runtime must not import :mod:`solver`, which
+   imports numba, before numba is patched).  Kernels compiled on this machine (a signature or a
+   numba version the FMU did not ship) go there, for this CPU.  numba looks here first, then in the
+   shipped folder.  If the root cannot be written (another user's, a read-only home), a folder of
+   the process's own under the temporary folder takes its place (removed at exit).
+
+Compilation is announced.  A kernel found in neither place is compiled; before that, its name and
+an estimate (the manifest's build-time seconds) go to the log of the FMU instance that runs it
+(:func:`attach`: pythonfmu's ``log``, the host's logger) and to the Python logger
+``fmu_src.<ModelName>`` (stderr): ``compiling <kernel>, about N s``.  Only the outermost compile is
+announced (numba compiles the callees inside it).  :func:`attach` also says at instantiation when
+the shipped kernels cannot serve this process at all (other numba, Python or machine).  pythonfmu
+hands an instance's log to the host when the FMI call returns: the instantiation's message reaches
+the host's logger before the calls that compile (kernels first run in initialization or a step);
+a single kernel's message comes with the call that compiled it (stderr has it at once).
 
 :func:`install` runs when :mod:`fmu_src.table_slave` is imported, before a slave imports its
 packages: if numba is already imported it patches it at once, otherwise when
-``numba.core.caching`` is first imported (a ``sys.meta_path`` hook that removes itself).
+``numba.core.caching`` is first imported (a ``sys.meta_path`` hook that removes itself).  Source
+files outside FMUs are left to numba's locators.  Old keys are never deleted (a few MB each).
 """
 from __future__ import annotations
 
+import atexit
 import hashlib
 import importlib.abc
+import json
+import logging
 import os
+import platform
+import shutil
 import sys
+import tempfile
+import weakref
 from pathlib import Path
 
-__all__ = ["install", "cache_root", "bundle_of", "bundle_key", "BUNDLE_MARK"]
+__all__ = ["install", "attach", "cache_root", "bundle_of", "bundle_key", "key_of", "shipped_problem", "manifest",
+           "BUNDLE_MARK", "SHIPPED", "MANIFEST", "GENERIC_CPU", "NO_KERNELS"]
 
 #: the file pythonfmu writes at the top of an FMU's resources folder
 BUNDLE_MARK = "slavemodule.txt"
+#: the folder of the shipped kernels inside ``resources/`` and their manifest in it
+SHIPPED = "kernels"
+MANIFEST = "manifest.json"
+#: the CPU name the shipped kernels are compiled for (``NUMBA_CPU_NAME``; no CPU features)
+GENERIC_CPU = "generic"
 _MARKER = "_rrr_dk_bundle_locator"        # set on our locator class: installed once per process
 _KEYS: dict[str, str] = {}                # resources folder -> key (one hash per folder and process)
 _BUNDLES: dict[str, str | None] = {}      # source folder -> its resources folder (None: not in an FMU)
+_MANIFESTS: dict[str, dict] = {}          # resources folder -> its manifest ({} when none)
+_SLAVES: list = []                        # weak references to the attached slave instances
+_ANNOUNCED: set = set()                   # (resources, kernel) announced once per process
+_DEPTH = [0]                              # numba compilations in progress (callees compile inside)
+_SCRATCH: list[str] = []                  # this process's own writable folder, when the root is not
 
 
 def cache_root() -> Path:
@@ -78,17 +127,64 @@ def bundle_of(py_file: str) -> str | None:
     return _BUNDLES[start]
 
 
+#: the packages of a bundle that hold no kernel and are left out of its key: this runtime, pythonfmu
+NO_KERNELS = ("fmu_src", "pythonfmu")
+
+
+def key_of(files) -> str:
+    """The key of ``files``, ``(path relative to resources, bytes)`` pairs: SHA-256 (hex, 24 digits) of
+    the names and bytes of the ``.py`` files of the packages that hold kernels (the slave script at the
+    top and the packages :data:`NO_KERNELS` are left out, see the module docstring)."""
+    h = hashlib.sha256()
+    for name, data in sorted(files):
+        if name.endswith(".py") and "/" in name and name.split("/")[0] not in NO_KERNELS:
+            h.update(name.encode() + b"\0")
+            h.update(data + b"\0")
+    return h.hexdigest()[:24]
+
+
 def bundle_key(resources: str) -> str:
-    """SHA-256 (hex, 24 digits) of the names and bytes of every ``.py`` file under ``resources``."""
+    """The key (:func:`key_of`) of the FMU bundle in the folder ``resources`` (one hash per folder and process)."""
     key = _KEYS.get(resources)
     if key is None:
-        h = hashlib.sha256()
         base = Path(resources)
-        for path in sorted(base.rglob("*.py")):
-            h.update(path.relative_to(base).as_posix().encode() + b"\0")
-            h.update(path.read_bytes() + b"\0")
-        key = _KEYS[resources] = h.hexdigest()[:24]
+        key = _KEYS[resources] = key_of((p.relative_to(base).as_posix(), p.read_bytes()) for p in base.rglob("*.py"))
     return key
+
+
+def manifest(resources: str) -> dict:
+    """The manifest of the kernels shipped in ``resources`` (``{}`` when it has none or it is unreadable)."""
+    if resources not in _MANIFESTS:
+        try:
+            with open(os.path.join(resources, SHIPPED, MANIFEST), encoding="utf-8") as f:
+                _MANIFESTS[resources] = json.load(f)
+        except (OSError, ValueError):
+            _MANIFESTS[resources] = {}
+    return _MANIFESTS[resources]
+
+
+def shipped_problem(resources: str) -> str | None:
+    """Why the kernels shipped in ``resources`` cannot serve this process (None: they can)."""
+    info = manifest(resources)
+    if not info:
+        return "the FMU carries no compiled kernels"
+    numba = sys.modules.get("numba")
+    here = {"numba": getattr(numba, "__version__", info.get("numba")),
+            "python": "%d.%d" % sys.version_info[:2], "machine": platform.machine().lower()}
+    for what, value in here.items():
+        if info.get(what) != value:
+            return f"its compiled kernels are for {what} {info.get(what)}, this process has {value}"
+    if info.get("key") != bundle_key(resources):
+        return "its compiled kernels are for other code than the modules it carries"
+    return None
+
+
+def _scratch_root() -> str:
+    """This process's own cache folder under the temporary folder (made once, removed at exit)."""
+    if not _SCRATCH:
+        _SCRATCH.append(tempfile.mkdtemp(prefix="rrr-dk-kernels-"))
+        atexit.register(shutil.rmtree, _SCRATCH[0], True)
+    return _SCRATCH[0]
 
 
 def _locator_class(caching):
@@ -97,20 +193,20 @@ def _locator_class(caching):
     class BundleLocator(caching._CacheLocator):
         """numba cache locator for the modules of an FMU bundle (see the module docstring)."""
 
-        def __init__(self, py_func, py_file, resources):
-            self._py_file = py_file
+        def __init__(self, py_func, py_file, resources, root):
+            self.resources = resources
+            self.kernel = f"{py_func.__module__}.{py_func.__qualname__}"
             self._lineno = py_func.__code__.co_firstlineno
             self._key = bundle_key(resources)
             inside = os.path.relpath(os.path.dirname(os.path.abspath(py_file)), resources)
-            self._cache_path = str(cache_root() / self._key / inside)
+            self._cache_path = os.path.join(root, self._key, inside)
+            self.shipped = os.path.join(resources, SHIPPED, inside)
 
         def get_cache_path(self):
             return self._cache_path
 
         def get_source_stamp(self):
-            # the folder is already keyed by the bundle's content: the key is the stamp (numba's own
-            # stamp, mtime and size in older versions, changes with every extraction)
-            return self._key
+            return self._key                 # the content's key, not the extracted file's mtime
 
         def get_disambiguator(self):
             return str(self._lineno)
@@ -120,24 +216,137 @@ def _locator_class(caching):
             resources = bundle_of(py_file) if os.path.isfile(py_file) else None
             if resources is None:
                 return None
-            try:
-                self = cls(py_func, py_file, resources)
-                self.ensure_cache_path()
-            except OSError:
-                return None                  # not writable: numba's locators (in the extracted folder)
-            return self
+            for root in (lambda: str(cache_root()), _scratch_root):
+                try:
+                    self = cls(py_func, py_file, resources, root())
+                    self.ensure_cache_path()
+                    return self
+                except OSError:
+                    continue                 # not writable: the next place
+            return None                      # numba's locators (in the extracted folder)
 
     setattr(BundleLocator, _MARKER, True)
     return BundleLocator
 
 
+def _load_shipped(cache, caching, sig, target_context):
+    """The shipped entry of ``sig`` for ``cache`` (a numba ``Cache`` of a bundle kernel), or None."""
+    locator = cache._impl.locator
+    if not os.path.isdir(locator.shipped):
+        return None
+    sig_key, (triple, _cpu, _features), code = cache._index_key(sig, target_context.codegen())
+    files = caching.IndexDataCacheFile(cache_path=locator.shipped, filename_base=cache._impl.filename_base,
+                                       source_stamp=locator.get_source_stamp())
+    data = files.load((sig_key, (triple, GENERIC_CPU, ""), code))
+    return None if data is None else cache._impl.rebuild(target_context, data)
+
+
+def _patched_load(original, caching):
+    """numba's ``Cache._load_overload`` that also looks in the shipped folder and announces a compile."""
+
+    def _load_overload(self, sig, target_context):
+        data = original(self, sig, target_context)
+        locator = getattr(self._impl, "locator", None)
+        if data is not None or not getattr(locator, _MARKER, False) or not self._enabled:
+            return data
+        try:
+            data = _load_shipped(self, caching, sig, target_context)
+        except Exception:  # noqa: BLE001 - an unreadable shipped entry: compile, as without it
+            data = None
+        if data is None:
+            _announce(locator.resources, locator.kernel)
+        return data
+
+    _load_overload._rrr_dk_original = original
+    return _load_overload
+
+
 def _patch(caching) -> None:
     impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl", None)
-    if impl is None or not hasattr(caching, "_CacheLocator"):
+    if impl is None or not hasattr(caching, "_CacheLocator") or not hasattr(caching, "IndexDataCacheFile"):
         return                               # an unknown numba: its own locators
     classes = impl._locator_classes
-    if not any(getattr(c, _MARKER, False) for c in classes):
-        classes.insert(0, _locator_class(caching))
+    if any(getattr(c, _MARKER, False) for c in classes):
+        return
+    classes.insert(0, _locator_class(caching))
+    caching.Cache._load_overload = _patched_load(caching.Cache._load_overload, caching)
+    try:
+        from numba.core import event
+
+        class _CompileDepth(event.Listener):
+            """Counts the compilations in progress (:data:`_DEPTH`): callees compile inside a caller."""
+
+            def on_start(self, ev):
+                _DEPTH[0] += 1
+
+            def on_end(self, ev):
+                _DEPTH[0] -= 1
+
+        event.register("numba:compile", _CompileDepth())
+    except Exception:  # noqa: BLE001 - without it every compile (callees too) is announced
+        pass
+
+
+def _slave_for(resources: str):
+    """The live attached slave of ``resources`` (the latest), else the latest live one, else None."""
+    alive = [s for s in (ref() for ref in _SLAVES) if s is not None]
+    _SLAVES[:] = [weakref.ref(s) for s in alive]
+    same = [s for s in alive if getattr(s, "resources", None) == resources]
+    return (same or alive or [None])[-1]
+
+
+def _send(slave, resources: str, msg: str) -> None:
+    """``msg`` to the host's logger through the slave's pythonfmu log, and to the Python logger."""
+    name = type(slave).__name__ if slave is not None else os.path.basename(os.path.dirname(resources))
+    logging.getLogger(f"fmu_src.{name}").warning("%s", msg)
+    if slave is not None and hasattr(slave, "log"):
+        try:
+            slave.log(msg.replace("%", "%%"))
+        except Exception:  # noqa: BLE001 - a log must never fail the call
+            pass
+
+
+def _announce(resources: str, kernel: str) -> None:
+    """Say that ``kernel`` of the FMU in ``resources`` is compiled now (once; outermost compile only)."""
+    if _DEPTH[0] > 0 or (resources, kernel) in _ANNOUNCED:
+        return
+    _ANNOUNCED.add((resources, kernel))
+    info = manifest(resources)
+    seconds = info.get("seconds", {}).get(kernel) or info.get("total_seconds")
+    about = f"about {max(1, round(seconds))} s" if seconds else "about a minute (no estimate in the FMU)"
+    _send(_slave_for(resources), resources, f"compiling {kernel} (and the kernels it calls), {about}: "
+                                            f"{shipped_problem(resources) or 'a signature the FMU did not ship'}")
+
+
+def _has_kernel_packages(resources: str) -> bool:
+    """Whether the bundle in ``resources`` has a package that may hold kernels (not :data:`NO_KERNELS`)."""
+    return any(os.path.isfile(os.path.join(resources, e, "__init__.py")) for e in os.listdir(resources)
+               if e not in NO_KERNELS)
+
+
+def _hosts_own_packages(resources: str) -> bool:
+    """Whether this process imported ``solver`` or ``dynamics`` from elsewhere than ``resources`` (the FMU
+    then runs those, with their own kernels, never its bundled ones)."""
+    inside = os.path.join(os.path.abspath(resources), "")
+    return any(not os.path.abspath(getattr(sys.modules[name], "__file__", None) or inside).startswith(inside)
+               for name in ("solver", "dynamics") if name in sys.modules)
+
+
+def attach(slave) -> None:
+    """Send the compile announcements of ``slave``'s FMU to ``slave`` (a pythonfmu slave, weakly held),
+    and say now if its shipped kernels cannot serve this process (called before ``setup()``)."""
+    resources = getattr(slave, "resources", None)
+    if not resources or not os.path.isdir(resources):
+        return
+    _SLAVES[:] = [ref for ref in _SLAVES if ref() is not None] + [weakref.ref(slave)]
+    problem = (shipped_problem(resources) if _has_kernel_packages(resources)
+               and not _hosts_own_packages(resources) else None)
+    if problem and (resources, None) not in _ANNOUNCED:
+        _ANNOUNCED.add((resources, None))
+        total = manifest(resources).get("total_seconds")
+        about = f"about {max(1, round(total))} s" if total else "about a minute"
+        _send(slave, resources, f"{type(slave).__name__}: {problem}: compiling them at first use, {about} "
+                                f"(once; kept in {cache_root()})")
 
 
 class _PatchOnImport(importlib.abc.MetaPathFinder):

@@ -227,6 +227,7 @@ class TableSlave(FmiStates, StateHandling, ValueAccess, ValueChecks, Fmi2Slave):
         for v in cls._table:
             setattr(self, v.attr, _PY_TYPE[v.type](v.start) if v.start is not None else _PY_TYPE[v.type]())
             self.register_variable(self._make_variable(v), nested=False)
+        kernel_cache.attach(self)       # a kernel compiled now is announced in this instance's log
         self.setup()
 
     def _make_variable(self, v: Var):

@@ -6,6 +6,7 @@ patched); this holds it to the library's rule under each way of setting the root
 import pytest
 
 from cosim.batch import fmu_files
+from cosim.fmus import kernels
 from dynamics.control import gains_cache_file
 from fmu_src import kernel_cache
 from solver import CACHE_ENV, cache_dir
@@ -29,6 +30,7 @@ def test_every_cache_is_under_the_one_root(monkeypatch, tmp_path, setting):
     assert root == expected.resolve()
     assert default_cache_dir() == root / "maps"
     assert kernel_cache.cache_root() == root / "fmu-kernels"
+    assert kernels.generic_root() == root / "fmu-kernels-generic"      # the kernels the build ships
     assert fmu_files.cache_root() == root / "fmus"
     assert gains_cache_file() == root / "designed-gains.json"
 

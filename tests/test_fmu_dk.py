@@ -12,6 +12,7 @@ import io
 import json
 import logging
 import math
+import shutil
 import zipfile
 from pathlib import Path
 
@@ -22,7 +23,7 @@ from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import fmi2Discard, fmi2Error
 
-from cosim.fmus import builds, references
+from cosim.fmus import builds, kernels, references
 from cosim.fmus.checks import smoke_check, validate
 from cosim.fmus.cli import main as build_main
 from cosim.hosts.libcosim import LibcosimError, run_libcosim
@@ -122,7 +123,9 @@ def test_two_fresh_builds_are_byte_identical(built, tmp):
 
 def test_command_line(built, tmp, capsys, monkeypatch):
     out = tmp / "cli"
+    generic = kernels.generic_root()
     monkeypatch.setenv(CACHE_ENV, str(tmp / "cli_cache"))              # the CLI uses the one map cache
+    shutil.copytree(generic, kernels.generic_root())                    # and kernel cache: reused, not compiled
     cached = builds.map_cache_path(tmp / "maps", 1, RES, DEFAULT_RULE, MODEL)
     in_cache = builds.map_cache_path(None, 1, RES, DEFAULT_RULE, MODEL)
     assert in_cache.parent == cache_dir("maps")
@@ -308,6 +311,6 @@ def test_the_fmu_bundles_only_what_its_slave_imports(fmu):
     with zipfile.ZipFile(fmu) as z:
         packages = {n.split("/")[1] for n in z.namelist() if n.startswith("resources/") and n.count("/") > 1}
         names = set(z.namelist())
-    assert packages == {"fmu_src", "maps", "pythonfmu", "solver"}    # no dynamics
+    assert packages == {"fmu_src", "kernels", "maps", "pythonfmu", "solver"}    # no dynamics (kernels: compiled)
     assert "resources/fmu_src/table_slave.py" in names and "resources/cosim/fmus/packaging.py" not in names
     assert not {"resources/solver/__main__.py"} & names

@@ -12,7 +12,10 @@
 * ``RRRPlant`` and ``ComputedTorqueController`` (:func:`build_slave`): the slave and the ``solver``
   and ``dynamics`` modules it imports (the math only: never the master, the batch or dask).
 
-Every FMU bundles only what its slave imports (:func:`cosim.fmus.packaging.bundled_files`).
+Every FMU bundles only what its slave imports (:func:`cosim.fmus.packaging.bundled_files`) and, unless
+``kernels=False``, the kernels it calls compiled for a generic x86-64 CPU (:mod:`cosim.fmus.kernels`,
+warmed up along :func:`warm_up_scenario`: its reference run), so it starts in seconds in a host without
+our packages (:mod:`fmu_src.kernel_cache`).
 :func:`build_fmus` builds the stale ones of the three in child processes (``python -m
 cosim.fmus.cli``): a process that later runs FMUs must load each FMU only once, and a build imports
 the slave and builds maps.
@@ -39,12 +42,13 @@ from solver import progress as _progress
 from solver import DEFAULT_RULE, DEFAULT_STEP, ORDERING_RULES, Manipulator, MapTensor, cached_map, map_path
 
 from .checks import validate
+from .kernels import Run, Scenario, warm_up
 from .sources import LOADER_SOURCE, SLAVE_DIR, slave_readme, slave_script
 from .packaging import bundled_files, build_fmu
 
 __all__ = ["FMU_NAMES", "DK_NAME", "MODES", "DEFAULT_RESOLUTION", "BuildResult", "parse_resolution",
            "resolution_step", "map_cache_path", "build_dk", "build_slave", "build_fmus", "slave_script",
-           "project_packages", "is_stale"]
+           "project_packages", "is_stale", "warm_up_scenario"]
 
 #: The three FMUs, in the order of the closed loop's data flow (DK -> controller -> plant).
 FMU_NAMES = ("RRRDirectKinematics", "ComputedTorqueController", "RRRPlant")
@@ -160,14 +164,15 @@ def _dk_maps(model, postures, resolution, map_files, rule, cache_dir, progress, 
 
 def build_dk(out_dir="build", postures=(1,), resolution=DEFAULT_RESOLUTION, map_files=(), mode: str = "default",
              rule: str = DEFAULT_RULE, cache_dir=None, check: bool = True, progress: bool | None = None,
-             log=print) -> BuildResult:
+             log=print, kernels: bool = True) -> BuildResult:
     """Build ``<out_dir>/RRRDirectKinematics.fmu`` (see the module docstring).
 
     ``postures``: postures to embed, the first one is the start value of the parameter ``posture``;
     ``map_files``: map files to embed (their postures are added; a posture given twice is an error);
     postures without a given map use the map cache ``cache_dir`` (default: the project's one map cache,
     ``solver.cache_dir("maps")``, moved by ``$RRR_DK_CACHE``); ``progress``: a map build's progress
-    on stderr (None: the process default, :mod:`solver.progress`).
+    on stderr (None: the process default, :mod:`solver.progress`); ``kernels``: ship the compiled
+    kernels (:mod:`cosim.fmus.kernels`).
     """
     t0 = time.perf_counter()
     if mode not in MODES:
@@ -194,18 +199,46 @@ def build_dk(out_dir="build", postures=(1,), resolution=DEFAULT_RESOLUTION, map_
         manifest = tmp / "manifest.json"
         manifest.write_text(json.dumps({"model": DK_NAME, "maps": entries}, indent=1, sort_keys=True) + "\n")
         data_files["maps/manifest.json"] = manifest
+        scenario = warm_up(warm_up_scenario(DK_NAME, postures[0], mode)) if kernels else None
         fmu = build_fmu(script, out_dir, project_packages=project_packages(), data_files=data_files,
-                        documentation_dir=_stage_documentation(tmp), check=check)
+                        documentation_dir=_stage_documentation(tmp), check=check, kernels=scenario)
     problems = validate(fmu) if check else []
     return BuildResult(fmu, maps, postures[0], mode, time.perf_counter() - t0, map_seconds, problems)
 
 
 # ---------------------------------------------------------------------- the plant and the controller
-def build_slave(name: str, out_dir="build", check: bool = True) -> Path:
-    """Build ``<out_dir>/<name>.fmu`` of the plant or the controller (see the module docstring)."""
+def build_slave(name: str, out_dir="build", check: bool = True, kernels: bool = True) -> Path:
+    """Build ``<out_dir>/<name>.fmu`` of the plant or the controller (see the module docstring);
+    ``kernels``: ship the compiled kernels (:mod:`cosim.fmus.kernels`)."""
     if name not in FMU_NAMES or name == DK_NAME:
         raise ValueError(f"name: expected one of {[n for n in FMU_NAMES if n != DK_NAME]}, got {name!r}")
-    return build_fmu(slave_script(name), out_dir, project_packages=project_packages(), check=check)
+    return build_fmu(slave_script(name), out_dir, project_packages=project_packages(), check=check,
+                     kernels=warm_up(warm_up_scenario(name)) if kernels else None)
+
+
+# ---------------------------------------------------------------------- the warm-up of the shipped kernels
+def warm_up_scenario(name: str, posture: int = 1, mode: str = "default") -> Scenario:
+    """The runs that compile the kernels FMU ``name`` ships: its reference run (:mod:`cosim.fmus.references`;
+    the DK FMU's circle in ``posture``, in ``mode`` and a part of it in the other mode, or 10 steps from
+    its start values when the circle leaves that posture's tool space)."""
+    from . import references
+
+    if name != DK_NAME:
+        inputs, start, _ = references.RUNS[name]
+        t, signals = inputs()
+        return Scenario([Run(references.N, references.H, dict(start()),
+                             {k: v[:references.N] for k, v in signals.items()})])
+    h, n = references.REFERENCE["h"], references.REFERENCE["n"]
+    modes = [MODES.index(mode), 1 - MODES.index(mode)]
+    try:
+        q = references.circle_joints(n, posture)
+    except RuntimeError:
+        return Scenario([Run(10, h, {"mode": m}) for m in modes])
+    X0 = references.circle_path(n)[0]
+    start = {"x0": X0[0], "y0": X0[1], "phi0": X0[2], "posture": posture}
+    inputs = {f"q{j + 1}": q[:, j] for j in range(3)}
+    return Scenario([Run(n, h, {**start, "mode": modes[0]}, inputs),
+                     Run(n // 5, h, {**start, "mode": modes[1]}, {k: v[:n // 5] for k, v in inputs.items()})])
 
 
 # ---------------------------------------------------------------------- all three, as needed
@@ -220,18 +253,19 @@ def is_stale(name: str, fmu: Path) -> bool:
     bundled = bundled_files(script, packages).values()
     here = Path(__file__).resolve().parent
     build_code = (*LOADER_SOURCE.parent.glob("*.[ch]"), slave_readme(name), *(here / f for f in ("native.py", "packaging.py",
+                                                                          "kernels.py",
                                                                           "model_description.py", "builds.py")))
     return fmu.stat().st_mtime < max(p.stat().st_mtime for p in (script, *bundled, *build_code))
 
 
-#: What a first build of each FMU does, and about how long it takes (2 cores; the DK FMU's build took
-#: 55 s with its map built under load, the map alone 20 s on an idle machine and 52-88 s on a loaded
-#: one; the others 3 s): said when the build starts.
+#: What a first build of each FMU does, and about how long it takes (2 cores; the map alone 20 s on an
+#: idle machine and 52-88 s on a loaded one; the kernels the DK FMU ships 115-176 s, the others' 10-30 s,
+#: once per code version; a rebuild 3-8 s): said when the build starts.
 FIRST_BUILD = {
-    DK_NAME: "the first time it builds the map tensor (procedure 1) and compiles kernels: 1 to 2 min; "
-             "later builds reuse both",
-    "ComputedTorqueController": "a few seconds",
-    "RRRPlant": "a few seconds",
+    DK_NAME: "the first time it builds the map tensor (procedure 1) and compiles the kernels it ships: 2 to 5 "
+             "min; later builds reuse both",
+    "ComputedTorqueController": "the first time it compiles the kernels it ships: about 30 s; later a few seconds",
+    "RRRPlant": "the first time it compiles the kernels it ships: about 30 s; later a few seconds",
 }
 
 

@@ -41,7 +41,7 @@ import uuid
 import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 from fmu_src import requirements
 from .checks import validate
@@ -184,7 +184,8 @@ def build_fmu(script: str | os.PathLike, dest_dir: str | os.PathLike = ".", *,
               data_files: Mapping[str, str | os.PathLike] | None = None,
               documentation_dir: str | os.PathLike | None = None,
               can_serialize_state: bool = True,
-              check: bool = True) -> Path:
+              check: bool = True,
+              kernels: Callable[[Path], Mapping[str, bytes]] | None = None) -> Path:
     """Build ``<dest_dir>/<ModelName>.fmu`` from a :class:`TableSlave` script.
 
     ``project_packages``: package directories (e.g. ``solver``) whose modules the slave imports are
@@ -193,7 +194,9 @@ def build_fmu(script: str | os.PathLike, dest_dir: str | os.PathLike = ".", *,
     them under ``Path(self.resources) / key``.
     ``can_serialize_state``: sets canSerializeFMUstate (states are pickles, so they serialize).
     ``check``: validate the result and raise :class:`BuildError` on any problem.
-    Same inputs give a byte-identical FMU.
+    ``kernels``: given the built FMU, the entries to add to it (its compiled kernels,
+    :func:`cosim.fmus.kernels.warm_up`); the FMU is then written again with them.
+    Same inputs (and the same kernel cache) give a byte-identical FMU.
     """
     from pythonfmu import FmuBuilder
 
@@ -223,6 +226,8 @@ def build_fmu(script: str | os.PathLike, dest_dir: str | os.PathLike = ".", *,
                                        canGetAndSetFMUstate=True, canSerializeFMUstate=can_serialize_state)
         final = dest_dir / f"{module}.fmu"
         _postprocess(Path(raw), final, cls, can_serialize_state)
+        if kernels is not None:
+            _postprocess(Path(raw), final, cls, can_serialize_state, extra=kernels(final))
     if check:
         problems = validate(final)
         if problems:
@@ -345,9 +350,13 @@ def _check_instance(cls: type[TableSlave], resources: Path) -> None:
                          f"{type(exc).__name__}: {exc}") from exc
 
 
-def _postprocess(raw: Path, final: Path, cls: type[TableSlave], can_serialize_state: bool) -> None:
+def _postprocess(raw: Path, final: Path, cls: type[TableSlave], can_serialize_state: bool,
+                 extra: Mapping[str, bytes] | None = None) -> None:
     with zipfile.ZipFile(raw) as z:
         entries = {i.filename: z.read(i) for i in z.infolist() if not i.is_dir()}
+    if set(entries) & set(extra or {}):
+        raise BuildError(f"added entries collide with the FMU's: {sorted(set(entries) & set(extra))[:5]}")
+    entries.update(extra or {})
     try:
         cross_check(ET.fromstring(entries["modelDescription.xml"]), cls)
     except ModelDescriptionError as exc:

@@ -1,0 +1,215 @@
+"""The compiled kernels an FMU ships (host side, build time; the runtime half is :mod:`fmu_src.kernel_cache`).
+
+``build_fmu(..., kernels=warm_up(scenario))`` (:mod:`cosim.fmus.packaging`) builds the FMU, hands
+it to :func:`shipped_kernels` and builds it again with the entries returned:
+
+1. a child process (no project package imported, ``PYTHONPATH`` dropped: the FMU runs its bundled
+   copies, as in a host without them) with ``NUMBA_CPU_NAME=generic`` (machine code for any
+   x86-64 CPU, no CPU features) and ``NUMBA_CACHE_DIR`` = :func:`generic_root` extracts the FMU
+   and runs it through fmpy along the runs of a :class:`Scenario` (instantiate, initialize, the
+   steps; its reference run, so every kernel its slave calls on that path is compiled);
+2. the child's numba cache of the FMU's key (``<generic root>/<model>/<key>/``, :func:`fmu_src.kernel_cache.
+   bundle_key`) becomes ``resources/kernels/`` with ``resources/kernels/manifest.json``: numba and
+   Python versions, machine, key, and the compile seconds of each outermost kernel (what the
+   runtime quotes when it must compile one after all).
+
+The generic cache lives under the project's cache root (``cache_dir("fmu-kernels-generic")``), one
+folder per model (an FMU ships its own kernels, not those another FMU of the same code warmed up),
+keyed by the bundled code: a rebuild of unchanged code compiles nothing (the child loads every
+kernel) and ships the same bytes, and FMUs of one code that differ only in start values (the DK
+FMU's posture and mode) share it.  Beside it, ``warm-up.json`` keeps the compile seconds measured
+when each kernel was first compiled (a rebuild quotes them unchanged) and which scenarios (with the
+numba and Python versions) were run: a rebuild of the same code and scenario starts no child at all.
+The shipped bytes are those of the generic cache, so a build is byte-identical to the previous one
+while that cache is kept; numba writes object addresses and closure hashes into its cache files,
+so a fresh generic cache gives the same kernels in other bytes.
+"""
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numba
+
+from fmu_src.kernel_cache import GENERIC_CPU, MANIFEST, SHIPPED, key_of
+from solver import cache_dir, progress
+
+try:
+    import fcntl                        # POSIX: builds of one user wait for each other's warm-up
+except ImportError:                     # pragma: no cover - Windows: no lock
+    fcntl = None
+
+__all__ = ["Run", "Scenario", "generic_root", "fmu_key", "shipped_kernels", "warm_up", "KernelBuildError"]
+
+_KEPT = "warm-up.json"
+
+#: the child: runs the FMU (argv: FMU, scenario JSON, extraction folder) and prints what it compiled
+_CHILD = r"""
+import json, os, sys, time
+from numba.core import event
+
+SECONDS, DEPTH = {}, [0, 0.0]
+class Outermost(event.Listener):
+    def on_start(self, ev):
+        if DEPTH[0] == 0:
+            DEPTH[1] = time.perf_counter()
+        DEPTH[0] += 1
+    def on_end(self, ev):
+        DEPTH[0] -= 1
+        if DEPTH[0] == 0:
+            f = ev.data["dispatcher"].py_func
+            name = f"{f.__module__}.{f.__qualname__}"
+            SECONDS[name] = SECONDS.get(name, 0.0) + time.perf_counter() - DEPTH[1]
+event.register("numba:compile", Outermost())
+
+import numba, numpy as np
+from fmpy import extract, simulate_fmu
+folder = extract(sys.argv[1], unzipdir=sys.argv[3])
+with open(sys.argv[2]) as f:
+    runs = json.load(f)
+for run in runs:
+    names = sorted(run["inputs"])
+    table = None
+    if names:
+        t = np.arange(len(run["inputs"][names[0]])) * run["h"]
+        table = np.array(list(zip(t, *(run["inputs"][n] for n in names))),
+                         dtype=[("time", np.float64)] + [(n, np.float64) for n in names])
+    simulate_fmu(folder, stop_time=run["n"] * run["h"], step_size=run["h"], output_interval=run["h"],
+                 start_values=run["start"], input=table, fmi_type="CoSimulation")
+resources = os.path.join(folder, "resources")
+for name in ("solver", "dynamics"):
+    module = sys.modules.get(name)
+    if module is not None and not os.path.abspath(module.__file__).startswith(resources):
+        raise SystemExit(f"the warm-up ran the host's {name} ({module.__file__}), not the FMU's")
+cache = sys.modules["fmu_src.kernel_cache"]
+print("KERNELS " + json.dumps({"key": cache.bundle_key(resources), "seconds": SECONDS, "numba": numba.__version__,
+                               "python": "%d.%d" % sys.version_info[:2]}))
+sys.stdout.flush()
+os._exit(0)
+"""
+
+
+class KernelBuildError(RuntimeError):
+    """The warm-up run of an FMU failed; the message carries its output."""
+
+
+@dataclass
+class Run:
+    """One fmpy run of the warm-up: ``n`` steps of ``h`` s, start values, inputs ``{name: n values}``."""
+
+    n: int
+    h: float
+    start: dict = field(default_factory=dict)
+    inputs: dict = field(default_factory=dict)
+
+    def as_json(self) -> dict:
+        return {"n": int(self.n), "h": float(self.h), "start": {k: (v if isinstance(v, (int, bool)) else float(v))
+                                                                for k, v in self.start.items()},
+                "inputs": {k: [float(x) for x in v] for k, v in self.inputs.items()}}
+
+
+@dataclass
+class Scenario:
+    """The runs that call every kernel an FMU's slave uses (its reference run, at least)."""
+
+    runs: list[Run]
+
+
+def generic_root() -> Path:
+    """Where the warm-up keeps the generic kernels: ``cache_dir("fmu-kernels-generic")``."""
+    return cache_dir("fmu-kernels-generic")
+
+
+@contextlib.contextmanager
+def _extraction_folder(fmu: Path):
+    """The one folder the warm-up extracts ``fmu`` into (its path ends up in the compiled code: a fixed
+    one keeps builds byte-identical), held with a lock against a concurrent build."""
+    base = Path(tempfile.gettempdir()) / f"rrr-dk-warm-up-{getattr(os, 'getuid', lambda: 0)()}"
+    base.mkdir(exist_ok=True)
+    with open(base / f"{fmu.stem}.lock", "w") as lock:
+        if fcntl is not None:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+        folder = base / fmu.stem
+        shutil.rmtree(folder, ignore_errors=True)
+        try:
+            yield folder
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+def _run_child(fmu: Path, scenario: Scenario, root: Path) -> dict:
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CPU_FEATURES")}
+    env.update(NUMBA_CPU_NAME=GENERIC_CPU, NUMBA_CPU_FEATURES="", NUMBA_CACHE_DIR=str(root), PYTHONHASHSEED="0")
+    with tempfile.TemporaryDirectory(prefix="fmu_kernels_") as tmp, _extraction_folder(fmu) as folder:
+        runs = Path(tmp) / "runs.json"
+        runs.write_text(json.dumps([r.as_json() for r in scenario.runs]))
+        proc = subprocess.run([sys.executable, "-c", _CHILD, str(fmu), str(runs), str(folder)],
+                              capture_output=True, text=True, env=env, cwd=tmp)
+    for line in proc.stdout.splitlines():
+        if line.startswith("KERNELS "):
+            return json.loads(line[len("KERNELS "):])
+    raise KernelBuildError(f"the warm-up run of {fmu.name} failed (exit {proc.returncode}):\n"
+                           f"{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
+
+
+def fmu_key(fmu: Path) -> str:
+    """The kernel key of the FMU file ``fmu`` (:func:`fmu_src.kernel_cache.key_of` of its ``resources/``)."""
+    with zipfile.ZipFile(fmu) as z:
+        return key_of((i.filename[len("resources/"):], z.read(i)) for i in z.infolist()
+                      if i.filename.startswith("resources/") and i.filename.endswith(".py"))
+
+
+def _warmed(scenario: Scenario) -> str:
+    """What a warm-up of ``scenario`` compiles for: its runs, numba, Python, the generic CPU (a digest)."""
+    text = json.dumps([[r.as_json() for r in scenario.runs], numba.__version__, sys.version_info[:2], GENERIC_CPU])
+    return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+def shipped_kernels(fmu: Path, scenario: Scenario, root: Path | None = None) -> dict[str, bytes]:
+    """The entries ``{"resources/kernels/...": bytes}`` of the kernels ``fmu`` calls along ``scenario``,
+    compiled for a generic CPU, and their manifest (the module docstring).
+
+    ``root``: the generic kernel cache (default :func:`generic_root`).  The child runs only when
+    this key has not been warmed up along this scenario, numba and Python before (``warm-up.json``).
+    """
+    root = (Path(root) if root is not None else generic_root()) / Path(fmu).stem     # one FMU's kernels only
+    key, done = fmu_key(Path(fmu)), _warmed(scenario)
+    folder = root / key
+    kept = folder / _KEPT
+    record = json.loads(kept.read_text()) if kept.is_file() else {"seconds": {}, "warmed": []}
+    if done not in record["warmed"]:
+        total = sum(record["seconds"].values())
+        with progress.phase(f"compiling the kernels {Path(fmu).stem} ships (generic x86-64 CPU)",
+                            f"about {total:.0f} s" if total else "a first build: up to a few minutes, once per code"):
+            found = _run_child(Path(fmu), scenario, root)
+        if found["key"] != key:
+            raise KernelBuildError(f"{Path(fmu).name}: the warm-up ran key {found['key']}, the FMU's is {key}")
+        record["seconds"].update({k: round(v, 1) for k, v in found["seconds"].items()})
+        record["warmed"] = sorted({*record["warmed"], done})
+        folder.mkdir(parents=True, exist_ok=True)
+        kept.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
+    entries = {f"resources/{SHIPPED}/{p.relative_to(folder).as_posix()}": p.read_bytes()
+               for p in sorted(folder.rglob("*")) if p.suffix in (".nbi", ".nbc")}
+    if not entries:
+        raise KernelBuildError(f"the warm-up run of {Path(fmu).name} compiled no kernel into {folder}")
+    seconds = record["seconds"]
+    manifest = {"numba": numba.__version__, "python": "%d.%d" % sys.version_info[:2], "cpu": GENERIC_CPU,
+                "machine": platform.machine().lower(), "key": key, "seconds": seconds,
+                "total_seconds": round(sum(seconds.values()), 1)}
+    entries[f"resources/{SHIPPED}/{MANIFEST}"] = (json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode()
+    return entries
+
+
+def warm_up(scenario: Scenario, root: Path | None = None):
+    """The ``kernels`` argument of :func:`cosim.fmus.packaging.build_fmu` for ``scenario``."""
+    return lambda fmu: shipped_kernels(fmu, scenario, root)

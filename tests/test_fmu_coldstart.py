@@ -1,0 +1,218 @@
+"""Cold start: an FMU runs its first steps on a machine that never ran it without compiling a kernel.
+
+The FMUs ship their kernels compiled for a generic x86-64 CPU (``resources/kernels/``,
+:mod:`cosim.fmus.kernels`) and :mod:`fmu_src.kernel_cache` finds them wherever the FMU is extracted.
+Each check runs in a child process that has not imported ``solver`` (the FMU runs its own copy),
+with empty caches (``NUMBA_CACHE_DIR``, ``RRR_DK_CACHE``), and counts numba's compile events.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from cosim.fmus.kernels import fmu_key
+from fmu_src import kernel_cache
+from host_support import session_fmus
+
+NAMES = ("RRRDirectKinematics", "RRRPlant", "ComputedTorqueController")
+
+#: argv: FMU, extraction folder, (optional) manifest text to put in place of the shipped one.
+#: Prints the kernels numba compiled, the host log's messages and where ``solver`` came from.
+CHILD = textwrap.dedent(r"""
+    import json, os, stat, sys
+    from numba.core import event
+
+    compiled = []
+    class Compiles(event.Listener):
+        def on_start(self, ev):
+            f = ev.data["dispatcher"].py_func
+            compiled.append(f"{f.__module__}.{f.__qualname__}")
+        def on_end(self, ev):
+            pass
+    event.register("numba:compile", Compiles())
+
+    import fmpy
+    from ctypes import byref
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                           fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
+    from fmpy.logging import addLoggerProxy
+
+    path, folder = sys.argv[1], sys.argv[2]
+    md = read_model_description(path)
+    extract(path, unzipdir=folder)
+    if len(sys.argv) > 3:
+        with open(os.path.join(folder, "resources", "kernels", "manifest.json"), "w") as f:
+            f.write(sys.argv[3])
+    for root, dirs, files in os.walk(folder):          # a read-only extraction
+        for name in dirs + files:
+            p = os.path.join(root, name)
+            os.chmod(p, os.stat(p).st_mode & ~(stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH))
+    messages = []
+    def logger(_c, _i, status, _cat, message):
+        messages.append(message.decode("utf-8", "replace"))
+    callbacks = fmi2CallbackFunctions()
+    callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+    callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
+    callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
+    addLoggerProxy(byref(callbacks))
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                    instanceName="cold")
+    fmu.instantiate(callbacks=callbacks, loggingOn=True)
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    for k in range(10):
+        fmu.doStep(k * 1e-3, 1e-3)
+    solver = sys.modules.get("solver")
+    print("COLD " + json.dumps({"compiled": compiled, "messages": messages,
+                                "solver": getattr(solver, "__file__", None)}))
+    sys.stdout.flush()
+    os._exit(0)
+""")
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory):
+    return session_fmus(tmp_path_factory)
+
+
+def _cold(fmu: Path, tmp: Path, env_extra=None, manifest=None) -> tuple[dict, Path]:
+    """Run :data:`CHILD` on ``fmu`` with empty caches under ``tmp``; its report and the caches' folder."""
+    caches = tmp / "caches"
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CPU_NAME", "NUMBA_CPU_FEATURES")}
+    env.update({"NUMBA_CACHE_DIR": str(caches / "numba"), "RRR_DK_CACHE": str(caches / "rrr-dk"), **(env_extra or {})})
+    args = [sys.executable, "-c", CHILD, str(fmu), str(tmp / "extracted")] + ([manifest] if manifest else [])
+    proc = subprocess.run(args, capture_output=True, text=True, env=env, cwd=str(tmp), timeout=600)
+    line = next((x for x in proc.stdout.splitlines() if x.startswith("COLD ")), None)
+    assert line is not None, f"the child failed ({proc.returncode}):\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}"
+    report = json.loads(line[5:])
+    report["stderr"] = proc.stderr
+    return report, caches
+
+
+def _written(*folders: Path) -> list[str]:
+    """numba cache files in ``folders``, but those the FMU ships (``resources/kernels/``)."""
+    return sorted(str(p) for f in folders if f.exists() for p in f.rglob("*")
+                  if p.suffix in (".nbi", ".nbc") and "kernels" not in p.relative_to(f).parts[:2])
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_first_steps_compile_nothing_in_a_fresh_read_only_folder(fmus, tmp_path, name):
+    report, caches = _cold(fmus[name], tmp_path)
+    assert report["compiled"] == [], report["stderr"][-2000:]
+    assert "compiling" not in report["stderr"] and not any("compiling" in m for m in report["messages"])
+    assert _written(caches, tmp_path / "extracted") == []          # nothing compiled, nothing saved
+    if name == "RRRDirectKinematics":                               # it ran its own solver
+        assert report["solver"].startswith(str(tmp_path / "extracted"))
+
+
+def test_another_cpu_and_an_unwritable_cache_still_load_the_shipped_kernels(fmus, tmp_path):
+    """A process whose CPU is not this one's (another name in numba's key) and whose cache root
+    cannot be created (under a file) still loads every kernel from the FMU."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    env = {"NUMBA_CPU_NAME": "x86-64", "NUMBA_CACHE_DIR": str(blocker / "numba"),
+           "RRR_DK_CACHE": str(blocker / "rrr-dk")}
+    report, _ = _cold(fmus["RRRDirectKinematics"], tmp_path, env)
+    assert report["compiled"] == [], report["stderr"][-2000:]
+    assert _written(tmp_path / "extracted") == []
+
+
+def test_kernels_the_fmu_cannot_serve_are_announced_in_the_hosts_log(fmus, tmp_path):
+    """Shipped kernels for another numba: the instance says so at instantiation, through the host's logger."""
+    with zipfile.ZipFile(fmus["RRRPlant"]) as z:
+        manifest = json.loads(z.read("resources/kernels/manifest.json"))
+    report, _ = _cold(fmus["RRRPlant"], tmp_path, manifest=json.dumps({**manifest, "numba": "0.1.0"}))
+    said = [m for m in report["messages"] if "compiling" in m]
+    assert len(said) == 1 and "numba 0.1.0" in said[0] and "about" in said[0] and " s " in said[0], report["messages"]
+    assert "compiling" in report["stderr"]                          # and on the Python logger
+
+
+def test_what_the_fmu_carries(fmus):
+    """The kernels of its own code (its key), for the generic CPU, with their compile seconds; and the
+    size (with kernels: the DK FMU 5.3 MB, the others 1.1-1.5 MB; without, 0.43-0.54 MB)."""
+    for name in NAMES:
+        with zipfile.ZipFile(fmus[name]) as z:
+            names = z.namelist()
+            manifest = json.loads(z.read("resources/kernels/manifest.json"))
+        assert manifest["cpu"] == kernel_cache.GENERIC_CPU and manifest["key"] == fmu_key(fmus[name])
+        assert manifest["python"] == "%d.%d" % sys.version_info[:2] and manifest["total_seconds"] > 0
+        assert any(n.endswith(".nbi") for n in names) and any(n.endswith(".nbc") for n in names)
+        assert fmus[name].stat().st_size < (8 if name == "RRRDirectKinematics" else 3) * 2**20
+
+
+# ---------------------------------------------------------------------- the runtime's lookup, on a tiny bundle
+KERNEL = "from numba import njit\n\n@njit(cache=True)\ndef thrice(x):\n    return 3.0 * x\n"
+
+#: argv: resources folder; calls the bundle's kernel, prints the compiled kernels and the announcements
+TINY = textwrap.dedent(r"""
+    import json, logging, sys
+    from fmu_src import kernel_cache
+    kernel_cache.install()
+    from numba.core import event
+    compiled = []
+    class Compiles(event.Listener):
+        def on_start(self, ev):
+            compiled.append(ev.data["dispatcher"].py_func.__qualname__)
+        def on_end(self, ev):
+            pass
+    event.register("numba:compile", Compiles())
+    class Slave:                                   # what kernel_cache.attach needs of a pythonfmu slave
+        def __init__(self, resources):
+            self.resources, self.said = resources, []
+        def log(self, msg, *args):
+            self.said.append(msg)
+    slave = Slave(sys.argv[1])
+    kernel_cache.attach(slave)
+    sys.path.insert(0, sys.argv[1])
+    from pkg.kern import thrice
+    assert thrice(2.0) == 6.0
+    print("TINY " + json.dumps({"compiled": compiled, "said": slave.said}))
+""")
+
+
+def _tiny(resources: Path, tmp: Path, **env_extra) -> dict:
+    tmp.mkdir()
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp / "numba"), RRR_DK_CACHE=str(tmp / "rrr-dk"), **env_extra)
+    env["PYTHONPATH"] = str(Path(kernel_cache.__file__).resolve().parents[1])
+    proc = subprocess.run([sys.executable, "-c", TINY, str(resources)], capture_output=True, text=True, env=env,
+                          cwd=str(tmp), timeout=300)
+    line = next((x for x in proc.stdout.splitlines() if x.startswith("TINY ")), None)
+    assert line is not None, proc.stderr[-3000:]
+    return json.loads(line[5:])
+
+
+def test_a_generic_kernel_shipped_in_resources_is_loaded_and_a_missing_one_announced(tmp_path):
+    res = tmp_path / "resources"
+    (res / "pkg").mkdir(parents=True)
+    (res / "slavemodule.txt").write_text("Model")
+    (res / "pkg" / "__init__.py").write_text("")
+    (res / "pkg" / "kern.py").write_text(KERNEL)
+    first = _tiny(res, tmp_path / "build", NUMBA_CPU_NAME="generic")          # the build: a generic compile
+    assert first["compiled"] == ["thrice"]
+    # announced at instantiation (attach) and when the kernel is compiled
+    assert len(first["said"]) == 2 and all("no compiled kernels" in m for m in first["said"]), first["said"]
+    assert "compiling them at first use" in first["said"][0] and "compiling pkg.kern.thrice" in first["said"][1]
+    key = kernel_cache.bundle_key(str(res))
+    shipped = res / kernel_cache.SHIPPED / "pkg"
+    shipped.mkdir(parents=True)
+    for f in (tmp_path / "build" / "numba" / key / "pkg").iterdir():
+        f.rename(shipped / f.name)
+    info = {"numba": __import__("numba").__version__, "python": "%d.%d" % sys.version_info[:2],
+            "machine": __import__("platform").machine().lower(), "cpu": "generic", "key": key,
+            "seconds": {"pkg.kern.thrice": 7.0}, "total_seconds": 7.0}
+    (res / kernel_cache.SHIPPED / kernel_cache.MANIFEST).write_text(json.dumps(info))
+    loaded = _tiny(res, tmp_path / "host")                                      # this CPU, empty caches
+    assert loaded == {"compiled": [], "said": []}
+    (res / "pkg" / "kern.py").write_text(KERNEL.replace("3.0 * x", "3.0 * x + 0.0"))   # other code, other key
+    again = _tiny(res, tmp_path / "changed")
+    assert again["compiled"] == ["thrice"]
+    assert any("compiling pkg.kern.thrice" in m and "about 7 s" in m for m in again["said"]), again["said"]
