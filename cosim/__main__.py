@@ -22,7 +22,7 @@ from cosim.unit import exit_process
 
 from .loop.master import ClosedLoop
 from .loop.results import plot_closed_loop, write_csv
-from .loop.scenario import Scenario
+from .loop.scenario import ORDERS, Scenario
 from .hosts.system_files import write_closed_loop_ssp
 
 
@@ -42,8 +42,9 @@ def main(argv=None) -> int:
                     help=f"communication step of the master, s (default {Scenario.h:g})")
     ap.add_argument("--t-end", type=float, default=Scenario.t_end, metavar="SECONDS",
                     help=f"simulated time, s (default {Scenario.t_end:g})")
-    ap.add_argument("--order", default=Scenario.order, choices=("gauss-seidel", "jacobi"),
-                    help="master algorithm: gauss-seidel (DK, controller, plant in turn; default) or jacobi")
+    ap.add_argument("--order", default=Scenario.order, choices=ORDERS,
+                    help="master algorithm: gauss-seidel (DK, controller, plant in turn; default), jacobi, "
+                         "or omsimulator (OMSimulator's fixed-step master's order)")
     ap.add_argument("--plant-mass-scale", type=float, default=1.0, metavar="FACTOR",
                     help="factor on the plant's (the real robot's) default masses; the controller's model "
                          "keeps its own: a model error (default 1)")

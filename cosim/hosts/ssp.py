@@ -14,7 +14,13 @@
 * the ``ssd:Units`` the connectors use (from the FMUs' UnitDefinitions);
 * ``ssd:DefaultExperiment`` (start and stop time) with the communication step as an OSP annotation
   (``osp:Algorithm/osp:FixedStepAlgorithm baseStepSize``, libcosim's fixed-step master; Ecos takes
-  the step as an argument).
+  the step as an argument);
+* with a step, the system's OMSimulator annotation (``ssd:System/ssd:Annotations/ssc:Annotation
+  type="org.openmodelica"/oms:Annotations/oms:SimulationInformation/oms:FixedStepMaster
+  description="oms-ma" stepSize``): OMSimulator's command line takes the system's type (here a
+  weakly coupled system with its fixed-step master) only from that annotation and cannot import
+  the system without it.  It must be the system's first ``ssc:Annotation`` (OMSimulator reads only
+  that one).
 
 The element prefixes are ``ssd:``, ``ssc:``, ``ssv:`` exactly: Ecos matches element names with
 their prefix.  :func:`schema_problems` checks an SSD against the SSP 1.0 XML schemas
@@ -33,14 +39,21 @@ from pathlib import Path
 from typing import Any, Iterable, Mapping
 from xml.etree import ElementTree as ET
 
-__all__ = ["PARAMETER_SET", "SSPError", "SchemaUnavailable", "system_structure", "write_ssp",
-           "read_system_structure", "schema_problems"]
+__all__ = ["PARAMETER_SET", "OMS", "OMS_ANNOTATION_TYPE", "OMS_FIXED_STEP_MASTER", "SSPError", "SchemaUnavailable",
+           "system_structure", "write_ssp", "read_system_structure", "schema_problems"]
 
 SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
 SSV = "http://ssp-standard.org/SSP1/SystemStructureParameterValues"
 OSP = "http://opensimulationplatform.com/SSP/OSPAnnotations"
-_PREFIXES = {"ssd": SSD, "ssc": SSC, "ssv": SSV, "osp": OSP}
+#: Namespace of OMSimulator's vendor annotations (the one OMSimulator writes; it matches the
+#: ``oms:`` prefix, not the URI).
+OMS = "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd"
+#: ``ssc:Annotation type`` of OMSimulator's annotations.
+OMS_ANNOTATION_TYPE = "org.openmodelica"
+#: OMSimulator's name of its fixed-step master (a weakly coupled system's solver ``oms-ma``).
+OMS_FIXED_STEP_MASTER = "oms-ma"
+_PREFIXES = {"ssd": SSD, "ssc": SSC, "ssv": SSV, "osp": OSP, "oms": OMS}
 #: Name of the parameter set of start values (Ecos applies a set only by name: ``init(parameter_set=...)``).
 PARAMETER_SET = "initial"
 _KINDS = ("input", "output", "parameter", "calculatedParameter")
@@ -107,7 +120,8 @@ def system_structure(fmus: Mapping[str, Any], *, connections: Iterable[tuple[str
     start_time, stop_time : float
         ``ssd:DefaultExperiment``.
     step_size : float, optional
-        The communication step (annotation ``osp:FixedStepAlgorithm``).
+        The communication step, s (annotations ``osp:FixedStepAlgorithm`` of the default experiment
+        and ``oms:FixedStepMaster`` of the system).
     sources : {instance: source URI}, optional
         Default ``resources/<file name>``.
 
@@ -139,6 +153,8 @@ def system_structure(fmus: Mapping[str, Any], *, connections: Iterable[tuple[str
         for a, u, b, v in conns:
             ET.SubElement(node, _q("ssd", "Connection"),
                           {"startElement": a, "startConnector": u, "endElement": b, "endConnector": v})
+    if step_size is not None:
+        _omsimulator_annotation(system, step_size)
     if units_used:
         _units(root, units_used)
     _default_experiment(root, start_time, stop_time, step_size)
@@ -210,6 +226,16 @@ def _default_experiment(root, start_time: float, stop_time: float | None, step_s
         annotation = ET.SubElement(annotations, _q("ssc", "Annotation"), {"type": "com.opensimulationplatform"})
         algorithm = ET.SubElement(annotation, _q("osp", "Algorithm"))
         ET.SubElement(algorithm, _q("osp", "FixedStepAlgorithm"), {"baseStepSize": repr(float(step_size))})
+
+
+def _omsimulator_annotation(system, step_size: float) -> None:
+    """The system's OMSimulator annotation: a weakly coupled system stepped by OMSimulator's
+    fixed-step master at ``step_size`` s (``ssd:Annotations`` closes ``ssd:System``)."""
+    annotations = ET.SubElement(system, _q("ssd", "Annotations"))
+    annotation = ET.SubElement(annotations, _q("ssc", "Annotation"), {"type": OMS_ANNOTATION_TYPE})
+    info = ET.SubElement(ET.SubElement(annotation, _q("oms", "Annotations")), _q("oms", "SimulationInformation"))
+    ET.SubElement(info, _q("oms", "FixedStepMaster"),
+                  {"description": OMS_FIXED_STEP_MASTER, "stepSize": repr(float(step_size))})
 
 
 def _parameter_binding(comp, inst: str, variables: dict, values: Mapping[str, Any]) -> None:

@@ -51,7 +51,8 @@ def write_ssp_system(paths: dict, path, scenario: Scenario | None = None) -> Pat
     pose) as the parameter set :data:`cosim.hosts.ssp.PARAMETER_SET`; the default experiment is
     ``[0, t_end]`` at the step ``h`` (see :mod:`cosim.hosts.ssp`).  Ecos and libcosim step all FMUs
     from the same inputs and then move the outputs along the connections: the ``order="jacobi"``
-    scheme of :class:`cosim.ClosedLoop`.
+    scheme of :class:`cosim.ClosedLoop`; OMSimulator's command line (which needs the SSD's
+    ``oms:FixedStepMaster`` annotation and ``--stopTime``) runs the ``order="omsimulator"`` one.
     """
     sc = Scenario() if scenario is None else scenario
     return write_ssp(path, {inst: paths[name] for inst, name in INSTANCES.items()}, connections=CONNECTIONS,

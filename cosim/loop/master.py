@@ -27,10 +27,15 @@ controller's are copied from two; each step's output buffers are kept as rows an
 columns are built once at the end (:data:`SAMPLE_ROW`).
 ``order="jacobi"``: all inputs are set from the outputs available at ``t_k`` before any doStep,
 so the DK pose and the torque each lag one step (the controller sees the pose of ``q_{k-1}``, the
-plant gets ``tau_{k-1}``).  Which input comes from which output is :data:`~cosim.loop.wiring.
-CONNECTIONS`, nothing else.  The ModelStructure of each FMU declares which outputs depend on which
-inputs (the DK pose on q1..q3; the plant's outputs on no input; the controller's held torque on no
-input at the communication point), so a master that sorts the graph finds no algebraic loop.
+plant gets ``tau_{k-1}``).
+``order="omsimulator"``: OMSimulator's fixed-step master (``oms-ma``): the inputs are set along the
+connections in the data-flow order, each direct-feedthrough output read after its inputs are set,
+and then all instances step; so the controller sees the pose of ``q_k`` (the DK answers its
+fmi2GetReal for the new joints) but the plant gets ``tau_{k-1}`` (the controller's held torque).
+Which input comes from which output is :data:`~cosim.loop.wiring.CONNECTIONS`, nothing else.
+The ModelStructure of each FMU declares which outputs depend on which inputs (the DK pose on
+q1..q3; the plant's outputs on no input; the controller's held torque on no input at the
+communication point), so a master that sorts the graph finds no algebraic loop.
 
 Dynamics simulation (Fig. 3), :func:`simulate_fig3`
 --------------------------------------------------
@@ -232,7 +237,11 @@ class ClosedLoop:
 
         Per instance one fmi2SetReal (its connected inputs), fmi2DoStep and one fmi2GetReal (its Real
         outputs, into the ports' buffers), in the order of ``order``: "gauss-seidel" (DK, controller,
-        plant, each seeing the outputs of those before it) or "jacobi" (all inputs from time ``t``).
+        plant, each seeing the outputs of those before it), "jacobi" (all inputs from time ``t``) or
+        "omsimulator" (inputs set in the data-flow order, the DK's pose read for the new joints
+        before the controller's inputs are set, then all step: the controller sees the pose at ``t``,
+        the plant the torque held from ``t - h``; one more fmi2GetReal of the DK and of the
+        controller a step).
         """
         from fmpy.fmi2 import fmi2True
 
@@ -263,7 +272,20 @@ class ClosedLoop:
             ct_real()
             pl_real()
 
-        return gauss_seidel if order == "gauss-seidel" else jacobi
+        def omsimulator(t, h):
+            dk_set()
+            dk_real()
+            ct_set()
+            ct_real()
+            pl_set()
+            dk_step(t, h, fmi2True)
+            ct_step(t, h, fmi2True)
+            pl_step(t, h, fmi2True)
+            dk_real()
+            ct_real()
+            pl_real()
+
+        return {"gauss-seidel": gauss_seidel, "jacobi": jacobi, "omsimulator": omsimulator}[order]
 
     def _columns(self, kept: dict, t0: float, n: int, h: float, flags: bool) -> dict:
         """The result's columns (float64, :data:`COLUMNS` order) from the rows the run kept."""

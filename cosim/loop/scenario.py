@@ -7,7 +7,10 @@ import numpy as np
 
 from solver import PAPER_CIRCLE
 
-__all__ = ["Scenario"]
+__all__ = ["ORDERS", "Scenario"]
+
+#: The master algorithms of :meth:`cosim.ClosedLoop.run` (see :mod:`cosim.loop.master`).
+ORDERS = ("gauss-seidel", "jacobi", "omsimulator")
 
 
 @dataclass(frozen=True)
@@ -22,7 +25,7 @@ class Scenario:
         Simulated time, s.
     h : float
         Communication (and control) step, s.
-    order : {"gauss-seidel", "jacobi"}
+    order : {"gauss-seidel", "jacobi", "omsimulator"}
         Master algorithm (see :mod:`cosim.loop.master`).
     posture : int
         Posture of the robot, its DK map and its reference.
@@ -56,8 +59,8 @@ class Scenario:
     plant_substeps: int = 1
 
     def __post_init__(self):
-        if self.order not in ("gauss-seidel", "jacobi"):
-            raise ValueError(f"order: expected 'gauss-seidel' or 'jacobi', got {self.order!r}")
+        if self.order not in ORDERS:
+            raise ValueError(f"order: expected one of {ORDERS}, got {self.order!r}")
         if self.tracker_mode not in ("default", "paper"):
             raise ValueError(f"tracker_mode: expected 'default' or 'paper', got {self.tracker_mode!r}")
         for key in ("t_end", "h", "bandwidth", "damping", "plant_mass_scale", "controller_mass_scale",
