@@ -58,12 +58,26 @@ def table(header, rows) -> str:
     return "\n".join(lines)
 
 
+def _settings(args: list[str]) -> list[str]:
+    """The arguments without ``--out DIR`` / ``--out=DIR``: where a run writes is not how it ran (and a
+    scratch folder's path means nothing to a reader)."""
+    out, skip = [], False
+    for a in args:
+        if skip:
+            skip = False
+        elif a == "--out":
+            skip = True
+        elif not a.startswith("--out="):
+            out.append(a)
+    return out
+
+
 def provenance(command: str | None = None, when: datetime.datetime | None = None) -> str:
     """One line: the command, the UTC date and the machine it ran on (with its load average)."""
     if command is None:
         script = Path(sys.argv[0])
         rel = f"bench/{script.name}" if script.parent.name == "bench" else script.name
-        command = " ".join(["python", rel, *sys.argv[1:]])
+        command = " ".join(["python", rel, *_settings(sys.argv[1:])])
     when = when or datetime.datetime.now(datetime.timezone.utc)
     try:
         import numpy
