@@ -261,10 +261,7 @@ class ClosedLoop:
             pl_step(t, h, fmi2True)
             pl_real()
 
-        def jacobi(t, h):
-            dk_set()
-            ct_set()
-            pl_set()
+        def step_all(t, h):                     # every FMU steps from t, then every output is read
             dk_step(t, h, fmi2True)
             ct_step(t, h, fmi2True)
             pl_step(t, h, fmi2True)
@@ -272,18 +269,19 @@ class ClosedLoop:
             ct_real()
             pl_real()
 
+        def jacobi(t, h):
+            dk_set()
+            ct_set()
+            pl_set()
+            step_all(t, h)
+
         def omsimulator(t, h):
             dk_set()
             dk_real()
             ct_set()
             ct_real()
             pl_set()
-            dk_step(t, h, fmi2True)
-            ct_step(t, h, fmi2True)
-            pl_step(t, h, fmi2True)
-            dk_real()
-            ct_real()
-            pl_real()
+            step_all(t, h)
 
         return {"gauss-seidel": gauss_seidel, "jacobi": jacobi, "omsimulator": omsimulator}[order]
 

@@ -153,7 +153,7 @@ def region_step(state, qu, params, model_pack, out):
 
 @njit(cache=True, inline="always")
 def tube_step(state, work, poses, real, tol, model_pack, tubes):
-    """The tube chain (:func:`.tube.tube_chain`) over this step's joints from the last step's cover
+    """The tube chain (:func:`.tube_chain.tube_chain`) over this step's joints from the last step's cover
     (state pack), into ``tubes`` (MAX_COVER, TUBE_SIZE).  Returns (the index of the real DK solution
     that is the cover's solution at the measured joints, or -1 when the chain did not close; the
     number of tubes of the new cover)."""

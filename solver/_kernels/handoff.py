@@ -66,7 +66,8 @@ def meeting(a, b_, qm, U, h):
         w[n] = 0.5 * (lo + hi)
         h[n] = max(0.5 * (hi - lo), 0.0) + pad
     for m in range(3):
-        qm[m] = b_[TUBE_Q + m] + b_[TUBE_V + 3 * m] * w[0] + b_[TUBE_V + 3 * m + 1] * w[1] + b_[TUBE_V + 3 * m + 2] * w[2]
+        qm[m] = (b_[TUBE_Q + m] + b_[TUBE_V + 3 * m] * w[0] + b_[TUBE_V + 3 * m + 1] * w[1]
+                 + b_[TUBE_V + 3 * m + 2] * w[2])
         for n in range(3):
             U[m, n] = b_[TUBE_V + 3 * m + n]
     return True

@@ -23,8 +23,8 @@ from numba import njit
 from .krawczyk import PAD
 from .linalg import wrap
 from .handoff import tested_takeover
-from .tube import (MATCH_PAD, SLACK, TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_T, TUBE_V, TUBE_W, TUBE_X, lin_bound,
-                   predictor)
+from .tube import (MATCH_PAD, SLACK, TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_T, TUBE_V, TUBE_W, TUBE_X,
+                   lin_bound, predictor)
 
 #: Tubes of the reading's own box, each taking over from the last, that tighten its bound.
 REFINE = 6
