@@ -18,8 +18,14 @@ wrap and the 3x3 algebra are the solver's kinematics core (:mod:`solver._kernels
 
 Every kernel refuses instead of raising: it returns :data:`.layout.OK` (0) or a refusal code
 (:func:`.layout.refusal`: the status and the index of the refused row, step or phase), and the
-Python caller raises :class:`dynamics.DynamicsError`.  numba caches the machine code next to each
-file and checks only that file's time stamp: after editing one kernel file (here or in the
-solver's core), delete ``dynamics/_kernels/__pycache__`` and ``solver/_kernels/__pycache__`` so
-that the files that call it are recompiled too.
+Python caller raises :class:`dynamics.DynamicsError`.  numba caches the machine code; its stamp is
+the content of every module here and in ``solver/_kernels`` (:mod:`solver._kernels.cache_stamp`),
+so a change to any of them recompiles these kernels once.
 """
+import os as _os
+
+import solver._kernels as _solver_kernels
+from solver._kernels.cache_stamp import stamp_by_content as _stamp_by_content
+
+_stamp_by_content(_os.path.dirname(_os.path.abspath(__file__)),
+                  depends_on=(_os.path.dirname(_os.path.abspath(_solver_kernels.__file__)),))

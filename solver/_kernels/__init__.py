@@ -25,8 +25,13 @@ into flat float arrays whose fields are read through the named offsets of :mod:`
 - :mod:`.tracker`, :mod:`.baselines`: one step of procedure 3, as phases (gate, solve, predict,
   choose, certify, speed gate, publish), and one step of each baseline.
 
-All kernels are compiled on first use and cached by numba next to their source (``__pycache__``).
-numba checks only the defining file's time stamp: after editing a module whose kernels others
-inline (this core, the packs' offsets), delete ``solver/_kernels/__pycache__`` and
-``dynamics/_kernels/__pycache__``.
+All kernels are compiled on first use and cached by numba (next to their source in
+``__pycache__``, or under ``$NUMBA_CACHE_DIR``).  :mod:`.cache_stamp` stamps the cache with the
+content of every module here, not only the defining file's: a kernel inlines the core and the
+packs' offsets from other files, so any change here recompiles every kernel once.
 """
+import os as _os
+
+from .cache_stamp import stamp_by_content as _stamp_by_content
+
+_stamp_by_content(_os.path.dirname(_os.path.abspath(__file__)))
