@@ -1,0 +1,69 @@
+"""RRRDirectKinematics3: the DK FMU of the planar 3-RRR for FMI 3.0 Co-Simulation (pythonfmu3).
+
+Joint angles in as the array ``q`` (Float64[3], rad), platform pose out as the array ``pose``
+(Float64[3]: x, y in m, phi in rad): the FMI 2.0 slave :class:`RRRDirectKinematics` (the tracker on
+the embedded map tensors) behind :class:`fmu_src.fmi3_adapter.Fmi3Adapter`, so both FMUs run the same
+slave logic and state.  Variables, FMI 3.0 features used and not used: ``fmu_src/RRRDirectKinematics3.md``
+(also ``documentation/index.md`` inside the FMU).  Built by ``python build_fmu.py --fmi 3``.
+
+Module-level code: imports and the class (pythonfmu3's C wrapper imports this module by name and
+finds the class by the text ``class <name>(... Fmi3Slave)``).
+"""
+# first: a host without the packages this FMU imports learns which and how to install them
+from fmu_src.requirements import require
+
+require(__file__)
+
+# fmu_src may already be imported from another FMU's resources (the FMI 2.0 DK FMU bundles no FMI 3.0
+# module): look in this FMU's copy too, after that one
+import fmu_src
+from pathlib import Path
+
+if str(Path(__file__).with_name("fmu_src")) not in fmu_src.__path__:
+    fmu_src.__path__.append(str(Path(__file__).with_name("fmu_src")))
+
+from pythonfmu3 import Fmi3Slave
+
+from fmu_src.RRRDirectKinematics import RRRDirectKinematics
+from fmu_src.fmi3_adapter import Fmi3Adapter, Row3
+
+_WHY = {v.name: v.description for v in RRRDirectKinematics._table}
+
+
+def _row(name, kind, causality, unit=None):
+    """A scalar row of the FMI 2.0 variable ``name`` (its description)."""
+    return Row3(name, kind, causality, (name,), unit, _WHY[name])
+
+
+class RRRDirectKinematics3(Fmi3Adapter, Fmi3Slave):
+    """Direct kinematics of the 3-RRR (paper Table 1) by the basic-regions tracker, FMI 3.0 arrays."""
+
+    CORE = RRRDirectKinematics
+    ROWS = (
+        Row3("time", "Float64", "independent", description="simulation time"),
+        Row3("q", "Float64", "input", ("q1", "q2", "q3"), "rad",
+             "motor angles theta_1..theta_3 of legs 1..3 (from +x)"),
+        Row3("pose0", "Float64", "parameter", ("x0", "y0", "phi0"), None,
+             "initial pose: x, y of the platform centre (m), orientation phi (rad)"),
+        _row("posture", "Int32", "parameter"),
+        _row("mode", "Int32", "parameter"),
+        _row("joint_tolerance", "Float64", "parameter", "rad"),
+        _row("speed_bound_linear", "Float64", "parameter", "m/s"),
+        _row("speed_bound_angular", "Float64", "parameter", "rad/s"),
+        _row("stuck_after", "Int32", "parameter"),
+        _row("start_tolerance_linear", "Float64", "parameter", "m"),
+        _row("start_tolerance_angular", "Float64", "parameter", "rad"),
+        Row3("pose", "Float64", "output", ("x", "y", "phi"), None,
+             "platform pose: x, y of the platform centre (m), orientation phi (rad) wrapped to (-pi, pi]"),
+        _row("region", "Int32", "output"),
+        _row("near_border", "Boolean", "output"),
+        _row("n_real", "Int32", "output"),
+        _row("ambiguous", "Boolean", "output"),
+        _row("status", "Int32", "output"),
+        _row("cond", "Float64", "output", "1"),
+        _row("certain", "Boolean", "output"),
+        _row("uncertain_since", "Float64", "output", "s"),
+        Row3("pose_bound", "Float64", "output", ("x_bound", "y_bound", "phi_bound"), None,
+             "half-widths of a proven box about the pose: x, y (m), phi (rad); -1 each: no bound (not certain)"),
+        _row("trust", "Int32", "output"),
+    )

@@ -1,0 +1,253 @@
+"""An FMI 3.0 Co-Simulation face for a table slave: the mixin :class:`Fmi3Adapter` (pythonfmu3).
+
+Part of the runtime of the FMI 3.0 FMUs (bundled into them, never into an FMI 2.0 FMU): it imports
+the standard library, pythonfmu3 and the table slave it wraps.  The FMI 3.0 slave holds one instance
+of an FMI 2.0 :class:`fmu_src.table_slave.TableSlave` class, its *core*, made in process (no FMI 2.0
+host): every FMI 3.0 call becomes the core's call of the same meaning, so the two FMUs share the
+slave logic, its state and its state table, not a copy::
+
+    class RRRDirectKinematics3(Fmi3Adapter, Fmi3Slave):
+        CORE = RRRDirectKinematics
+        ROWS = (Row3("time", "Float64", "independent"),
+                Row3("q", "Float64", "input", core=("q1", "q2", "q3"), unit="rad"), ...)
+
+A :class:`Row3` is one FMI 3.0 variable, made of one core variable (a scalar) or several (an array
+of dimension ``len(core)``, in that order); ``time`` (causality independent, which fmpy's
+validation asks for) reads the core's time.  Value references are the row numbers.
+
+What maps to what.  ``fmi3SetFloat64/Int32/Boolean`` set the core's values of the rows' core
+variables in one ``set_real``/``set_integer``/``set_boolean`` of the core (its checks, its
+staleness of direct-feedthrough outputs, its refusals); ``fmi3Get*`` likewise.  The array values
+are taken from the flat list the C wrapper passes: pythonfmu3's own array setter
+(``np.reshape(v, newshape=...)``, a keyword numpy 2.4 removed) is never called.  Enter/exit
+initialization, doStep, terminate and the FMU state go to the core; the core's log messages are
+handed on to pythonfmu3's log queue with their status after every call.  ``do_step`` answers
+fmi3OK, fmi3Discard (the core refused the step and rolled it back) or fmi3Error (a doStep the FMI
+state table forbids): pythonfmu3's wrapper returns the status it is given.  pythonfmu3's wrapper
+returns fmi3OK after every other call that does not raise (an exception is fmi3Fatal), so a set
+or get the core refuses changes nothing and is logged with status fmi3Error, but returns fmi3OK.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar
+
+from pythonfmu3 import Boolean, Float64, Int32
+from pythonfmu3.enums import Fmi3Causality, Fmi3Initial, Fmi3Status, Fmi3Variability
+from pythonfmu3.fmi3slave import Fmi3StepResult
+from pythonfmu3.variables import Dimension
+
+__all__ = ["Row3", "Fmi3Adapter", "Fmi3TableError"]
+
+_CORE_TYPE = {"Float64": "Real", "Int32": "Integer", "Boolean": "Boolean"}
+_CLASS = {"Float64": Float64, "Int32": Int32, "Boolean": Boolean}
+_OK, _DISCARD, _ERROR = (Fmi3StepResult(status=s) for s in (Fmi3Status.ok, Fmi3Status.discard, Fmi3Status.error))
+
+
+class Fmi3TableError(ValueError):
+    """A row of an FMI 3.0 adapter names no core variable of its type, or breaks a rule of this module."""
+
+
+@dataclass(frozen=True)
+class Row3:
+    """One FMI 3.0 variable of an adapter.
+
+    ``core``: the names of the core's variables it is made of (one: a scalar; n > 1: an array of
+    dimension n); ``()`` only for ``time`` (causality ``independent``).  Causality, variability,
+    initial and start are those of the core variables (``initial``: that of the first).  ``unit``:
+    the FMI 3.0 unit (an array has one unit; leave it None when its elements differ).
+    """
+
+    name: str
+    type: str
+    causality: str
+    core: tuple[str, ...] = ()
+    unit: str | None = None
+    description: str = ""
+
+    @property
+    def size(self) -> int:
+        return max(len(self.core), 1)
+
+
+class Fmi3Adapter:
+    """The FMI 3.0 methods of pythonfmu3's ``Fmi3Slave`` answered by a table slave (the module doc)."""
+
+    CORE: ClassVar[type] = None
+    ROWS: ClassVar[tuple[Row3, ...]] = ()
+    # filled by __init_subclass__: FMI 3.0 value reference -> the core's value references
+    _core_vrs: ClassVar[dict[int, tuple[int, ...]]] = {}
+    _kind_of: ClassVar[dict[int, str]] = {}
+    _time_vr: ClassVar[int] = -1
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if cls.CORE is None or not cls.__dict__.get("ROWS"):
+            return
+        table = {v.name: v for v in cls.CORE._table}
+        cls._core_vrs, cls._kind_of = {}, {}
+        for vr, row in enumerate(cls.ROWS):
+            where = f"{cls.__name__}: row {row.name!r}"
+            if row.type not in _CORE_TYPE:
+                raise Fmi3TableError(f"{where}: type {row.type!r}; expected one of {sorted(_CORE_TYPE)}")
+            if row.causality == "independent":
+                if row.type != "Float64" or row.core:
+                    raise Fmi3TableError(f"{where}: the independent variable is a Float64 of no core variable")
+                cls._time_vr = vr
+                continue
+            if not row.core:
+                raise Fmi3TableError(f"{where}: names no core variable")
+            rows = [table.get(name) for name in row.core]
+            bad = [n for n, v in zip(row.core, rows) if v is None or v.type != _CORE_TYPE[row.type]]
+            if bad:
+                raise Fmi3TableError(f"{where}: {bad} are not {_CORE_TYPE[row.type]} variables of {cls.CORE.__name__}")
+            if {(v.causality, v.variability) for v in rows} != {(rows[0].causality, rows[0].variability)}:
+                raise Fmi3TableError(f"{where}: its core variables differ in causality or variability")
+            cls._core_vrs[vr] = tuple(cls.CORE.VR[name] for name in row.core)
+            cls._kind_of[vr] = row.type
+
+    # ------------------------------------------------------------------ construction
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        core_kwargs = {k: kwargs[k] for k in ("instance_name", "resources") if k in kwargs}
+        # an instance made by an FMI host (the C wrapper passes a logger) keeps the FMI state table strictly
+        self.core = self.CORE(fmi_strict="logger" in kwargs, **core_kwargs)
+        self.modelName = type(self).__name__
+        for attr in ("description", "author", "version", "license", "default_experiment"):
+            setattr(self, attr, getattr(self.CORE, attr, None))
+        table = {v.name: v for v in self.CORE._table}
+        for vr, row in enumerate(self.ROWS):
+            self.register_variable(self._variable(vr, row, table.get(row.core[0]) if row.core else None),
+                                   nested=False)
+        self._relay()
+
+    def _variable(self, vr: int, row: Row3, first):
+        """The pythonfmu3 variable of ``row`` (its getter and setter go through the core)."""
+        kwargs = dict(description=row.description or None, getter=lambda: self._get(row.type, [vr]),
+                      setter=lambda values: self._set(row.type, [vr], values if row.core[1:] else [values]))
+        if first is None:
+            kwargs.update(causality=Fmi3Causality.independent, variability=Fmi3Variability.continuous)
+        else:
+            kwargs.update(causality=getattr(Fmi3Causality, first.causality),
+                          variability=getattr(Fmi3Variability, first.variability))
+            if first.initial is not None:
+                kwargs["initial"] = getattr(Fmi3Initial, first.initial)
+        if row.size > 1:
+            kwargs["dimensions"] = [Dimension(start=str(row.size))]
+        if row.type == "Float64" and row.unit is not None:
+            kwargs["unit"] = row.unit
+        return _CLASS[row.type](row.name, **kwargs)
+
+    # ------------------------------------------------------------------ values
+    def _flat(self, kind: str, vrs) -> list[int] | None:
+        """The core's value references of ``vrs`` in order, or None (one is not a ``kind`` variable)."""
+        out = []
+        get = self._core_vrs.get
+        for vr in vrs:
+            core = get(vr)
+            if core is None or self._kind_of[vr] != kind:
+                return None
+            out.extend(core)
+        return out
+
+    def _refuse_vrs(self, call: str, kind: str, vrs) -> None:
+        valid = sorted(vr for vr, k in self._kind_of.items() if k == kind)
+        msg = (f"{type(self).__name__} instance {self.core.instance_name!r}: {call}: value references "
+               f"{list(vrs)} are not all {kind} variables (valid: {valid}); nothing done")
+        self.core.refused_calls += 1
+        self.core.last_call_refusal = msg
+        self.log(msg, Fmi3Status.error)
+        self.core._pylog.error("%s", msg)
+
+    def _set(self, kind: str, vrs, values) -> None:
+        flat = self._flat(kind, vrs)
+        if flat is None or len(flat) != len(values):
+            self._refuse_vrs(f"fmi3Set{kind}", kind, vrs)
+            return
+        core = self.core
+        (core.set_real if kind == "Float64" else core.set_integer if kind == "Int32" else core.set_boolean)(
+            flat, list(values))
+        self._relay()
+
+    def _get(self, kind: str, vrs) -> list:
+        flat = self._flat(kind, vrs)
+        if flat is None:
+            if kind == "Float64" and self._time_vr in vrs:
+                return [float(self.core._time) if vr == self._time_vr else math.nan for vr in vrs]
+            self._refuse_vrs(f"fmi3Get{kind}", kind, vrs)
+            return []
+        core = self.core
+        out = (core.get_real if kind == "Float64" else core.get_integer if kind == "Int32" else core.get_boolean)(flat)
+        if core.log_queue:
+            self._relay()
+        return out
+
+    def set_float64(self, vrs, values):
+        self._set("Float64", vrs, values)
+
+    def get_float64(self, vrs):
+        return self._get("Float64", vrs)
+
+    def set_int32(self, vrs, values):
+        self._set("Int32", vrs, values)
+
+    def get_int32(self, vrs):
+        return self._get("Int32", vrs)
+
+    def set_boolean(self, vrs, values):
+        self._set("Boolean", vrs, values)
+
+    def get_boolean(self, vrs):
+        return self._get("Boolean", vrs)
+
+    # ------------------------------------------------------------------ the calls of the state machine
+    def enter_initialization_mode(self):
+        self.core.enter_initialization_mode()
+        self._relay()
+
+    def exit_initialization_mode(self):
+        self.core.exit_initialization_mode()
+        self._relay()
+
+    def do_step(self, current_time: float, step_size: float):
+        core = self.core
+        forbidden = core.refused_calls
+        done = core.do_step(current_time, step_size)
+        if core.log_queue:
+            self._relay()
+        if done:
+            return _OK
+        return _ERROR if core.refused_calls != forbidden else _DISCARD
+
+    def terminate(self):
+        self.core.terminate()
+        self._relay()
+
+    # ------------------------------------------------------------------ FMU state (the core's: a pickle)
+    def _get_fmu_state(self):
+        state = self.core._get_fmu_state()
+        self._relay()
+        return state
+
+    def _set_fmu_state(self, state):
+        self.core._set_fmu_state(state)
+        self._relay()
+
+    @staticmethod
+    def _fmu_state_to_bytes(state) -> bytes:
+        return bytes(state)
+
+    @staticmethod
+    def _fmu_state_from_bytes(state) -> bytes:
+        return bytes(state)
+
+    # ------------------------------------------------------------------ log
+    def _relay(self) -> None:
+        """Hand the core's log messages on to pythonfmu3's queue (same status numbers in FMI 2.0 and 3.0;
+        the core escapes '%' for FMI 2.0's printf-style logger, FMI 3.0's takes the text as it is)."""
+        queue = self.core.log_queue
+        for m in queue:
+            category = m.category if m.category in self.log_categories else None
+            self.log(m.msg.replace("%%", "%"), Fmi3Status(int(m.status)), category)
+        queue.clear()
