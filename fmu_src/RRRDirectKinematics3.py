@@ -24,9 +24,13 @@ if str(Path(__file__).with_name("fmu_src")) not in fmu_src.__path__:
 
 from pythonfmu3 import Fmi3Slave
 
-from fmu_src.RRRDirectKinematics import RRRDirectKinematics
+from fmu_src.RRRDirectKinematics import RRRDirectKinematics, _home_joints
 from fmu_src.fmi3_adapter import Fmi3Adapter, Row3
 
+# Build constants: start values of the parameters ``posture`` and ``mode`` (build_fmu.py --fmi 3
+# --posture/--mode rewrites them in the staged copy, as the FMI 2.0 build does in its script).
+BUILD_POSTURE = 1
+BUILD_MODE = "default"
 _WHY = {v.name: v.description for v in RRRDirectKinematics._table}
 
 
@@ -39,6 +43,9 @@ class RRRDirectKinematics3(Fmi3Adapter, Fmi3Slave):
     """Direct kinematics of the 3-RRR (paper Table 1) by the basic-regions tracker, FMI 3.0 arrays."""
 
     CORE = RRRDirectKinematics
+    # the start values of this build (the FMI 2.0 slave's are those of its own build constants)
+    START = {**dict(zip(("q1", "q2", "q3"), _home_joints(BUILD_POSTURE))), "posture": BUILD_POSTURE,
+             "mode": RRRDirectKinematics.MODES.index(BUILD_MODE)}
     ROWS = (
         Row3("time", "Float64", "independent", description="simulation time"),
         Row3("q", "Float64", "input", ("q1", "q2", "q3"), "rad",

@@ -55,7 +55,8 @@ class Row3:
 
     ``core``: the names of the core's variables it is made of (one: a scalar; n > 1: an array of
     dimension n); ``()`` only for ``time`` (causality ``independent``).  Causality, variability,
-    initial and start are those of the core variables (``initial``: that of the first).  ``unit``:
+    initial and start are those of the core variables (``initial``: that of the first; a start
+    value in the adapter's ``START`` replaces the core's).  ``unit``:
     the FMI 3.0 unit (an array has one unit; leave it None when its elements differ).
     """
 
@@ -76,6 +77,8 @@ class Fmi3Adapter:
 
     CORE: ClassVar[type] = None
     ROWS: ClassVar[tuple[Row3, ...]] = ()
+    #: start values that differ from the core's, by core variable name
+    START: ClassVar[dict] = {}
     # filled by __init_subclass__: FMI 3.0 value reference -> the core's value references
     _core_vrs: ClassVar[dict[int, tuple[int, ...]]] = {}
     _kind_of: ClassVar[dict[int, str]] = {}
@@ -100,6 +103,7 @@ class Fmi3Adapter:
                 raise Fmi3TableError(f"{where}: names no core variable")
             rows = [table.get(name) for name in row.core]
             bad = [n for n, v in zip(row.core, rows) if v is None or v.type != _CORE_TYPE[row.type]]
+            bad += [n for n in row.core if n in cls.START and n in table and table[n].causality not in ("input", "parameter")]
             if bad:
                 raise Fmi3TableError(f"{where}: {bad} are not {_CORE_TYPE[row.type]} variables of {cls.CORE.__name__}")
             if {(v.causality, v.variability) for v in rows} != {(rows[0].causality, rows[0].variability)}:
@@ -113,6 +117,8 @@ class Fmi3Adapter:
         core_kwargs = {k: kwargs[k] for k in ("instance_name", "resources") if k in kwargs}
         # an instance made by an FMI host (the C wrapper passes a logger) keeps the FMI state table strictly
         self.core = self.CORE(fmi_strict="logger" in kwargs, **core_kwargs)
+        for name, value in self.START.items():
+            setattr(self.core, name, value)
         self.modelName = type(self).__name__
         for attr in ("description", "author", "version", "license", "default_experiment"):
             setattr(self, attr, getattr(self.CORE, attr, None))
@@ -121,6 +127,16 @@ class Fmi3Adapter:
             self.register_variable(self._variable(vr, row, table.get(row.core[0]) if row.core else None),
                                    nested=False)
         self._relay()
+
+    def to_xml(self, *args, **kwargs):
+        """pythonfmu3's model description (in process, not an FMI call: it reads the start values with
+        get calls in state instantiated, which the core's state table would log)."""
+        saved = self.core._can_get
+        self.core._can_get = True
+        try:
+            return super().to_xml(*args, **kwargs)
+        finally:
+            self.core._can_get = saved
 
     def _variable(self, vr: int, row: Row3, first):
         """The pythonfmu3 variable of ``row`` (its getter and setter go through the core)."""

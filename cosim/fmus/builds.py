@@ -47,7 +47,7 @@ from .sources import LOADER_SOURCE, SLAVE_DIR, slave_readme, slave_script
 from .packaging import bundled_files, build_fmu
 
 __all__ = ["FMU_NAMES", "DK_NAME", "MODES", "DEFAULT_RESOLUTION", "BuildResult", "parse_resolution",
-           "resolution_step", "map_cache_path", "build_dk", "build_slave", "build_fmus", "slave_script",
+           "resolution_step", "map_cache_path", "stage_maps", "build_dk", "build_slave", "build_fmus", "slave_script",
            "project_packages", "is_stale", "warm_up_scenario"]
 
 #: The three FMUs, in the order of the closed loop's data flow (DK -> controller -> plant).
@@ -162,6 +162,21 @@ def _dk_maps(model, postures, resolution, map_files, rule, cache_dir, progress, 
     return postures, maps
 
 
+def stage_maps(tmp: Path, maps: dict[int, Path]) -> dict[str, Path]:
+    """The DK FMU's data files ``{"maps/posture<j>.npz": map file, "maps/manifest.json": ...}``: each map
+    of ``maps`` ({posture: file}) and the manifest (size and SHA-256 of each) written into ``tmp``."""
+    entries, data_files = [], {}
+    for p in sorted(maps):
+        data = maps[p].read_bytes()
+        name = f"maps/posture{p}.npz"
+        data_files[name] = maps[p]
+        entries.append({"posture": p, "file": name, "bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()})
+    manifest = tmp / "manifest.json"
+    manifest.write_text(json.dumps({"model": DK_NAME, "maps": entries}, indent=1, sort_keys=True) + "\n")
+    data_files["maps/manifest.json"] = manifest
+    return data_files
+
+
 def build_dk(out_dir="build", postures=(1,), resolution=DEFAULT_RESOLUTION, map_files=(), mode: str = "default",
              rule: str = DEFAULT_RULE, cache_dir=None, check: bool = True, progress: bool | None = None,
              log=print, kernels: bool = True) -> BuildResult:
@@ -188,17 +203,7 @@ def build_dk(out_dir="build", postures=(1,), resolution=DEFAULT_RESOLUTION, map_
     with tempfile.TemporaryDirectory(prefix="build_fmu_") as tmp:
         tmp = Path(tmp)
         script = _stage_script(tmp, postures[0], mode)
-        entries = []
-        data_files = {}
-        for p in sorted(maps):
-            data = maps[p].read_bytes()
-            name = f"maps/posture{p}.npz"
-            data_files[name] = maps[p]
-            entries.append({"posture": p, "file": name, "bytes": len(data),
-                            "sha256": hashlib.sha256(data).hexdigest()})
-        manifest = tmp / "manifest.json"
-        manifest.write_text(json.dumps({"model": DK_NAME, "maps": entries}, indent=1, sort_keys=True) + "\n")
-        data_files["maps/manifest.json"] = manifest
+        data_files = stage_maps(tmp, maps)
         scenario = warm_up(warm_up_scenario(DK_NAME, postures[0], mode)) if kernels else None
         fmu = build_fmu(script, out_dir, project_packages=project_packages(), data_files=data_files,
                         documentation_dir=_stage_documentation(tmp), check=check, kernels=scenario)

@@ -5,6 +5,7 @@
                         [--only NAME [NAME ...]] [--no-reference] [--ssp]
     python build_fmu.py --write-reference      # regenerate fmu_src/reference/<FMU>.csv
     python build_fmu.py --manipulator 3rpr [--resolution 25mm,3deg] [--no-reference | --write-reference]
+    python build_fmu.py --fmi 3 [--posture ...] [--resolution ...] [--mode ...] [--no-reference | --write-reference]
 
 1. The FMUs (:mod:`cosim.fmus.builds`) are built into ``--out`` and validated: ``RRRDirectKinematics``
    with the map tensor(s) of ``--posture`` at ``--resolution`` (cached in the project's map cache,
@@ -23,6 +24,10 @@
 ``--manipulator 3rpr`` builds the cuspidal 3-RPR's DK FMU instead, ``RPRDirectKinematics``
 (:mod:`cosim.fmus.rpr_build`; leg lengths in, pose out; map at ``--resolution``, default 25 mm, 3 deg),
 and its reference run (the loop around a cusp) against ``fmu_src/reference/RPRDirectKinematics.csv``.
+
+``--fmi 3`` builds the DK FMU for FMI 3.0 instead, ``<out>/fmi3/RRRDirectKinematics.fmu`` (modelIdentifier
+``RRRDirectKinematics3``; :mod:`cosim.fmus.fmi3_build`, the same map options), and its reference run against
+``fmu_src/reference/RRRDirectKinematics3.csv`` (:mod:`cosim.fmus.fmi3_reference`).
 
 ``--write-reference`` does step 2 only and rewrites the kept CSVs.  Same options and the same map
 files give byte-identical FMUs.  ``--resolution`` accepts ``"10mm,2deg"``, ``"0.04m 6deg"``,
@@ -67,6 +72,8 @@ def _parser(default_out) -> argparse.ArgumentParser:
                     help="also write <out>/RRRClosedLoop.ssp, the closed loop of the three FMUs (SSP 1.0)")
     ap.add_argument("--manipulator", choices=("3rrr", "3rpr"), default="3rrr",
                     help="3rpr: build RPRDirectKinematics.fmu (the cuspidal 3-RPR's DK) instead of the three")
+    ap.add_argument("--fmi", choices=("2", "3"), default="2",
+                    help="3: build the DK FMU for FMI 3.0 instead, <out>/fmi3/RRRDirectKinematics.fmu (pythonfmu3)")
     return ap
 
 
@@ -172,6 +179,11 @@ def main(argv=None, default_out="build") -> int:
     """The command line (see the module docstring); returns the exit status."""
     args = _parser(default_out).parse_args(argv)
     try:
+        if args.fmi == "3":
+            from .fmi3_reference import main3
+
+            args.only_given = list(args.only) != list(FMU_NAMES)
+            return main3(args)
         if args.manipulator == "3rpr":
             return _rpr(args)
         if args.write_reference:

@@ -83,7 +83,7 @@ for run in runs:
     if names:
         t = np.arange(len(run["inputs"][names[0]])) * run["h"]
         table = np.array(list(zip(t, *(run["inputs"][n] for n in names))),
-                         dtype=[("time", np.float64)] + [(n, np.float64) for n in names])
+                         dtype=[("time", np.float64)] + [(n, np.float64, np.shape(run["inputs"][n][0])) for n in names])
     simulate_fmu(folder, stop_time=run["n"] * run["h"], step_size=run["h"], output_interval=run["h"],
                  start_values=run["start"], input=table, fmi_type="CoSimulation")
 resources = os.path.join(folder, "resources")
@@ -105,7 +105,8 @@ class KernelBuildError(RuntimeError):
 
 @dataclass
 class Run:
-    """One fmpy run of the warm-up: ``n`` steps of ``h`` s, start values, inputs ``{name: n values}``."""
+    """One fmpy run of the warm-up: ``n`` steps of ``h`` s, start values, inputs ``{name: n values}`` (a
+    value may be a list: an FMI 3.0 array variable)."""
 
     n: int
     h: float
@@ -113,9 +114,12 @@ class Run:
     inputs: dict = field(default_factory=dict)
 
     def as_json(self) -> dict:
-        return {"n": int(self.n), "h": float(self.h), "start": {k: (v if isinstance(v, (int, bool)) else float(v))
-                                                                for k, v in self.start.items()},
-                "inputs": {k: [float(x) for x in v] for k, v in self.inputs.items()}}
+        # an array value (an FMI 3.0 variable) is a list of floats, an array input a list of rows
+        return {"n": int(self.n), "h": float(self.h),
+                "start": {k: (v if isinstance(v, (int, bool)) else float(v) if not isinstance(v, (list, tuple))
+                              else [float(x) for x in v]) for k, v in self.start.items()},
+                "inputs": {k: [[float(y) for y in x] if isinstance(x, (list, tuple)) else float(x) for x in v]
+                           for k, v in self.inputs.items()}}
 
 
 @dataclass

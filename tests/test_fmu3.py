@@ -1,0 +1,241 @@
+"""The FMI 3.0 DK FMU (``python build_fmu.py --fmi 3``): validation, arrays, identity with the FMI 2.0 FMU,
+FMU state, bad input.
+
+Both FMUs are built into a temporary folder with the coarse reference map (40 mm / 6 deg, as
+tests/dk_fmu_support.py); the FMI 3.0 one runs through fmpy's ``FMU3Slave`` and ``simulate_fmu``,
+the FMI 2.0 one through ``FMU2Slave``.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+from fmpy.fmi3 import FMU3Slave
+from fmpy.validation import validate_fmu
+
+from cosim.fmus import fmi3_build, fmi3_reference, references
+from experiments.suite import default_suite
+from solver import Manipulator
+
+from dk_fmu_support import H, Q, X0, built, hygiene, tmp  # noqa: F401 (fixtures)
+
+POSE = ("x", "y", "phi")
+
+
+@pytest.fixture(scope="module")
+def built3(tmp):
+    return fmi3_build.build_dk3(tmp / "fmu3", postures=(1,), resolution=references.REFERENCE["resolution"],
+                                cache_dir=tmp / "maps", log=lambda m: None)
+
+
+@pytest.fixture(scope="module")
+def md3(built3):
+    return read_model_description(str(built3.fmu))
+
+
+@pytest.fixture(scope="module")
+def dir3(built3, tmp):
+    return extract(str(built3.fmu), unzipdir=str(tmp / "unzipped3"))
+
+
+@pytest.fixture(scope="module")
+def dir2(built, tmp):
+    return extract(str(built.fmu), unzipdir=str(tmp / "unzipped2"))
+
+
+class Dk3:
+    """The FMI 3.0 FMU through fmpy's FMU3Slave: q in as an array, pose out as an array."""
+
+    def __init__(self, md, unzipdir, name="dk3", pose0=X0, q0=Q[0], posture=1):
+        self.vr = {v.name: v.valueReference for v in md.modelVariables}
+        self.messages = []
+        self.fmu = FMU3Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier,
+                             instanceName=name)
+        self.fmu.instantiate(loggingOn=True, logMessage=self._log)
+        self.fmu.setFloat64([self.vr["pose0"]], [float(v) for v in pose0])
+        self.fmu.setInt32([self.vr["posture"]], [posture])
+        self.fmu.setFloat64([self.vr["q"]], [float(v) for v in q0])
+        self.fmu.enterInitializationMode()
+        self.fmu.exitInitializationMode()
+        self.t = 0.0
+
+    def _log(self, env, status, category, message):
+        self.messages.append((int(status), message.decode() if message else ""))
+
+    def step(self, q):
+        self.fmu.setFloat64([self.vr["q"]], [float(v) for v in q])
+        self.fmu.doStep(self.t, H)
+        self.t += H
+        return tuple(self.fmu.getFloat64([self.vr["pose"]], nValues=3))
+
+    def get(self, name, kind="Float64", n=1):
+        return getattr(self.fmu, "get" + kind)([self.vr[name]], nValues=n)
+
+    def close(self):
+        self.fmu.terminate()
+        self.fmu.freeInstance()
+
+
+def _dk2_poses(md, unzipdir, q, X_start, name="dk2"):
+    """The poses of the FMI 2.0 FMU along ``q`` (FMU2Slave), from ``X_start``."""
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipdir, modelIdentifier=md.coSimulation.modelIdentifier,
+                    instanceName=name)
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.setReal([vr[n] for n in ("x0", "y0", "phi0", "q1", "q2", "q3")], [*map(float, X_start), *map(float, q[0])])
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    out, t = [tuple(fmu.getReal([vr[n] for n in POSE]))], 0.0
+    for qk in q:
+        fmu.setReal([vr[n] for n in ("q1", "q2", "q3")], [float(v) for v in qk])
+        fmu.doStep(t, H)
+        t += H
+        out.append(tuple(fmu.getReal([vr[n] for n in POSE])))
+    fmu.terminate()
+    fmu.freeInstance()
+    return out
+
+
+def _dk3_poses(md, unzipdir, q, X_start, name="dk3"):
+    m = Dk3(md, unzipdir, name, pose0=X_start, q0=q[0])
+    out = [tuple(m.get("pose", n=3))] + [m.step(qk) for qk in q]
+    m.close()
+    return out
+
+
+# ---------------------------------------------------------------------- the archive and its description
+def test_validation_reports_nothing(built3):
+    assert built3.problems == []
+    assert validate_fmu(str(built3.fmu)) == []
+
+
+def test_arrays_units_and_capabilities(md3):
+    assert md3.fmiVersion == "3.0" and md3.coSimulation.modelIdentifier == "RRRDirectKinematics3"
+    assert md3.coSimulation.canGetAndSetFMUState and md3.coSimulation.canSerializeFMUState
+    v = {x.name: x for x in md3.modelVariables}
+    assert v["time"].causality == "independent"
+    for name, causality in (("q", "input"), ("pose", "output"), ("pose0", "parameter"), ("pose_bound", "output")):
+        assert v[name].type == "Float64" and v[name].causality == causality
+        assert [d.start for d in v[name].dimensions] == [3]
+    assert v["q"].unit == "rad" and v["uncertain_since"].unit == "s" and v["joint_tolerance"].unit == "rad"
+    assert [float(s) for s in v["pose0"].start.split()] == pytest.approx(list(X0), abs=1e-9)
+    for name in ("region", "status", "trust", "posture", "mode", "stuck_after", "n_real"):
+        assert v[name].type == "Int32"
+    for name in ("certain", "near_border", "ambiguous"):
+        assert v[name].type == "Boolean"
+    outputs = {u.variable.name: [d.name for d in u.dependencies] for u in md3.outputs}
+    assert outputs["pose"] == ["q"] and set(outputs) >= {"pose", "certain", "uncertain_since", "status", "region",
+                                                          "pose_bound", "trust"}
+
+
+def test_the_build_is_deterministic(built3, tmp):
+    again = fmi3_build.build_dk3(tmp / "again3", postures=(1,), resolution=references.REFERENCE["resolution"],
+                                 cache_dir=tmp / "maps", log=lambda m: None)
+    assert again.fmu.read_bytes() == built3.fmu.read_bytes()
+
+
+# ---------------------------------------------------------------------- identical to the FMI 2.0 FMU
+def test_simulate_fmu_with_an_input_array_gives_the_fmi2_reference(built3):
+    """fmpy.simulate_fmu with ``q`` an array column: the FMI 2.0 reference CSV, bit for bit."""
+    result = fmi3_reference.run_circle3(built3.fmu)
+    ref = references.read_reference_csv()[1]
+    np.testing.assert_array_equal(result["pose"], np.stack([ref[n] for n in POSE], axis=1))
+    for name in fmi3_reference.SCALARS:
+        np.testing.assert_array_equal(result[name].astype(ref[name].dtype), ref[name])
+    kept = references.read_csv(references.REFERENCE_DIR / "RRRDirectKinematics3.csv",
+                               references.INT_COLUMNS["RRRDirectKinematics"])[1]
+    np.testing.assert_array_equal(kept["pose[1]"], ref["x"])
+    np.testing.assert_array_equal(kept["pose[3]"], ref["phi"])
+
+
+def test_fmu3slave_reference_path_is_bit_identical_to_the_fmi2_fmu(built, md3, dir3, dir2):
+    md2 = read_model_description(str(built.fmu))
+    assert _dk3_poses(md3, dir3, Q, X0) == _dk2_poses(md2, dir2, Q, X0)
+
+
+def test_tracker_suite_posture_1_paths_are_identical(built, md3, dir3, dir2):
+    md2 = read_model_description(str(built.fmu))
+    paths = [p for p in default_suite(Manipulator.paper(), samplings=(300, 30)) if p.posture == 1]
+    assert len(paths) >= 8
+    for k, p in enumerate(paths):
+        assert _dk3_poses(md3, dir3, p.q, p.X[0], f"s3-{k}") == _dk2_poses(md2, dir2, p.q, p.X[0], f"s2-{k}"), p.name
+
+
+# ---------------------------------------------------------------------- FMU state, bad input
+def test_fmu_state_round_trip(md3, dir3):
+    m = Dk3(md3, dir3, "state")
+    for qk in Q[:20]:
+        m.step(qk)
+    state = m.fmu.getFMUState()
+    blob = m.fmu.serializeFMUState(state)
+    t = m.t
+    ahead = [m.step(qk) for qk in Q[20:40]]
+    m.fmu.setFMUState(state)
+    m.t = t
+    assert [m.step(qk) for qk in Q[20:40]] == ahead
+    other = Dk3(md3, dir3, "other")
+    other.fmu.setFMUState(other.fmu.deserializeFMUState(blob))
+    other.t = t
+    assert [other.step(qk) for qk in Q[20:40]] == ahead
+    m.fmu.freeFMUState(state)
+    m.close()
+    other.close()
+
+
+def test_nan_input_is_discarded_with_status_3(md3, dir3):
+    m = Dk3(md3, dir3, "nan")
+    for qk in Q[:5]:
+        m.step(qk)
+    held = m.get("pose", n=3)
+    m.fmu.setFloat64([m.vr["q"]], [float(Q[5][0]), math.nan, float(Q[5][2])])
+    with pytest.raises(Exception, match="2|Discard|discard"):
+        m.fmu.doStep(m.t, H)
+    assert m.get("status", "Int32") == [3] and m.get("pose", n=3) == held
+    assert any(s >= 2 and "'q2' = nan" in text for s, text in m.messages)
+    m.close()
+
+
+def test_wrong_q_length_is_refused_not_a_crash(md3, dir3):
+    m = Dk3(md3, dir3, "short")
+    m.step(Q[1])
+    before = m.get("q", n=3)
+    m.fmu.setFloat64([m.vr["q"]], [0.1, 0.2])            # fmi3SetFloat64 with 2 values for Float64[3]
+    assert m.get("q", n=3) == before
+    assert any(s == 3 and "nothing done" in text for s, text in m.messages)
+    pose = m.step(Q[2])                                   # the next valid step goes on
+    assert m.get("status", "Int32") == [0] and all(map(math.isfinite, pose))
+    m.close()
+
+
+def test_array_set_does_not_use_pythonfmu3s_reshape(md3, dir3):
+    """pythonfmu3 0.3.4's own array setter calls np.reshape(v, newshape=...), which numpy 2.4 removed: the
+    FMU sets q without it (this fails, fmi3Fatal, if the FMU falls back to that setter)."""
+    from pythonfmu3 import Float64, Fmi3Slave
+    from pythonfmu3.enums import Fmi3Causality, Fmi3Variability
+    from pythonfmu3.variables import Dimension
+
+    class Probe(Fmi3Slave):
+        def __init__(self, **kwargs):
+            super().__init__(**kwargs)
+            self.u = np.zeros(3)
+            self.register_variable(Float64("u", causality=Fmi3Causality.input, variability=Fmi3Variability.continuous,
+                                           start=np.zeros(3), dimensions=[Dimension(start="3")]))
+
+        def do_step(self, t, dt):
+            return True
+
+    probe = Probe(instance_name="probe")
+    try:
+        probe.set_float64([0], [1.0, 2.0, 3.0])
+        default_setter_works = True
+    except TypeError:
+        default_setter_works = False
+    assert default_setter_works == (tuple(int(x) for x in np.__version__.split(".")[:2]) < (2, 4))
+    m = Dk3(md3, dir3, "array-set")
+    m.fmu.setFloat64([m.vr["q"]], [float(v) for v in Q[3]])
+    assert m.get("q", n=3) == [float(v) for v in Q[3]]
+    m.close()
