@@ -16,6 +16,8 @@ that a ratio compares times measured in the same minutes of the same run.  Print
   reads all 11 outputs (three more calls), the same cycle through fmpy's convenience
   ``setReal``/``getReal`` (which build ctypes arrays at every call), and whether the poses are
   identical;
+- **DK for FMI 3.0**: the step of ``<build-dir>/fmi3/RRRDirectKinematics.fmu`` (``q``, ``pose`` arrays)
+  beside the FMI 2.0 DK FMU's, in the same run (:mod:`fmu3_step`; target <= 1.2x);
 - **plant** and **controller**: the inputs of a closed-loop run (``cosim.ClosedLoop``,
   default scenario) replayed into each FMU alone: the ``fmi2DoStep`` call against the in-process
   computation it wraps (``PlantStepper.step`` / ``ControllerStepper.step`` with the same inputs),
@@ -32,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 import dynamics  # noqa: F401  (first: the FMUs then use the host's packages)
+import fmu3_step
 import solver
 from cosim.fmus.builds import build_fmus
 from cosim.unit import FMUUnit, exit_process
@@ -51,17 +54,12 @@ def _median_us(times) -> float:
 
 def bench_dk(unit: FMUUnit, n: int, passes: int) -> dict:
     """DK: the FMU cycles and the in-process tracker, alternating passes over the circle."""
-    from fmpy.fmi2 import fmi2Boolean, fmi2Integer, fmi2Real
-
     model = Manipulator.paper()
     X = circle_path(n)
     Q = solver.ik(model, X, 1)
     rows = [tuple(map(float, q)) for q in Q]
     start = {"x0": X[0][0], "y0": X[0][1], "phi0": X[0][2], "q1": Q[0][0], "q2": Q[0][1], "q3": Q[0][2]}
-    io = {"q": _arrays(unit, ("q1", "q2", "q3"), fmi2Real), "x": _arrays(unit, ("x", "y", "phi"), fmi2Real),
-          "real": _arrays(unit, ("x", "y", "phi", "cond", "uncertain_since"), fmi2Real),
-          "int": _arrays(unit, ("region", "n_real", "status"), fmi2Integer),
-          "bool": _arrays(unit, ("near_border", "ambiguous", "certain"), fmi2Boolean)}
+    io = _io(unit)
     tracker = Tracker(model, MapTensor.load(Path(unit.unzip_dir) / "resources" / "maps" / "posture1.npz"))
     t = {"minimal": [], "all": [], "convenience": [], "tracker": []}
     poses_fmu, poses_tr = np.empty((n, 3)), np.empty((n, 3))
@@ -92,6 +90,16 @@ def bench_dk(unit: FMUUnit, n: int, passes: int) -> dict:
     out = {k: _median_us(v) for k, v in t.items()}
     out["identical"] = bool(np.array_equal(poses_fmu, poses_tr))
     return out
+
+
+def _io(unit) -> dict:
+    """The value references and buffers of the DK FMU's raw calls, made once."""
+    from fmpy.fmi2 import fmi2Boolean, fmi2Integer, fmi2Real
+
+    return {"q": _arrays(unit, ("q1", "q2", "q3"), fmi2Real), "x": _arrays(unit, ("x", "y", "phi"), fmi2Real),
+            "real": _arrays(unit, ("x", "y", "phi", "cond", "uncertain_since"), fmi2Real),
+            "int": _arrays(unit, ("region", "n_real", "status"), fmi2Integer),
+            "bool": _arrays(unit, ("near_border", "ambiguous", "certain"), fmi2Boolean)}
 
 
 def _fmu_pass(fmu, c, rows, io, times: list, poses, everything: bool) -> None:
@@ -268,6 +276,9 @@ def main(argv=None):
           f"and check), later median {np.median(times[1:]) * 1e3:.1f} ms")
 
     dk = bench_dk(units[0], args.n, args.passes)
+    # the FMI 3.0 DK FMU (q, pose as arrays) beside the FMI 2.0 one, passes alternating (bench/fmu3_step.py)
+    v3 = fmu3_step.compare(units[0], fmu3_step.fmu3_path(args.build_dir), args.n, args.passes, _fmu_pass,
+                           _io(units[0]))
     units[0].close()
     ratio = dk["minimal"] / dk["tracker"]
     print(f"\nDK, per step over the circle ({args.n} points x {args.passes} passes, h = 1 ms), median:")
@@ -279,6 +290,11 @@ def main(argv=None):
     print(f"  FMU through fmpy's setReal/getReal (arrays per call)         {dk['convenience']:6.1f} us "
           f"(x{dk['convenience'] / dk['tracker']:.2f})")
     print(f"  FMU poses identical to the in-process tracker's: {dk['identical']}")
+    print(f"\nDK for FMI 3.0 (build/fmi3, FMU3Slave) beside FMI 2.0 (FMU2Slave), same run, passes alternating, median:")
+    print(f"  FMI 3.0: fmi3SetFloat64(q[3]) + fmi3DoStep + fmi3GetFloat64(pose[3])  {v3['fmi3']:6.1f} us")
+    print(f"  FMI 2.0: fmi2SetReal(q1..q3) + fmi2DoStep + fmi2GetReal(x, y, phi)    {v3['fmi2']:6.1f} us")
+    print(f"  ratio {v3['fmi3'] / v3['fmi2']:.2f}  (target <= 1.2: {_verdict(v3['fmi3'], v3['fmi2'], ratio=1.2)}); "
+          f"poses identical: {v3['identical']}")
 
     cols = _closed_loop_inputs(paths)
     from cosim import Scenario
@@ -298,11 +314,11 @@ def main(argv=None):
         print(f"  FMU set + doStep + get cycle                {r['cycle']:6.1f} us")
         print(f"  FMU outputs identical to the in-process step's: {r['identical']}")
         others[name] = r
-    _report(dk_path, times, dk, others, args)
+    _report(dk_path, times, dk, others, args, v3)
     return 0
 
 
-def _report(dk_path, times, dk, others, args):
+def _report(dk_path, times, dk, others, args, v3):
     """The FMI path's table into docs/benchmarks.md (bench/report.py)."""
     from report import publish, table
     ratio = dk["minimal"] / dk["tracker"]
@@ -312,7 +328,10 @@ def _report(dk_path, times, dk, others, args):
             ("DK: `fmi2SetReal(q) + fmi2DoStep + fmi2GetReal(x, y, phi)` / in-process `Tracker.step`, medians",
              f"{dk['minimal']:.1f} / {dk['tracker']:.1f} us = {ratio:.2f}x", "<= 1.5x"),
             ("DK, reading all outputs (+ getInteger, getBoolean)", f"{dk['all']:.1f} us", ""),
-            ("DK poses identical to the in-process tracker's", dk["identical"], "True")]
+            ("DK poses identical to the in-process tracker's", dk["identical"], "True"),
+            ("DK for FMI 3.0: `fmi3SetFloat64(q) + fmi3DoStep + fmi3GetFloat64(pose)` / the FMI 2.0 cycle, medians",
+             f"{v3['fmi3']:.1f} / {v3['fmi2']:.1f} us = {v3['fmi3'] / v3['fmi2']:.2f}x", "<= 1.2x"),
+            ("DK for FMI 3.0: poses identical to the FMI 2.0 FMU's", v3["identical"], "True")]
     for name, r in others.items():
         rows.append((f"{name}: `fmi2DoStep` / in-process step, medians",
                      f"{r['doStep']:.1f} / {r['in-process']:.1f} us = {r['doStep'] / r['in-process']:.2f}x "
