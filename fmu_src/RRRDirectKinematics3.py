@@ -9,11 +9,6 @@ slave logic and state.  Variables, FMI 3.0 features used and not used: ``fmu_src
 Module-level code: imports and the class (pythonfmu3's C wrapper imports this module by name and
 finds the class by the text ``class <name>(... Fmi3Slave)``).
 """
-# first: a host without the packages this FMU imports learns which and how to install them
-from fmu_src.requirements import require
-
-require(__file__)
-
 # fmu_src may already be imported from another FMU's resources (the FMI 2.0 DK FMU bundles no FMI 3.0
 # module): look in this FMU's copy too, after that one
 import fmu_src
@@ -24,28 +19,41 @@ if str(Path(__file__).with_name("fmu_src")) not in fmu_src.__path__:
 
 from pythonfmu3 import Fmi3Slave
 
-from fmu_src.RRRDirectKinematics import RRRDirectKinematics, _home_joints
 from fmu_src.fmi3_adapter import Fmi3Adapter, Row3
+from fmu_src.requirements import MissingRequirements, require
+
+# first: a host without the packages this FMU imports learns which and how to install them.  The
+# module must import even then: pythonfmu3 0.3.4's wrapper crashes the host process (SIGSEGV) when the
+# slave module fails to import, while an exception of the constructor is a clean failed instantiation
+# (the class raises it, Fmi3Adapter.MISSING)
+try:
+    require(__file__)
+    from fmu_src.RRRDirectKinematics import RRRDirectKinematics, _home_joints
+except MissingRequirements as exc:
+    _MISSING, RRRDirectKinematics = exc, None
+else:
+    _MISSING = None
 
 # Build constants: start values of the parameters ``posture`` and ``mode`` (build_fmu.py --fmi 3
 # --posture/--mode rewrites them in the staged copy, as the FMI 2.0 build does in its script).
 BUILD_POSTURE = 1
 BUILD_MODE = "default"
-_WHY = {v.name: v.description for v in RRRDirectKinematics._table}
+_WHY = {v.name: v.description for v in RRRDirectKinematics._table} if RRRDirectKinematics else {}
 
 
 def _row(name, kind, causality, unit=None):
     """A scalar row of the FMI 2.0 variable ``name`` (its description)."""
-    return Row3(name, kind, causality, (name,), unit, _WHY[name])
+    return Row3(name, kind, causality, (name,), unit, _WHY.get(name, ""))
 
 
 class RRRDirectKinematics3(Fmi3Adapter, Fmi3Slave):
     """Direct kinematics of the 3-RRR (paper Table 1) by the basic-regions tracker, FMI 3.0 arrays."""
 
     CORE = RRRDirectKinematics
+    MISSING = _MISSING
     # the start values of this build (the FMI 2.0 slave's are those of its own build constants)
     START = {**dict(zip(("q1", "q2", "q3"), _home_joints(BUILD_POSTURE))), "posture": BUILD_POSTURE,
-             "mode": RRRDirectKinematics.MODES.index(BUILD_MODE)}
+             "mode": RRRDirectKinematics.MODES.index(BUILD_MODE)} if RRRDirectKinematics else {}
     ROWS = (
         Row3("time", "Float64", "independent", description="simulation time"),
         Row3("q", "Float64", "input", ("q1", "q2", "q3"), "rad",

@@ -79,6 +79,8 @@ class Fmi3Adapter:
     ROWS: ClassVar[tuple[Row3, ...]] = ()
     #: start values that differ from the core's, by core variable name
     START: ClassVar[dict] = {}
+    #: the host lacks packages the core needs (fmu_src.requirements): the constructor raises it
+    MISSING: ClassVar[Exception | None] = None
     # filled by __init_subclass__: FMI 3.0 value reference -> the core's value references
     _core_vrs: ClassVar[dict[int, tuple[int, ...]]] = {}
     _kind_of: ClassVar[dict[int, str]] = {}
@@ -114,6 +116,8 @@ class Fmi3Adapter:
     # ------------------------------------------------------------------ construction
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
+        if self.MISSING is not None:
+            raise self.MISSING
         core_kwargs = {k: kwargs[k] for k in ("instance_name", "resources") if k in kwargs}
         # an instance made by an FMI host (the C wrapper passes a logger) keeps the FMI state table strictly
         self.core = self.CORE(fmi_strict="logger" in kwargs, **core_kwargs)

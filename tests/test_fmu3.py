@@ -7,7 +7,9 @@ the FMI 2.0 one through ``FMU2Slave``.
 """
 from __future__ import annotations
 
+import json
 import math
+import zipfile
 
 import numpy as np
 import pytest
@@ -246,3 +248,67 @@ def test_array_set_does_not_use_pythonfmu3s_reshape(md3, dir3):
     m.fmu.setFloat64([m.vr["q"]], [float(v) for v in Q[3]])
     assert m.get("q", n=3) == [float(v) for v in Q[3]]
     m.close()
+
+
+def test_a_refused_initialization_makes_every_step_an_error(md3, dir3):
+    m = Dk3(md3, dir3, "no-map", posture=2)             # this FMU embeds the map of posture 1 only
+    assert any(s >= 3 and "posture" in text and "initialization failed" in text for s, text in m.messages)
+    with pytest.raises(Exception, match="3|Error|error"):
+        m.fmu.doStep(0.0, H)
+    assert m.get("status", "Int32") == [3]
+    m.fmu.freeInstance()
+
+
+# ---------------------------------------------------------------------- other hosts' processes
+TWO_FMUS = """
+    import json, sys
+    import numpy as np
+    import fmpy
+    from fmpy import extract
+
+    fmi2, fmi3, q, X0 = sys.argv[1], sys.argv[2], np.array(json.loads(sys.argv[3])), json.loads(sys.argv[4])
+    d2, d3 = str(extract(fmi2)), str(extract(fmi3))
+    t = np.arange(len(q)) * 1e-3
+    table2 = np.array(list(zip(t, *q.T)), dtype=[("time", float), ("q1", float), ("q2", float), ("q3", float)])
+    r2 = fmpy.simulate_fmu(d2, stop_time=len(q) * 1e-3, step_size=1e-3, output_interval=1e-3, input=table2,
+                           start_values=dict(zip(("x0", "y0", "phi0"), X0)), output=["x", "y", "phi"])
+    where = sys.modules["fmu_src"].__file__
+    table3 = np.zeros(len(q), dtype=[("time", float), ("q", float, (3,))])
+    table3["time"], table3["q"] = t, q
+    r3 = fmpy.simulate_fmu(d3, stop_time=len(q) * 1e-3, step_size=1e-3, output_interval=1e-3, input=table3,
+                           start_values={"pose0": X0}, output=["pose"])
+    same = bool(np.array_equal(r3["pose"], np.stack([r2[n] for n in ("x", "y", "phi")], axis=1)))
+    print(json.dumps({"fmu_src": where, "d2": d2, "rows": len(r3), "same": same}))
+"""
+
+
+def test_after_the_fmi2_fmu_in_a_fresh_process(built, built3, tmp_path):
+    """A host that loaded the FMI 2.0 FMU first has its bundled fmu_src (no FMI 3.0 runtime in it):
+    the FMI 3.0 FMU finds its own and gives the same poses."""
+    from host_support import run_python
+
+    proc = run_python(TWO_FMUS, built.fmu, built3.fmu, json.dumps(Q[:30].tolist()), json.dumps(list(map(float, X0))),
+                      cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out["fmu_src"].startswith(out["d2"]) and out["rows"] == 31 and out["same"]
+
+
+def test_a_missing_package_is_named(built3, tmp_path):
+    from host_support import run_python
+
+    from fmu_src import requirements as req
+
+    path = tmp_path / "RRRDirectKinematics.fmu"
+    with zipfile.ZipFile(built3.fmu) as z, zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as out:
+        for info in z.infolist():
+            data = z.read(info)
+            if info.filename == f"resources/{req.FILE}":
+                data += b"rrr-dk-absent>=1.0  # import rrr_dk_absent\n"
+            out.writestr(info, data)
+    proc = run_python("import sys, fmpy\ntry:\n    fmpy.simulate_fmu(sys.argv[1], stop_time=0.01, step_size=1e-3)\n"
+                      "except Exception as exc:\n    print('fmpy:', exc)\n", path, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "fmpy:" in proc.stdout
+    assert "No module named 'rrr_dk_absent' (the FMU needs rrr-dk-absent>=1.0)" in proc.stderr
+    assert '-m pip install "rrr-dk-absent>=1.0"' in proc.stderr

@@ -75,7 +75,7 @@ def _stage(staging: Path, script: Path, data_files: dict) -> None:
         shutil.copyfile(src, staging / "pythonfmu" / src.name)
     needs = declared_requirements(third_party_modules([script, *bundled.values()],
                                                       {*packages, "pythonfmu", "pythonfmu3"}))
-    (staging / requirements.FILE).write_text(requirements.format_requirements(DK3_NAME, needs))
+    (staging / requirements.FILE).write_text(requirements.format_requirements(Path(DK3_FILE).stem, needs))
     _stage_data_files(staging, data_files)
 
 
