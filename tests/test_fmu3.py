@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -312,3 +313,43 @@ def test_a_missing_package_is_named(built3, tmp_path):
     assert "fmpy:" in proc.stdout
     assert "No module named 'rrr_dk_absent' (the FMU needs rrr-dk-absent>=1.0)" in proc.stderr
     assert '-m pip install "rrr-dk-absent>=1.0"' in proc.stderr
+
+
+# ---------------------------------------------------------------------- a C host
+def test_a_c_host_without_python(md3, dir3, tmp_path):
+    """A C program (libc + libdl, tests/c_host/fmi3_host.c): pythonfmu3's wrapper does not load in a
+    process without Python (no loader for FMI 3.0); with libpython preloaded and an environment that
+    has the FMU's requirements on PYTHONPATH, it runs and gives fmpy's poses bit for bit."""
+    import os
+    import shutil
+    import subprocess
+    import sysconfig
+
+    cc = shutil.which("cc") or shutil.which("gcc")
+    assert cc, "no C compiler: the C host cannot be built"
+    exe = tmp_path / "fmi3_host"
+    source = Path(__file__).resolve().parent / "c_host" / "fmi3_host.c"
+    proc = subprocess.run([cc, "-std=c11", "-O1", "-Wall", "-o", str(exe), str(source), "-ldl"], capture_output=True,
+                          text=True)
+    assert proc.returncode == 0, proc.stderr
+    vr = {v.name: v.valueReference for v in md3.modelVariables}
+    args = [str(exe), str(dir3), "RRRDirectKinematics3", md3.guid, str(vr["q"]), str(vr["pose"]), "10", "1e-3"]
+    env = {k: v for k, v in os.environ.items() if k not in ("LD_PRELOAD", "PYTHONPATH", "PYTHONHOME")}
+    bare = subprocess.run(args, capture_output=True, text=True, env=env, timeout=300)
+    assert bare.returncode == 2 and "undefined symbol: _Py_NoneStruct" in bare.stdout
+    libpython = Path(sysconfig.get_config_var("LIBDIR")) / sysconfig.get_config_var("LDLIBRARY")
+    env.update(LD_PRELOAD=str(libpython), PYTHONPATH=sysconfig.get_paths()["purelib"])
+    run = subprocess.run(args, capture_output=True, text=True, env=env, timeout=600, cwd=str(tmp_path))
+    assert run.returncode == 0, run.stdout + run.stderr[-3000:]
+    pose = [float(v) for v in run.stdout.split("pose ")[1].split()]
+    m = FMU3Slave(guid=md3.guid, unzipDirectory=dir3, modelIdentifier="RRRDirectKinematics3", instanceName="same")
+    m.instantiate()
+    m.enterInitializationMode()
+    m.exitInitializationMode()
+    q = m.getFloat64([vr["q"]], nValues=3)
+    for k in range(10):
+        q[1] += 1e-3
+        m.setFloat64([vr["q"]], q)
+        m.doStep(k * H, H)
+    assert m.getFloat64([vr["pose"]], nValues=3) == pose
+    m.freeInstance()
