@@ -29,7 +29,6 @@ or get the core refuses changes nothing and is logged with status fmi3Error, but
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -105,7 +104,8 @@ class Fmi3Adapter:
                 raise Fmi3TableError(f"{where}: names no core variable")
             rows = [table.get(name) for name in row.core]
             bad = [n for n, v in zip(row.core, rows) if v is None or v.type != _CORE_TYPE[row.type]]
-            bad += [n for n in row.core if n in cls.START and n in table and table[n].causality not in ("input", "parameter")]
+            bad += [n for n in row.core if n in cls.START and n in table
+                    and table[n].causality not in ("input", "parameter")]
             if bad:
                 raise Fmi3TableError(f"{where}: {bad} are not {_CORE_TYPE[row.type]} variables of {cls.CORE.__name__}")
             if {(v.causality, v.variability) for v in rows} != {(rows[0].causality, rows[0].variability)}:
@@ -193,8 +193,10 @@ class Fmi3Adapter:
     def _get(self, kind: str, vrs) -> list:
         flat = self._flat(kind, vrs)
         if flat is None:
-            if kind == "Float64" and self._time_vr in vrs:
-                return [float(self.core._time) if vr == self._time_vr else math.nan for vr in vrs]
+            if kind == "Float64" and self._time_vr in vrs and self._flat(kind, [v for v in vrs if v != self._time_vr]) \
+                    is not None:                 # time, and Float64 variables of the core
+                return [x for vr in vrs for x in ([float(self.core._time)] if vr == self._time_vr
+                                                  else self._get(kind, [vr]))]
             self._refuse_vrs(f"fmi3Get{kind}", kind, vrs)
             return []
         core = self.core

@@ -175,6 +175,14 @@ def test_tracker_suite_posture_1_paths_are_identical(built, md3, dir3, dir2):
         assert _dk3_poses(md3, dir3, p.q, p.X[0], f"s3-{k}") == _dk2_poses(md2, dir2, p.q, p.X[0], f"s2-{k}"), p.name
 
 
+def test_time_reads_the_last_communication_point(md3, dir3):
+    m = Dk3(md3, dir3, "time")
+    pose = [m.step(qk) for qk in Q[1:4]][-1]
+    both = m.fmu.getFloat64([m.vr["time"], m.vr["pose"]], nValues=4)
+    assert both[0] == pytest.approx(3 * H, abs=1e-15) and tuple(both[1:]) == pose
+    m.close()
+
+
 # ---------------------------------------------------------------------- FMU state, bad input
 def test_fmu_state_round_trip(md3, dir3):
     m = Dk3(md3, dir3, "state")

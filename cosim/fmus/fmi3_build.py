@@ -97,7 +97,8 @@ def _archive(raw: Path, final: Path, cls, extra: dict | None = None) -> None:
         raise BuildError("resources/slavemodule.txt does not name the slave module")
     if f"binaries/{PLATFORM}/{DK3_NAME}.so" not in entries:
         raise BuildError(f"pythonfmu3 wrote no binaries/{PLATFORM}/{DK3_NAME}.so")
-    entries = {n: b for n, b in entries.items() if not n.startswith("binaries/") or n.startswith(f"binaries/{PLATFORM}/")}
+    entries = {n: b for n, b in entries.items()
+               if not n.startswith("binaries/") or n.startswith(f"binaries/{PLATFORM}/")}
     entries.update(extra or {})
     del entries["modelDescription.xml"]
     digest = hashlib.sha256(model_description_xml(cls, token=""))
