@@ -66,7 +66,8 @@ class Dk3:
                              instanceName=name)
         self.fmu.instantiate(loggingOn=True, logMessage=self._log)
         self.fmu.setFloat64([self.vr["pose0"]], [float(v) for v in pose0])
-        self.fmu.setInt32([self.vr["posture"]], [posture])
+        if posture is not None:
+            self.fmu.setInt32([self.vr["posture"]], [posture])
         self.fmu.setFloat64([self.vr["q"]], [float(v) for v in q0])
         self.fmu.enterInitializationMode()
         self.fmu.exitInitializationMode()
@@ -146,6 +147,25 @@ def test_the_build_is_deterministic(built3, tmp):
     again = fmi3_build.build_dk3(tmp / "again3", postures=(1,), resolution=references.REFERENCE["resolution"],
                                  cache_dir=tmp / "maps", log=lambda m: None)
     assert again.fmu.read_bytes() == built3.fmu.read_bytes()
+
+
+def test_posture_and_mode_start_values(tmp):
+    """--posture 2 1 --mode paper: the start values of posture, mode and q (the joints of pose0 in
+    posture 2) in the description and in the instance."""
+    from solver import ik
+
+    multi = fmi3_build.build_dk3(tmp / "multi3", postures=(2, 1), resolution=references.REFERENCE["resolution"],
+                                 mode="paper", cache_dir=tmp / "maps", log=lambda m: None, kernels=False)
+    assert multi.problems == []
+    md = read_model_description(str(multi.fmu))
+    v = {x.name: x for x in md.modelVariables}
+    assert (v["posture"].start, v["mode"].start) == ("2", "1")
+    q2 = ik(Manipulator.paper(), np.array(HOME_POSE, dtype=float), 2)
+    assert [float(x) for x in v["q"].start.split()] == [float(x) for x in q2]
+    m = Dk3(md, extract(str(multi.fmu), unzipdir=str(tmp / "multi3-x")), "multi", pose0=HOME_POSE, q0=q2,
+            posture=None)
+    assert m.get("posture", "Int32") == [2] and m.get("mode", "Int32") == [1] and m.get("status", "Int32") == [0]
+    m.close()
 
 
 # ---------------------------------------------------------------------- identical to the FMI 2.0 FMU
