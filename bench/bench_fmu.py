@@ -290,7 +290,7 @@ def main(argv=None):
     print(f"  FMU through fmpy's setReal/getReal (arrays per call)         {dk['convenience']:6.1f} us "
           f"(x{dk['convenience'] / dk['tracker']:.2f})")
     print(f"  FMU poses identical to the in-process tracker's: {dk['identical']}")
-    print(f"\nDK for FMI 3.0 (build/fmi3, FMU3Slave) beside FMI 2.0 (FMU2Slave), same run, passes alternating, median:")
+    print("\nDK for FMI 3.0 (build/fmi3, FMU3Slave) beside FMI 2.0 (FMU2Slave), same run, passes alternating, median:")
     print(f"  FMI 3.0: fmi3SetFloat64(q[3]) + fmi3DoStep + fmi3GetFloat64(pose[3])  {v3['fmi3']:6.1f} us")
     print(f"  FMI 2.0: fmi2SetReal(q1..q3) + fmi2DoStep + fmi2GetReal(x, y, phi)    {v3['fmi2']:6.1f} us")
     print(f"  ratio {v3['fmi3'] / v3['fmi2']:.2f}  (target <= 1.2: {_verdict(v3['fmi3'], v3['fmi2'], ratio=1.2)}); "
