@@ -171,6 +171,9 @@ class RRRDirectKinematics(TableSlave):
 
     def _options(self):
         """The tracker options of the parameters (checked): what a tracker built for them has."""
+        share = self.step_budget_share
+        if not (math.isfinite(share) and 0.0 <= share <= 1.0):
+            raise ValueError(f"parameter 'step_budget_share' = {share!r}: expected a number in [0, 1] (0: no budget)")
         return (*self._sensor_options(), self._start_tolerance())
 
     def _make_tracker(self, posture, mode):
@@ -338,6 +341,7 @@ class RRRDirectKinematics(TableSlave):
         self.certain = bool(info.certain)
         self.uncertain_since = -1.0 if since is None else since[1]
         self._publish_bound(info.certain, info.pose_bound, info.trust)
+        self.out_of_budget = bool(info.out_of_budget)
         return since
 
     def _joints(self):
@@ -346,6 +350,8 @@ class RRRDirectKinematics(TableSlave):
 
     def step(self, t, dt):
         q = self._joints()
+        share = self.step_budget_share
+        self._tracker.step_budget = share * dt if share > 0.0 and dt > 0.0 else None
         # the tracker's extrapolation scales with the ratio of successive time steps (a master that
         # rolls back and evaluates Runge-Kutta stages steps by h/2 and h from the same state)
         X, info, after = self._solve(q, dt if dt > 0 else None)

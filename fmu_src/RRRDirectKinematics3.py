@@ -68,6 +68,7 @@ class RRRDirectKinematics3(Fmi3Adapter, Fmi3Slave):
         _row("stuck_after", "Int32", "parameter"),
         _row("start_tolerance_linear", "Float64", "parameter", "m"),
         _row("start_tolerance_angular", "Float64", "parameter", "rad"),
+        _row("step_budget_share", "Float64", "parameter", "1"),
         Row3("pose", "Float64", "output", ("x", "y", "phi"), None,
              "platform pose: x, y of the platform centre (m), orientation phi (rad) wrapped to (-pi, pi]"),
         _row("region", "Int32", "output"),
@@ -81,4 +82,5 @@ class RRRDirectKinematics3(Fmi3Adapter, Fmi3Slave):
         Row3("pose_bound", "Float64", "output", ("x_bound", "y_bound", "phi_bound"), None,
              "half-widths of a proven box about the pose: x, y (m), phi (rad); -1 each: no bound (not certain)"),
         _row("trust", "Int32", "output"),
+        _row("out_of_budget", "Boolean", "output"),
     )

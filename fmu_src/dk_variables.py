@@ -75,8 +75,8 @@ def dk_outputs(deps: tuple, point: str = "platform centre") -> tuple:
 
 
 def bound_rows(deps: tuple) -> tuple:
-    """The rows of the pose bound, ``trust`` and the start tolerance (after ``stuck_after``: the rows
-    before keep their value references)."""
+    """The rows of the pose bound, ``trust``, the start tolerance and the step budget (after
+    ``stuck_after``: the rows before keep their value references)."""
     no = f"; {NO_BOUND:g}: no bound (not certain)"
     return (
         Var("x_bound", "Real", "output", unit="m", depends_on=deps,
@@ -94,4 +94,10 @@ def bound_rows(deps: tuple) -> tuple:
                         "of the joints at t0 within it, certain when proved the only one"),
         Var("start_tolerance_angular", "Real", "parameter", "fixed", start=float(START_TOLERANCE[2]), unit="rad",
             description="> 0: how far phi0 may be from the robot's orientation"),
+        Var("step_budget_share", "Real", "parameter", "fixed", start=0.0, unit="1", min=0.0, max=1.0,
+            description="share of each doStep's communication step the tracker may spend (e.g. 0.5 for a real-time "
+                        "loop); past it the step returns its choice, not certain (out_of_budget), and the proof goes "
+                        "on at the next steps.  0: no budget (results then do not depend on the machine's timing)"),
+        Var("out_of_budget", "Boolean", "output", depends_on=deps,
+            description="the step is not certain because its budget (step_budget_share) ran out first"),
     )

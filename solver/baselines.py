@@ -45,7 +45,7 @@ class _Baseline(_TrackerBase):
         self._rule = rule_code(rule)
         self._params = _lay.pack_baseline_params(self._w, NEWTON_TOL, SEPARATION)
 
-    def _kernel(self, q, state_pack):
+    def _kernel(self, q, state_pack, deadline):
         baseline_step(self.kind, self._rule, q, state_pack, self._model_pack, self._sample_to_sextic, self._params,
                       self._out_real, self._out_int)
 

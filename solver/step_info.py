@@ -72,6 +72,9 @@ class StepInfo(NamedTuple):
         What a controller can act on (:data:`TRUST`): 2 certain (the branch proved, the pose
         within ``pose_bound``); 1 possible (the branch along the measured joints is known but
         not proved over the joint tolerance: a fold may lie within it); 0 lost.
+    out_of_budget : bool
+        With a step budget (``Tracker(step_budget=...)``): the step is not certain because its
+        budget ran out before its proof was complete (the tube chain goes on at the next steps).
     """
 
     label: int
@@ -90,6 +93,7 @@ class StepInfo(NamedTuple):
     uncertain_since: int = -1
     pose_bound: np.ndarray = NO_BOUND
     trust: int = TRUST_LOST
+    out_of_budget: bool = False
 
     @classmethod
     def from_result(cls, out_real: np.ndarray, out_int: np.ndarray, uncertain_since: int) -> "StepInfo":
@@ -117,7 +121,7 @@ class TrackResult(NamedTuple):
     ----------
     X : ndarray (n, 3)
     label, n_real, status, certificate, n_candidates, uncertain_since, trust : ndarray of int (n,)
-    near_border, ambiguous, jump, certain : ndarray of bool (n,)
+    near_border, ambiguous, jump, certain, out_of_budget : ndarray of bool (n,)
     X_pred : ndarray (n, 3)
     cond, d_best, d_second : ndarray (n,)
     pose_bound : ndarray (n, 3)
@@ -144,9 +148,11 @@ class TrackResult(NamedTuple):
     trust: np.ndarray
     pose_bound: np.ndarray
     seconds: np.ndarray
+    out_of_budget: np.ndarray
 
 
 #: Per-step fields of TrackResult (name, dtype) besides X, X_pred and seconds.
 STEP_FIELDS = (("label", int), ("near_border", bool), ("n_real", int), ("cond", float), ("ambiguous", bool),
                ("status", int), ("jump", bool), ("d_best", float), ("d_second", float), ("certain", bool),
-               ("certificate", int), ("n_candidates", int), ("uncertain_since", int), ("trust", int))
+               ("certificate", int), ("n_candidates", int), ("uncertain_since", int), ("trust", int),
+               ("out_of_budget", bool))

@@ -159,6 +159,7 @@ from dataclasses import replace
 import numpy as np
 
 from ._kernels import layout as _lay
+from ._kernels.anytime import ANY_CUT, ANY_DEADLINE, ANY_N, ANY_SIZE, walk_floats
 from ._kernels.tracker import tracker_step
 from .checks import as_array
 from .grid import default_bounds
@@ -245,6 +246,11 @@ class Tracker(_TrackerBase):
         How far (m, m, rad) the initial pose given to :meth:`reset` may be from the robot's: the
         tracker starts from the DK solution of the initial joints within it, certain when it is
         proved the only pose there (see "An honest start").  Default :data:`START_TOLERANCE`.
+    step_budget : float or None
+        Seconds one :meth:`step` may take (None: no budget, every search runs to its test
+        limits).  When the budget runs out the step returns its choice, not certain, with
+        ``out_of_budget``; the tube chain's unfinished proof goes on at the next steps (see "A
+        step budget").  Measured overshoot: ``bench/bench_budget.py``.
     """
 
     def __init__(self, model: Manipulator, map_tensor: MapTensor, mode: str = "default", r=None,
@@ -252,8 +258,15 @@ class Tracker(_TrackerBase):
                  singular_tol: float = 1e-4, use_map: bool = True, strategy: int = _lay.STRATEGY_SEGMENT,
                  segment_singular: float = 0.05, posture_certificate: bool = True, max_tests: int = MAX_TESTS,
                  joint_tolerance: float = 0.0, gate: float = GATE, speed_bound=None,
-                 reacquire_boxes: int = REACQUIRE_BOXES, stuck_after: int = 0, start_tolerance=START_TOLERANCE):
+                 reacquire_boxes: int = REACQUIRE_BOXES, stuck_after: int = 0, start_tolerance=START_TOLERANCE,
+                 step_budget: float | None = None):
         super().__init__(model)
+        if step_budget is not None and not (isinstance(step_budget, (int, float, np.floating, np.integer))
+                                            and not isinstance(step_budget, bool) and np.isfinite(step_budget)
+                                            and step_budget > 0):
+            raise TrackerError(f"step_budget: expected seconds > 0 or None, got {step_budget!r}")
+        self.step_budget = None if step_budget is None else float(step_budget)
+        self._anytime = np.zeros(ANY_SIZE)
         r0 = as_array("start_tolerance", start_tolerance, (3,))
         if r0.shape != (3,) or not np.all(r0 > 0):
             raise TrackerError(f"start_tolerance: expected 3 half-widths > 0 (m, m, rad), got {start_tolerance!r}")
@@ -361,6 +374,19 @@ class Tracker(_TrackerBase):
         warnings.warn(note, stacklevel=3)
         return note
 
-    def _kernel(self, q, state_pack):
+    def _kernel(self, q, state_pack, deadline):
+        anytime, walk = self._anytime, self.state.walk
+        if walk is None:
+            anytime[ANY_N] = 0.0
+        else:
+            anytime[:len(walk)] = walk
+        anytime[ANY_DEADLINE] = deadline
         tracker_step(self._mode, self._rule, q, state_pack, self._model_pack, self._sample_to_sextic, self._labels,
-                     self._map_pack, self._stencil, self._params, self._out_real, self._out_int)
+                     self._map_pack, self._stencil, self._params, self._out_real, self._out_int, anytime)
+
+    def _walk(self):
+        n = walk_floats(self._anytime)
+        return self._anytime[:n].copy() if n else None
+
+    def _out_of_budget(self):
+        return self._anytime[ANY_CUT] > 0.0

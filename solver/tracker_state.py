@@ -18,6 +18,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ._kernels.anytime import ANY_N, ANY_SIZE, walk_floats
 from ._kernels.certify import CERT_CONTINUATION, CERT_REACQUIRED
 from ._kernels.layout import (F_DQ, F_INNOV, I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_STATUS, MAX_REFUSED,
                               OUT_BOUND, OUT_CANDS, OUT_INFO, OUT_N_TUBES, OUT_REGION, OUT_TUBE, OUT_X, STATE_A_SCALE,
@@ -132,6 +133,10 @@ class TrackerState:
         pose, ``S``, centre joints, kappa, rho, its joint set; 1 <= n <= 27) that holds the
         robot's pose for every joint vector within the tolerance of ``q``; the next step's tube
         chain starts from it.  None when not certain.
+    walk : ndarray, shape (k,) or None
+        With a step budget, while the tube chain is unfinished: the walk the next step goes on
+        with (the leading floats of :mod:`solver._kernels.anytime`'s pack: its tubes, where it
+        stands, the readings still to reach).  None when there is none.
     """
 
     X: np.ndarray
@@ -156,6 +161,7 @@ class TrackerState:
     clean_lag: int = 0
     tube: np.ndarray | None = None
     anchor_bound: np.ndarray = field(default_factory=lambda: NO_BOUND)
+    walk: np.ndarray | None = None
 
     @property
     def history(self) -> int:
@@ -223,7 +229,7 @@ class TrackerState:
         return -1 if certain else (self.uncertain_since if self.uncertain_since >= 0 else self.steps + 1)
 
     def after(self, q: np.ndarray, dt: float | None, out_real: np.ndarray, out_int: np.ndarray,
-              extra: dict) -> "TrackerState":
+              extra: dict, walk: np.ndarray | None = None) -> "TrackerState":
         """The state after a step from this one to joints ``q`` (3,), read from its result pack.
 
         A rejected sample moves only the counts of refusals and skipped samples, a held one
@@ -240,6 +246,8 @@ class TrackerState:
         extra : dict
             The stuck-joint detector's fields of the next state (:func:`solver.stuck.reading_fields`;
             empty when the detector is off).
+        walk : ndarray or None
+            The step's unfinished tube chain (see the attribute), kept when the step is accepted.
         """
         i = out_int.tolist()
         status = i[I_STATUS]
@@ -268,7 +276,7 @@ class TrackerState:
                             X if certain else anchor, 0.0 if certain else age, **extra,
                             tube=_cover(out_real) if certain else None,
                             anchor_bound=out_real[OUT_BOUND:OUT_BOUND + 3].copy() if certain else
-                            (NO_BOUND if anchor is None else anchor_bound))
+                            (NO_BOUND if anchor is None else anchor_bound), walk=None if certain else walk)
 
     def as_array(self) -> np.ndarray:
         """The state as :data:`STATE_FLOATS` floats (see :data:`_SAVED_FIELDS`): what an FMU serialises."""
@@ -294,7 +302,9 @@ class TrackerState:
             a[_TUBE:_TUBE + self.tube.size] = self.tube.ravel()
         a[_ANCHOR_BOUND:_ANCHOR_BOUND + 3] = self.anchor_bound
         if self.clean is not None:
-            a[_BASE:] = self.clean.as_array()[:_BASE]
+            a[_BASE:2 * _BASE] = self.clean.as_array()[:_BASE]
+        if self.walk is not None:
+            a[_WALK:_WALK + len(self.walk)] = self.walk
         return a
 
     @classmethod
@@ -304,8 +314,12 @@ class TrackerState:
         if a.shape != (STATE_FLOATS,):
             raise TrackerError(f"state: expected {STATE_FLOATS} floats (X, q, X2, dq_scale, steps, dt, q2, "
                                f"candidates, ..., the clean state), got {np.array2string(a, threshold=40)}")
-        clean = None if np.all(np.isnan(a[_BASE:])) else cls._from_base(a[_BASE:])
-        return replace(cls._from_base(a[:_BASE]), clean=clean)
+        clean = None if np.all(np.isnan(a[_BASE:2 * _BASE])) else cls._from_base(a[_BASE:2 * _BASE])
+        walk = a[_WALK:_WALK + walk_floats(a[_WALK:])].copy() if np.isfinite(a[_WALK + ANY_N]) else None
+        if walk is not None and (len(walk) == 0 or not np.all(np.isfinite(walk))):
+            raise TrackerError(f"state: a walk of the tube chain expected after the clean state, got "
+                               f"{np.array2string(a[_WALK:_WALK + 12], threshold=12)}...")
+        return replace(cls._from_base(a[:_BASE]), clean=clean, walk=walk)
 
     @classmethod
     def _from_base(cls, a) -> "TrackerState":
@@ -333,7 +347,7 @@ class TrackerState:
 #: reset), number of candidates, verified, uncertain_since, candidates (6 x 3, NaN past the number), intact,
 #: a_scale, refused, anchor (NaN before the first certain step), anchor_age, skipped, reading (NaN before the
 #: first), repeats, clean_lag, the number of tubes and the cover (NaN past them), the anchor's bound; then the
-#: clean state's first _BASE floats (NaN when there is none).
+#: clean state's first _BASE floats (NaN when there is none); then the walk (NaN when there is none).
 _X, _Q, _X2, _DQ_SCALE, _STEPS, _DT, _Q2, _N_CAND, _VERIFIED, _SINCE, _CANDS = 0, 3, 6, 9, 10, 11, 12, 15, 16, 17, 18
 _INTACT, _A_SCALE, _REFUSED, _ANCHOR, _AGE = _CANDS + 18, _CANDS + 19, _CANDS + 20, _CANDS + 21, _CANDS + 24
 _SKIPPED = _AGE + 1
@@ -342,6 +356,7 @@ _N_TUBES = _CLEAN_LAG + 1
 _TUBE = _N_TUBES + 1
 _ANCHOR_BOUND = _TUBE + MAX_COVER * TUBE_SIZE
 _BASE = _ANCHOR_BOUND + 3
-STATE_FLOATS = 2 * _BASE
+_WALK = 2 * _BASE
+STATE_FLOATS = _WALK + ANY_SIZE
 _FINITE = [*range(_X, _X + 3), *range(_Q, _Q + 3), _DQ_SCALE, _STEPS, _N_CAND, _VERIFIED, _SINCE, _INTACT, _A_SCALE,
            _REFUSED, _SKIPPED, *range(_REPEATS, _REPEATS + 3), _CLEAN_LAG]

@@ -15,6 +15,7 @@ import numpy as np
 
 from ._kernels.layout import (I_CERTAIN, INFO_I_SIZE, OUT_N_TUBES, OUT_SIZE, OUT_X, STATE_SIZE, STATUS_REJECTED,
                               TRUST_CERTAIN, TRUST_LOST)
+from ._kernels.clock import deadline_after
 from .checks import SolverInputError, as_array
 from .direct_kinematics import kernel_constants
 from .kinematics import wrap_angle
@@ -54,6 +55,8 @@ class _TrackerBase:
         self._out_real = np.empty(OUT_SIZE)
         self._out_real[OUT_N_TUBES] = 0.0                  # a baseline's step leaves no cover of tubes
         self._out_int = np.empty(INFO_I_SIZE, dtype=np.int64)
+        #: seconds one step may take (None: no budget); only the tracker has anytime proofs
+        self.step_budget: float | None = None
 
     def reset(self, X0, q0) -> None:
         """Start tracking from a known configuration.
@@ -74,9 +77,18 @@ class _TrackerBase:
         self.state = TrackerState(X0, q0.copy(), None, 0.0, 0, float("nan"), anchor=X0, anchor_age=0.0,
                                   reading=q0.copy())
 
-    def _kernel(self, q, state_pack):                              # pragma: no cover - abstract
-        """Run the compiled step on joints ``q`` and the state pack into the output packs."""
+    def _kernel(self, q, state_pack, deadline: float):               # pragma: no cover - abstract
+        """Run the compiled step on joints ``q`` and the state pack into the output packs, until the
+        ``deadline`` (:mod:`solver._kernels.clock`; 0.0: none)."""
         raise NotImplementedError
+
+    def _walk(self) -> np.ndarray | None:
+        """The unfinished tube chain the last step left (a copy), None when none (baselines: never)."""
+        return None
+
+    def _out_of_budget(self) -> bool:
+        """The last step's deadline passed before its searches ended (baselines: never)."""
+        return False
 
     def step(self, q, dt: float | None = None):
         """Track one step: the pose of the manipulator at joints ``q``.
@@ -103,6 +115,7 @@ class _TrackerBase:
         TrackerError
             No state yet (call :meth:`reset`).
         """
+        deadline = deadline_after(self.step_budget) if self.step_budget is not None else 0.0
         q = _check_q(q)
         if self._limits is not None and (np.any(q < self._limits[0]) or np.any(q > self._limits[1])):
             raise SolverInputError(f"q: expected leg lengths within the joint limits [{self._limits[0]}, "
@@ -122,10 +135,13 @@ class _TrackerBase:
                                                0.0, 0.0, False, 0, max(len(held.candidates), 1), held.since(False))
             extra = reading_fields(st, q, repeats)
         st.pack(self._state_pack, dt, self.stuck_after)
-        self._kernel(q, self._state_pack)
+        self._kernel(q, self._state_pack, deadline)
         of, oi = self._out_real, self._out_int
-        info = StepInfo.from_result(of, oi, st.since(bool(oi[I_CERTAIN])))
-        self.state = new = st.after(q, dt, of, oi, extra)
+        certain = bool(oi[I_CERTAIN])
+        info = StepInfo.from_result(of, oi, st.since(certain))
+        if deadline and not certain and self._out_of_budget():
+            info = info._replace(out_of_budget=True)
+        self.state = new = st.after(q, dt, of, oi, extra, None if certain else self._walk())
         # an accepted step's pose is the new state's (one copy), a refused or held one a copy of the old
         return (new.X if new.steps > st.steps else of[OUT_X:OUT_X + 3].copy()), info
 

@@ -22,6 +22,8 @@ OUTPUTS = references.OUTPUTS
 CERTAINTY = ("certain", "uncertain_since")
 #: the pose bound and trust (not in the reference CSV)
 BOUND = ("x_bound", "y_bound", "phi_bound", "trust")
+#: the step budget's flag (not in the reference CSV)
+BUDGET = ("out_of_budget",)
 MODEL = Manipulator.paper()
 PATH = circle_path(N)
 Q = ik(MODEL, PATH, 1)

@@ -31,7 +31,7 @@ from cosim.simulation import input_table, simulate
 from cosim.unit import FMUUnit
 from solver import CACHE_ENV, DEFAULT_RULE, HOME_POSE, MapTensor, Tracker, cache_dir, dk_all, ik, singularity_measures
 
-from dk_fmu_support import (BOUND, CERTAINTY, H, MODEL, N, OUTPUTS, PATH, RES, X0, Q, circle_start, result_rows,
+from dk_fmu_support import (BOUND, BUDGET, CERTAINTY, H, MODEL, N, OUTPUTS, PATH, RES, X0, Q, circle_start, result_rows,
                             tracker_rows)
 from dk_fmu_support import built, built_multi, fmu, hygiene, make, map1, md, tmp, unzipdir  # noqa: F401 (fixtures)
 
@@ -58,6 +58,7 @@ def test_model_description(md, map1):
                 "stuck_after": ("parameter", "fixed", None),
                 "start_tolerance_linear": ("parameter", "fixed", "m"),
                 "start_tolerance_angular": ("parameter", "fixed", "rad"),
+                "step_budget_share": ("parameter", "fixed", "1"), "out_of_budget": ("output", "discrete", None),
                 "x_bound": ("output", "continuous", "m"), "y_bound": ("output", "continuous", "m"),
                 "phi_bound": ("output", "continuous", "rad"), "trust": ("output", "discrete", None),
                 "x": ("output", "continuous", "m"), "y": ("output", "continuous", "m"),
@@ -72,8 +73,8 @@ def test_model_description(md, map1):
     assert v["near_border"].type == v["ambiguous"].type == "Boolean"
     # every output depends on exactly q1..q3; InitialUnknowns list every output
     assert {u.variable.name: sorted(d.name for d in u.dependencies) for u in md.outputs} == \
-        {n: ["q1", "q2", "q3"] for n in OUTPUTS + CERTAINTY + BOUND}
-    assert {u.variable.name for u in md.initialUnknowns} == set(OUTPUTS + CERTAINTY + BOUND)
+        {n: ["q1", "q2", "q3"] for n in OUTPUTS + CERTAINTY + BOUND + BUDGET}
+    assert {u.variable.name for u in md.initialUnknowns} == set(OUTPUTS + CERTAINTY + BOUND + BUDGET)
     assert {u.name for u in md.unitDefinitions} == {"1", "m", "rad", "s", "m/s", "rad/s"}
     assert md.coSimulation.canGetAndSetFMUstate and md.coSimulation.canSerializeFMUstate
     # start values: the home pose and its joints in posture 1; posture 1 (1..8), default mode

@@ -20,7 +20,7 @@ from .kinematics import geometry
 
 @njit(cache=True)
 def certify(cands, n_cand, verified, intact, qp, dq, d2_par, have_par, eps, poses, real, posture_bits, max_tests,
-            model_pack, new_cands, keep):
+            model_pack, new_cands, keep, deadline=0.0):
     """The candidate set after one step (see the module docstring).
 
     cands (6, 3): the candidates at ``qp`` (``n_cand`` of them; ``verified``: the
@@ -46,12 +46,12 @@ def certify(cands, n_cand, verified, intact, qp, dq, d2_par, have_par, eps, pose
         keep[k] = False
     if n_cand == 1:
         p = continue_single(cands[0], verified, eps > 0.0 and intact, qp, dq, d1_par, d2_par, n_paths, eps, poses,
-                            real, max_tests, M, l1, b, l2sq, new_cands, keep)
+                            real, max_tests, M, l1, b, l2sq, new_cands, keep, deadline)
         if p >= 0:
             return 1, CERT_CONTINUATION, eps == 0.0 or p == 0, True
     linked = np.zeros(6, dtype=np.bool_)      # followed back to a candidate
     n_new = eliminate(cands, n_cand, qu, dq, d1_par, d2_par, n_paths, poses, real, max_tests, M, l1, b, l2sq,
-                      new_cands, keep, linked)
+                      new_cands, keep, linked, deadline)
     code = CERT_ELIMINATION
     if n_new > 1 and posture_bits >= 0:
         n_post = keep_posture(poses, qu, posture_bits, M, l1, b, new_cands, keep)
@@ -73,7 +73,7 @@ def certify(cands, n_cand, verified, intact, qp, dq, d2_par, have_par, eps, pose
 
 @njit(cache=True, inline="always")
 def continue_single(X0, verified, tube_first, qp, dq, d1_par, d2_par, n_paths, eps, poses, real, max_tests,
-                    M, l1, b, l2sq, new_cands, keep):
+                    M, l1, b, l2sq, new_cands, keep, deadline):
     """Continuation: a forward chain from the one candidate ``X0`` (3,) names its continuation.
 
     Paths tried in turn: with ``tube_first`` (measured joints, chain intact) the tube of
@@ -89,7 +89,8 @@ def continue_single(X0, verified, tube_first, qp, dq, d1_par, d2_par, n_paths, e
     for p in range(0 if tube_first else 1, n_paths + 1):
         d1 = dq if p <= 1 else d1_par
         d2 = zero if p <= 1 else d2_par
-        if follow_branch(X0, verified, qp, d1, d2, eps if p == 0 else 0.0, M, l1, b, l2sq, max_tests, end) > 0:
+        if follow_branch(X0, verified, qp, d1, d2, eps if p == 0 else 0.0, M, l1, b, l2sq, max_tests, end,
+                         deadline) > 0:
             hit = -1
             for k in range(6):
                 if real[k]:
@@ -106,7 +107,7 @@ def continue_single(X0, verified, tube_first, qp, dq, d1_par, d2_par, n_paths, e
 
 @njit(cache=True, inline="always")
 def eliminate(cands, n_cand, qu, dq, d1_par, d2_par, n_paths, poses, real, max_tests, M, l1, b, l2sq, new_cands,
-              keep, linked):
+              keep, linked, deadline):
     """Elimination: every real solution at ``qu`` followed back along the segment (then, when its
     chain does not close, the parabola); one whose chain provably ends at a non-candidate of
     ``cands[:n_cand]`` is dropped.  The others are marked in ``keep`` (6,) and listed in
@@ -125,7 +126,7 @@ def eliminate(cands, n_cand, qu, dq, d1_par, d2_par, n_paths, poses, real, max_t
         for p in range(n_paths):
             # the same path backwards (the segment, then the parabola)
             came = follow_back(Xr, qu, dq if p == 0 else d1_par, zero if p == 0 else d2_par, cands, n_cand,
-                               max_tests, M, l1, b, l2sq)
+                               max_tests, M, l1, b, l2sq, deadline)
             if came >= 0:
                 kept = followed = came == 1
                 break

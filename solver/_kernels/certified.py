@@ -12,9 +12,11 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .anytime import ANY_DEADLINE, ANY_N, WALK_CLOSED, walk_append, walk_begin, walk_on
 from .candidates import certify
 from .certify import CERT_NONE, CERT_REACQUIRED, CERT_TUBE
 from .choice import nearest
+from .clock import cycles, expired
 from .certify import elbow_bits
 from .exclusion import in_region, preimage_hull, reacquire, tube_exclusion
 from .gates import reacquire_region
@@ -35,11 +37,24 @@ from .tube_chain import MAX_COVER, pose_bound, tube_chain
 REACQUIRE_COVERS = 4
 #: Tube tests one step's tube chain may use (a step far from singularities uses two).
 TUBE_TESTS = 1200
+#: With a step budget: the share of the time left that a walk from a certain step's cover may use first
+#: (it usually ends in a few tests), then the share of the rest that the chains of boxes (the choice) may
+#: use before the walk goes on (:func:`budgeted`).
+WALK_SHARE, CHAIN_SHARE = 0.3, 0.6
+
+
+@njit(cache=True)
+def share(deadline, fraction):
+    """A deadline ``fraction`` of the way from now to ``deadline`` (:mod:`.clock`; 0.0 stays none)."""
+    if deadline <= 0.0:
+        return 0.0
+    now = float(cycles())
+    return now + fraction * max(deadline - now, 0.0)
 
 
 @njit(cache=True, inline="always")
 def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, model_pack, map_pack, out_real,
-                  out_int):
+                  out_int, anytime):
     """The certificates of a step and what they change in the choice.
 
     First the tube chain (:func:`tube_step`) from the last certain step's tube; then the
@@ -54,6 +69,11 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
     joints may be a glitch) is not re-acquired from, vouched for nothing and ends the chain.
     Returns the (possibly new) chosen solution index, and whether a chain of boxes joins it to
     a previous candidate or it was re-acquired (the speed gate then leaves it alone).
+
+    With a step budget (the anytime pack's deadline, :mod:`.anytime`) every search stops at the
+    deadline; the tube chain is a walk that the next steps continue, and it shares the time with
+    the chains of boxes, which steer the choice (:func:`budgeted`); re-acquisition and the
+    set-membership step get what is left.
     """
     new_cands = out_real[OUT_CANDS:OUT_CANDS + 18].reshape((6, 3))
     tubes = out_real[OUT_TUBE:OUT_TUBE + MAX_COVER * TUBE_SIZE].reshape((MAX_COVER, TUBE_SIZE))
@@ -64,7 +84,13 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
     keep = np.empty(6, dtype=np.bool_)
     tol = params[PARAM_JOINT_TOL]
     sol = -1
-    if state[STATE_N_TUBES] > 0.0 and not untrusted:
+    deadline = anytime[ANY_DEADLINE]
+    if untrusted:
+        anytime[ANY_N] = 0.0                   # a glitch may break the path the walk assumes
+    if deadline > 0.0:
+        sol, n_tubes, n_new, cert, intact, linked = budgeted(untrusted, state, work, poses, real, params, model_pack,
+                                                             new_cands, keep, tubes, anytime)
+    elif state[STATE_N_TUBES] > 0.0 and not untrusted:
         sol, n_tubes = tube_step(state, work, poses, real, tol, model_pack, tubes)
     if sol >= 0:
         n_new, cert, intact, linked = 1, CERT_TUBE, True, True
@@ -72,12 +98,13 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
             keep[k] = k == sol
         new_cands[0, :] = poses[sol].real
     else:
-        n_new, cert, intact, linked = chains(state, work, poses, real, params, model_pack, new_cands, keep)
+        if deadline <= 0.0:
+            n_new, cert, intact, linked = chains(state, work, poses, real, params, model_pack, new_cands, keep)
         if tol > 0.0:                          # along the measured joints: a choice, not a proof
             intact = False
             if params[PARAM_REACQUIRE] > 0.0 and int(params[PARAM_POSTURE_BITS]) >= 0 and not untrusted:
                 n_tubes = reacquired(chosen, cert != CERT_NONE, state, work, poses, params, model_pack, new_cands,
-                                     keep, tubes)
+                                     keep, tubes, deadline)
                 if n_tubes > 0:
                     n_new, cert, intact, linked = 1, CERT_REACQUIRED, True, True
     certain = False
@@ -115,7 +142,9 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
     out_real[OUT_N_TUBES] = n_tubes if certain else 0
     out_real[OUT_REGION:OUT_REGION + 6] = np.nan
     if not certain and tol > 0.0 and not untrusted:
-        region_step(state, qu, params, model_pack, out_real[OUT_REGION:OUT_REGION + 6])
+        region_step(state, qu, params, model_pack, out_real[OUT_REGION:OUT_REGION + 6], deadline)
+    if certain or n_tubes > 0:
+        anytime[ANY_N] = 0.0                   # certain (or re-acquired): no walk left to continue
     out_int[I_CERTAIN] = 1 if certain else 0
     out_int[I_CERTIFICATE] = cert
     out_int[I_N_CAND] = n_new
@@ -124,12 +153,43 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
     return chosen, linked
 
 
+@njit(cache=True, inline="always")
+def budgeted(untrusted, state, work, poses, real, params, model_pack, new_cands, keep, tubes, anytime):
+    """The tube chain and the chains of boxes of a step with a budget (the anytime pack's deadline).
+
+    A walk from the last certain step's cover first (within :data:`WALK_SHARE` of the time left: it
+    usually ends in a few tests); when it does not end, the chains of boxes (:func:`chains`, the
+    choice; within :data:`CHAIN_SHARE` of the time left), then the walk on (a walk the last steps
+    left goes on after the chains).  Returns (the tube chain's solution or -1, its tubes, then as
+    :func:`chains`; their candidates in ``new_cands``, ``keep``)."""
+    deadline = anytime[ANY_DEADLINE]
+    sol, n_tubes = -1, 0
+    n_new, cert, intact, linked = 0, CERT_NONE, False, False
+    fresh = anytime[ANY_N] <= 0.0
+    if fresh and not untrusted:
+        sol, n_tubes = walk_step(state, work, poses, real, tol_of(params), model_pack, tubes, anytime, True,
+                                 share(deadline, WALK_SHARE))
+        if sol >= 0:
+            return sol, n_tubes, n_new, cert, intact, linked
+    n_new, cert, intact, linked = chains(state, work, poses, real, params, model_pack, new_cands, keep,
+                                         share(deadline, CHAIN_SHARE))
+    if not untrusted and (anytime[ANY_N] > 0.0 or not fresh):
+        sol, n_tubes = walk_step(state, work, poses, real, tol_of(params), model_pack, tubes, anytime, not fresh,
+                                 deadline)
+    return sol, n_tubes, n_new, cert, intact, linked
+
+
+@njit(cache=True, inline="always")
+def tol_of(params):
+    return params[PARAM_JOINT_TOL]
+
+
 #: The set-membership step keeps pose boxes this fraction of the speed bound's reach per step.
 REGION_RESOLUTION = 0.5
 
 
 @njit(cache=True)
-def region_step(state, qu, params, model_pack, out):
+def region_step(state, qu, params, model_pack, out, deadline=0.0):
     """An uncertain step with a speed bound: the pose box (6,) into ``out`` that holds the robot now,
     from the box that held it (the last certain pose's bound, or the last uncertain step's box,
     grown by the speed bound times the time since: :func:`.gates.reacquire_region`) and the
@@ -147,7 +207,7 @@ def region_step(state, qu, params, model_pack, out):
     res[1] = max(REGION_RESOLUTION * params[PARAM_SPEED + 1] * age, 1e-7)
     M, l1, l2sq, b = geometry(model_pack)
     if preimage_hull(qu, params[PARAM_JOINT_TOL], int(params[PARAM_POSTURE_BITS]), region, res,
-                     int(params[PARAM_REACQUIRE]), M, l1, l2sq, b, hull) > 0:
+                     int(params[PARAM_REACQUIRE]), M, l1, l2sq, b, hull, deadline) > 0:
         out[:] = hull
 
 
@@ -164,19 +224,48 @@ def tube_step(state, work, poses, real, tol, model_pack, tubes):
                           M, l1, l2sq, b, tubes)
     if tests <= 0:
         return -1, 0
+    return cover_solution(tubes, n, work[STEP_QU:STEP_QU + 3], tol, poses, real), n
+
+
+@njit(cache=True, inline="always")
+def walk_step(state, work, poses, real, tol, model_pack, tubes, anytime, append, deadline):
+    """The tube chain as a walk (a step budget, :mod:`.anytime`): the walk the last steps left, or a new
+    one from the last step's cover (state pack), with this step's reading appended (``append``),
+    walked on until the ``deadline``.  Returns as :func:`tube_step` (-1 also while the walk is
+    pending)."""
+    M, l1, l2sq, b = geometry(model_pack)
     qu = work[STEP_QU:STEP_QU + 3]
+    if append and anytime[ANY_N] <= 0.0:
+        n_old = int(state[STATE_N_TUBES])
+        if n_old <= 0:
+            return -1, 0
+        old = state[STATE_TUBE:STATE_TUBE + MAX_COVER * TUBE_SIZE].reshape((MAX_COVER, TUBE_SIZE))
+        walk_begin(anytime, old, n_old, state[STATE_Q:STATE_Q + 3])
+    if anytime[ANY_N] <= 0.0 or (append and not walk_append(anytime, qu)):
+        anytime[ANY_N] = 0.0
+        return -1, 0
+    status, n = walk_on(anytime, tol, TUBE_TESTS, deadline, M, l1, l2sq, b, tubes)
+    if status != WALK_CLOSED:
+        return -1, 0
+    return cover_solution(tubes, n, qu, tol, poses, real), n
+
+
+@njit(cache=True, inline="always")
+def cover_solution(tubes, n, qu, tol, poses, real):
+    """The index of the real DK solution (``poses`` (6, 3) complex, ``real`` (6,)) that is the solution
+    of the cover ``tubes[:n]`` at the reading ``qu`` (3,), or -1."""
     Xr, h = np.empty(3), np.empty(3)
     for k in range(6):
         if real[k]:
             for i in range(3):
                 Xr[i] = poses[k, i].real
             if pose_bound(tubes, n, qu, tol, Xr, h):
-                return k, n
-    return -1, 0
+                return k
+    return -1
 
 
 @njit(cache=True, inline="always")
-def chains(state, work, poses, real, params, model_pack, new_cands, keep):
+def chains(state, work, poses, real, params, model_pack, new_cands, keep, deadline=0.0):
     """:func:`.candidates.certify` on the previous candidates (state pack) over the joint step and,
     with three samples, the parabola through them (time-scaled).  Writes ``new_cands`` (6, 3) and
     ``keep`` (6,); returns (candidates, certificate code, chain intact since the reset, linked)."""
@@ -193,12 +282,12 @@ def chains(state, work, poses, real, params, model_pack, new_cands, keep):
                                           int(state[STATE_N_CAND]), state[STATE_VERIFIED] > 0.0, intact_before, qp,
                                           dq, d2, have_par, 0.0, poses, real,
                                           int(params[PARAM_POSTURE_BITS]), int(params[PARAM_MAX_TESTS]), model_pack,
-                                          new_cands, keep)
+                                          new_cands, keep, deadline)
     return n_new, cert, intact and intact_before, linked
 
 
 @njit(cache=True, inline="always")
-def reacquired(chosen, certified, state, work, poses, params, model_pack, new_cands, keep, tubes):
+def reacquired(chosen, certified, state, work, poses, params, model_pack, new_cands, keep, tubes, deadline=0.0):
     """Re-acquire the branch from this sample alone (measured joints, :mod:`.exclusion`): the
     solution the certificates kept (``certified``) or else ``chosen``, over the region the robot
     can be in (:func:`.gates.reacquire_region`), by a cover of the reading's joint box
@@ -226,12 +315,15 @@ def reacquired(chosen, certified, state, work, poses, params, model_pack, new_ca
     n = 0
     for attempt in range(1, REACQUIRE_COVERS + 1):
         n = tube_exclusion(Xc, qu, tol, posture, posture + 1, region, int(params[PARAM_REACQUIRE]), attempt, M, l1,
-                           l2sq, b, tubes)
-        if n > 0:
+                           l2sq, b, tubes, deadline)
+        if n > 0 or expired(deadline):
             break
     if n == 0:
+        if expired(deadline):
+            return 0
         if not (tube_test(Xc, qu, np.full(3, tol), np.zeros(3), M, l1, l2sq, b, tubes[0]) and
-                box_reacquire(Xc, qu, tol, posture, region, int(params[PARAM_REACQUIRE]), model_pack, tubes[0])):
+                box_reacquire(Xc, qu, tol, posture, region, int(params[PARAM_REACQUIRE]), model_pack, tubes[0],
+                              deadline)):
             return 0
         n = 1
     for k in range(6):
@@ -241,11 +333,11 @@ def reacquired(chosen, certified, state, work, poses, params, model_pack, new_ca
 
 
 @njit(cache=True, inline="always")
-def box_reacquire(Xc, qu, tol, posture, region, max_boxes, model_pack, tube):
+def box_reacquire(Xc, qu, tol, posture, region, max_boxes, model_pack, tube, deadline=0.0):
     """Re-acquisition by an axis-aligned Krawczyk box (:func:`.exclusion.reacquire`) about ``Xc``; the
     ``tube`` takes over when its hull lies inside that box."""
     box = np.empty(6)
-    return reacquire(Xc, qu, tol, posture, region, max_boxes, model_pack, box) and hull_inside(tube, tol, box)
+    return reacquire(Xc, qu, tol, posture, region, max_boxes, model_pack, box, deadline) and hull_inside(tube, tol, box)
 
 
 @njit(cache=True, inline="always")

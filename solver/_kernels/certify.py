@@ -20,6 +20,7 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
+from .clock import expired
 from .kinematics import geometry
 from .krawczyk import PAD, W_G, W_J, W_SIZE, W_TOT, W_Y, krawczyk, newton_on_path, point_terms
 from .linalg import inverse3_flat as inverse3
@@ -138,14 +139,15 @@ def split_tube(x, xb, q0, d1, s, sb, eps, M, l1, b, l2sq, w):
 
 
 @njit(cache=True)
-def follow_branch(X0, verified, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, out):
+def follow_branch(X0, verified, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, out, deadline=0.0):
     """Follow the branch through ``X0`` at ``q(0)`` to ``s = 1`` with a chain of Krawczyk boxes.
 
     ``verified``: ``X0`` is already known to be within TINY of the only solution
     in its tiny box (the end of a previous chain), so the first test is skipped.
     Returns the number of tests used (> 0) and the end pose in ``out`` (3,) on
     success: the branch at ``q(1)`` is the one solution within TINY of ``out``.
-    Returns ``-tests`` when the chain could not be closed within ``max_tests``.
+    Returns ``-tests`` when the chain could not be closed within ``max_tests`` or before the
+    ``deadline`` (:mod:`.clock`).
     """
     w = np.empty(W_SIZE)
     bx = LinkBoxes(np.full(3, TINY), np.zeros(3), np.full(3, eps), np.empty(3), np.empty(3))
@@ -161,8 +163,8 @@ def follow_branch(X0, verified, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, out)
     s, h = 0.0, 1.0
     xb = np.empty(3)
     while s < 1.0:
-        if tests >= max_tests:
-            return -tests
+        if tests >= max_tests or expired(deadline):
+            return -max(tests, 1)
         sb = min(1.0, s + h)
         if eps > 0.0 and s > 0.0 and sb < 1.0 and (sb - s) * dq_max <= 2.0 * eps * (1.0 + 1e-9):
             return -max(tests, 1)                     # an inner piece shorter than the tube's width
@@ -233,7 +235,7 @@ def prove_piece(x, xb, q0, d1, d2, s, sb, eps, M, l1, b, l2sq, w, bx):
 
 
 @njit(cache=True)
-def follow_back(X, q, d1, d2, cands, n_cand, max_tests, M, l1, b, l2sq):
+def follow_back(X, q, d1, d2, cands, n_cand, max_tests, M, l1, b, l2sq, deadline=0.0):
     """Where the solution ``X`` (3,) at the joints ``q`` (3,) came from: a chain of Krawczyk boxes
     back along the joint path ``q0 + s d1 + s^2 d2`` (``s`` from 1 to 0, ``q = q0 + d1 + d2``),
     walked as ``q(1 - u) = q + u rd1 + u^2 rd2`` with ``rd1 = -(d1 + 2 d2)``, ``rd2 = d2``.
@@ -245,7 +247,7 @@ def follow_back(X, q, d1, d2, cands, n_cand, max_tests, M, l1, b, l2sq):
     for i in range(3):
         rd1[i] = -(d1[i] + 2.0 * d2[i])
         rd2[i] = d2[i]
-    if follow_branch(X, False, q, rd1, rd2, 0.0, M, l1, b, l2sq, max_tests, end) <= 0:
+    if follow_branch(X, False, q, rd1, rd2, 0.0, M, l1, b, l2sq, max_tests, end, deadline) <= 0:
         return -1
     for j in range(n_cand):
         if same_pose(end, cands[j]):
@@ -254,12 +256,12 @@ def follow_back(X, q, d1, d2, cands, n_cand, max_tests, M, l1, b, l2sq):
 
 
 @njit(cache=True)
-def comes_from(X, q, dq, cands, n_cand, max_tests, model_pack):
+def comes_from(X, q, dq, cands, n_cand, max_tests, model_pack, deadline=0.0):
     """The solution ``X`` (3,) at the joints ``q`` (3,) is joined by a chain of Krawczyk boxes,
     back along the straight joint segment to ``q - dq``, to one of ``cands[:n_cand]`` (6, 3)
     (at most ``max_tests`` tests)."""
     M, l1, l2sq, b = geometry(model_pack)
-    return follow_back(X, q, dq, np.zeros(3), cands, n_cand, max_tests, M, l1, b, l2sq) == 1
+    return follow_back(X, q, dq, np.zeros(3), cands, n_cand, max_tests, M, l1, b, l2sq, deadline) == 1
 
 
 @njit(cache=True)

@@ -24,6 +24,7 @@ import numpy as np
 from numba import njit
 
 from .certify import TINY, elbow_bits, prove_part, same_pose
+from .clock import expired
 from .kinematics import geometry
 from .krawczyk import PAD, TWO_PI, W_SIZE, _smul, icos, isin, krawczyk
 from .tube import (TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_T, TUBE_V, TUBE_W, TUBE_X, set_spread, slab_test,
@@ -147,13 +148,14 @@ def bisect(stack, top, box, k):
 
 
 @njit(cache=True)
-def posture_preimage_in(c, rho, q, eps, posture_bits, root, M, l1, l2sq, b, max_boxes):
+def posture_preimage_in(c, rho, q, eps, posture_bits, root, M, l1, l2sq, b, max_boxes, deadline=0.0):
     """Every pose in the region ``root`` with inverse kinematics (posture ``posture_bits + 1``)
     in ``q +- eps`` lies in the box ``c +- rho``.
 
     ``root`` (6,): x lo/hi, y lo/hi, phi lo/hi of a region that holds the robot.  A branch and
-    bound of at most ``max_boxes`` pose boxes.  Returns the number of boxes examined when
-    proved (> 0), minus it when not (a box that can neither be dropped nor split further).
+    bound of at most ``max_boxes`` pose boxes, until the ``deadline`` (:mod:`.clock`).  Returns the
+    number of boxes examined when proved (> 0), minus it when not (a box that can neither be
+    dropped nor split further, or out of boxes or time).
     """
     stack = np.empty((64, 6))
     stack[0, :] = root
@@ -166,7 +168,7 @@ def posture_preimage_in(c, rho, q, eps, posture_bits, root, M, l1, l2sq, b, max_
         top -= 1
         box = stack[top].copy()
         seen += 1
-        if seen > max_boxes:
+        if seen > max_boxes or expired(deadline):
             return -seen
         if _inside(box, c, rho):
             continue
@@ -181,14 +183,15 @@ def posture_preimage_in(c, rho, q, eps, posture_bits, root, M, l1, l2sq, b, max_
 
 
 @njit(cache=True)
-def preimage_hull(q, eps, posture_bits, root, res, max_boxes, M, l1, l2sq, b, out):
+def preimage_hull(q, eps, posture_bits, root, res, max_boxes, M, l1, l2sq, b, out, deadline=0.0):
     """A pose box ``out`` (6,: x, y, phi lo/hi) holding every pose of the region ``root`` (6,) with
     inverse kinematics (posture ``posture_bits + 1``) in ``q +- eps`` (a set-membership step).
 
     A branch and bound that drops the boxes no joint vector of ``q +- eps`` reaches (a leg
     misses) and keeps those narrower than ``res`` (2,: m, rad); ``out`` is the hull of the kept
     boxes.  Returns the number of boxes examined, 0 when none is kept (no pose of the region
-    reaches the joints: a sensor off by more than ``eps``), minus it when ``max_boxes`` ran out.
+    reaches the joints: a sensor off by more than ``eps``), minus it when ``max_boxes`` or the time
+    to the ``deadline`` ran out.
     """
     stack = np.empty((64, 6))
     stack[0, :] = root
@@ -200,7 +203,7 @@ def preimage_hull(q, eps, posture_bits, root, res, max_boxes, M, l1, l2sq, b, ou
         top -= 1
         box = stack[top].copy()
         seen += 1
-        if seen > max_boxes:
+        if seen > max_boxes or expired(deadline):
             return -seen
         if posture_misses(box, q, eps, posture_bits, M, l1, l2sq, b):
             continue
@@ -217,7 +220,7 @@ def preimage_hull(q, eps, posture_bits, root, res, max_boxes, M, l1, l2sq, b, ou
 
 
 @njit(cache=True)
-def reacquire(X, q, eps, posture_bits, region, max_boxes, model_pack, box):
+def reacquire(X, q, eps, posture_bits, region, max_boxes, model_pack, box, deadline=0.0):
     """The proof of the module docstring for the solution ``X`` (3,) of the measured joints ``q`` (3,).
 
     ``region`` (6,): a pose box known to hold the robot (x, y, phi lo/hi); ``box`` (6,)
@@ -237,7 +240,7 @@ def reacquire(X, q, eps, posture_bits, region, max_boxes, model_pack, box):
     if not same_pose(xc, X) or not krawczyk(xc, np.full(3, TINY), q, none, none, 0.0, 0.0, none, M, l1, b, l2sq, w):
         return False
     box[:3], box[3:] = xc, rho
-    return posture_preimage_in(xc, rho, q, eps, posture_bits, region, M, l1, l2sq, b, max_boxes) > 0
+    return posture_preimage_in(xc, rho, q, eps, posture_bits, region, M, l1, l2sq, b, max_boxes, deadline) > 0
 
 
 #: The covers :func:`tube_exclusion` tries, by attempt: one tube, slabs across the needle (3, then 8:
@@ -246,21 +249,22 @@ EXCLUSION_COVERS = (1, -3, -8, 2, 3)
 
 
 @njit(cache=True)
-def exclusion_cover(out, point, qc, t, attempt, M, l1, l2sq, b):
+def exclusion_cover(out, point, qc, t, attempt, M, l1, l2sq, b, deadline=0.0):
     """Cover ``attempt`` (1-based, :data:`EXCLUSION_COVERS`) of the joint box ``qc +- t`` (3,) into
     ``out`` (n, TUBE_SIZE) from the point tube ``point``; returns its number of tubes, or -1."""
     kind = EXCLUSION_COVERS[attempt - 1]
     if kind > 0:
-        return cover_box(out, 0, point, qc, t, kind, M, l1, l2sq, b)
-    if cover_box(out, 0, point, qc, t, 1, M, l1, l2sq, b) == 1 or not out[0, TUBE_S] == out[0, TUBE_S]:
+        return cover_box(out, 0, point, qc, t, kind, M, l1, l2sq, b, deadline)
+    if cover_box(out, 0, point, qc, t, 1, M, l1, l2sq, b, deadline) == 1 or not out[0, TUBE_S] == out[0, TUBE_S]:
         return -1                                       # one tube held it (attempt 1's) or no S to cut across
     V = np.empty((3, 3))
     needle_frame(out[0, TUBE_S:TUBE_S + 9].reshape((3, 3)).copy(), V)
-    return slab_cover(out, 0, point, qc, t, -kind, V, M, l1, l2sq, b)
+    return slab_cover(out, 0, point, qc, t, -kind, V, M, l1, l2sq, b, deadline)
 
 
 @njit(cache=True)
-def tube_exclusion(Xc, qc, tol, posture_lo, posture_hi, region, max_boxes, attempt, M, l1, l2sq, b, out):
+def tube_exclusion(Xc, qc, tol, posture_lo, posture_hi, region, max_boxes, attempt, M, l1, l2sq, b, out,
+                   deadline=0.0):
     """The robot's pose is the solution of a cover of the joint box ``qc +- tol`` (rad) by tubes about
     the DK solution ``Xc`` (3,) (cover ``attempt``: :func:`exclusion_cover`), written to ``out[:n]``
     (n, TUBE_SIZE): a proof from this joint box alone and a region (6,) known to hold the robot,
@@ -271,23 +275,23 @@ def tube_exclusion(Xc, qc, tol, posture_lo, posture_hi, region, max_boxes, attem
     joint set (:func:`.tube.slab_test`), and (2) every pose of the region in those postures
     reaching its joint box lies in that box (:func:`posture_preimage_in`; both in
     :func:`hull_excludes`).  The robot, at joints in some part, is then in that box, where the only
-    solution is the part's tube's.  Returns n when proved, else 0.
+    solution is the part's tube's.  Returns n when proved, else 0 (also when the ``deadline`` passed).
     """
     point = np.empty(TUBE_SIZE)
     zero = np.zeros(3)
     if not tube_test(Xc, qc, zero, zero, M, l1, l2sq, b, point):
         return 0
-    n = exclusion_cover(out, point, qc, np.full(3, tol), attempt, M, l1, l2sq, b)
+    n = exclusion_cover(out, point, qc, np.full(3, tol), attempt, M, l1, l2sq, b, deadline)
     if n <= 0:
         return 0
     for k in range(n):
-        if not hull_excludes(out[k], posture_lo, posture_hi, region, max_boxes, M, l1, l2sq, b):
+        if not hull_excludes(out[k], posture_lo, posture_hi, region, max_boxes, M, l1, l2sq, b, deadline):
             return 0
     return n
 
 
 @njit(cache=True)
-def hull_excludes(sub, posture_lo, posture_hi, region, max_boxes, M, l1, l2sq, b):
+def hull_excludes(sub, posture_lo, posture_hi, region, max_boxes, M, l1, l2sq, b, deadline=0.0):
     """Steps (2) and (3) of :func:`tube_exclusion` for the tube ``sub`` (its joint set: a box or a slab):
     a box about its centre, :data:`HULL_FACTORS` times the needle's hull, holds one solution per
     joint vector of that set (a fat tube), and every pose of the region in the postures reaching
@@ -313,7 +317,7 @@ def hull_excludes(sub, posture_lo, posture_hi, region, max_boxes, M, l1, l2sq, b
             continue
         for p in range(posture_lo, posture_hi):
             if posture_preimage_in(xc, hull, q, max(t[0], max(t[1], t[2])), p, region, M, l1, l2sq, b,
-                                   max_boxes) <= 0:
+                                   max_boxes, deadline) <= 0:
                 return False
         return True
     return False

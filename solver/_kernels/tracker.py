@@ -26,8 +26,10 @@ import math
 import numpy as np
 from numba import njit
 
+from .anytime import ANY_CUT, ANY_DEADLINE
 from .certified import certify_phase
 from .certify import CERT_NONE, comes_from
+from .clock import expired
 from .choice import choose_default, choose_paper, joint_step, linear_prediction, predict, wdist
 from .direct_kinematics import dk_one
 from .gates import GATE_PASS, GATE_REFUSE, outlier_gate, speed_gate
@@ -55,16 +57,19 @@ LINK_GAP = 4.0
 
 @njit(cache=True)
 def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map_pack, stencil, params,
-                 out_real, out_int):
+                 out_real, out_int, anytime):
     """One step of procedure 3 (``mode`` MODE_PAPER or MODE_DEFAULT); see :mod:`solver.tracker`.
 
     Reads the joints ``q`` (3,) rad, the state pack ``state`` (STATE_SIZE,), the model pack
     and ``sample_to_sextic`` (the DK constants), the map's ``labels``, its map pack and
     procedure-2 ``stencil``, the options ``params`` (PARAM_SIZE,), and the ordering ``rule``;
-    writes the result pack ``out_real`` (OUT_SIZE,) and ``out_int`` (INFO_I_SIZE,).  The
-    phases: see the module docstring.
+    writes the result pack ``out_real`` (OUT_SIZE,) and ``out_int`` (INFO_I_SIZE,); reads and
+    rewrites the anytime pack ``anytime`` (ANY_SIZE,, :mod:`.anytime`: the step's deadline, the
+    walk of the tube chain, whether the deadline cut the step).  The phases: see the module
+    docstring.
     """
     work = step_pack(q, state, params, out_real, out_int)
+    anytime[ANY_CUT] = 0.0
     refused, untrusted = gate_phase(state, work, params, model_pack, out_real, out_int)
     if refused:
         return
@@ -85,11 +90,12 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
         chosen, ambiguous = choose_default(poses, real, near_prev, work, state, params, labels, map_pack, stencil,
                                            n_near, ok, worst, out_real, out_int)
     chosen, linked = certify_phase(mode, chosen, untrusted, state, work, poses, real, params, model_pack, map_pack,
-                                   out_real, out_int)
+                                   out_real, out_int, anytime)
     if margins(mode, chosen, poses, real, work, params, map_pack, out_real):
         ambiguous = True
     taken = speed_gate_phase(mode, chosen, linked, untrusted, state, work, poses, real, params, model_pack,
-                             out_real, out_int)
+                             out_real, out_int, anytime[ANY_DEADLINE])
+    anytime[ANY_CUT] = 1.0 if expired(anytime[ANY_DEADLINE]) else 0.0
     if taken < 0:
         return
     publish(taken, ambiguous or taken != chosen, poses, work, params, model_pack, out_real, out_int)
@@ -216,7 +222,7 @@ def margins(mode, chosen, poses, real, work, params, map_pack, out_real):
 
 @njit(cache=True, inline="always")
 def speed_gate_phase(mode, chosen, linked, untrusted, state, work, poses, real, params, model_pack, out_real,
-                     out_int):
+                     out_int, deadline=0.0):
     """Speed gate phase (measured joints, a speed bound): a pose the platform cannot have reached
     since the last sample (the measured joints crossed a fold the robot did not) is not taken.
 
@@ -238,7 +244,7 @@ def speed_gate_phase(mode, chosen, linked, untrusted, state, work, poses, real, 
             Xr[i] = poses[chosen, i].real
         if comes_from(Xr, work[STEP_QU:STEP_QU + 3], work[STEP_DQ:STEP_DQ + 3],
                       state[STATE_CANDS:STATE_CANDS + 18].reshape((6, 3)), int(state[STATE_N_CAND]),
-                      LINK_TESTS * int(params[PARAM_MAX_TESTS]), model_pack):
+                      LINK_TESTS * int(params[PARAM_MAX_TESTS]), model_pack, deadline):
             taken = chosen
     if taken >= 0 and taken != chosen:
         for i in range(3):

@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .clock import expired
 from .krawczyk import PAD
 from .linalg import wrap
 from .handoff import tested_takeover
@@ -39,17 +40,18 @@ MAX_COVER = 27
 
 
 @njit(cache=True)
-def cover_box(pieces, n, guess, qc, t, parts, M, l1, l2sq, b):
+def cover_box(pieces, n, guess, qc, t, parts, M, l1, l2sq, b, deadline=0.0):
     """Cover the joint box ``qc +- t`` (3,) with ``parts**3`` tubes appended to ``pieces`` (m, TUBE_SIZE)
     after its first ``n``, each taking over from every earlier tube whose joint box meets its own
     (:func:`tested_takeover`); ``guess`` (TUBE_SIZE,): a tube whose predictor starts Newton.
-    Returns the new number of tubes, or -1 when a part fails or ``pieces`` is full."""
+    Returns the new number of tubes, or -1 when a part fails, ``pieces`` is full or the ``deadline``
+    (:mod:`.clock`) passed."""
     q, h, xg = np.empty(3), np.empty(3), np.empty(3)
     new = np.empty(TUBE_SIZE)
     eye = np.eye(3)
     m = n
     for k in range(parts ** 3):
-        if m >= pieces.shape[0]:
+        if m >= pieces.shape[0] or (k > 0 and expired(deadline)):
             return -1
         for i in range(3):
             idx = (k // parts ** i) % parts
@@ -92,11 +94,12 @@ def needle_frame(S, V):
 
 
 @njit(cache=True)
-def slab_cover(pieces, n, guess, qc, t, slabs, V, M, l1, l2sq, b):
+def slab_cover(pieces, n, guess, qc, t, slabs, V, M, l1, l2sq, b, deadline=0.0):
     """Cover the joint box ``qc +- t`` (3,) with ``slabs`` slabs across ``V[:, 0]`` (the needle's joint
     direction, :func:`needle_frame`), each a parallelepiped ``q_m + V w`` with its tube
     (:func:`.tube.slab_test`), appended to ``pieces`` after its first ``n`` and each taking over
-    from every earlier tube it may meet.  Returns the new number of tubes, or -1."""
+    from every earlier tube it may meet.  Returns the new number of tubes, or -1 (also when the
+    ``deadline`` passed)."""
     tw = np.empty(3)
     for j in range(3):                                  # the box in the frame: |w_j| <= sum_i |V_ij| t_i
         tw[j] = (abs(V[0, j]) * t[0] + abs(V[1, j]) * t[1] + abs(V[2, j]) * t[2]) * (1.0 + 1e-12)
@@ -106,7 +109,7 @@ def slab_cover(pieces, n, guess, qc, t, slabs, V, M, l1, l2sq, b):
     new = np.empty(TUBE_SIZE)
     m = n
     for k in range(slabs):
-        if m >= pieces.shape[0]:
+        if m >= pieces.shape[0] or expired(deadline):
             return -1
         off = -width + (2 * k + 1) * tw[0]
         for i in range(3):                              # the slab's centre, and the box about it holding box & slab
@@ -124,12 +127,12 @@ def slab_cover(pieces, n, guess, qc, t, slabs, V, M, l1, l2sq, b):
 
 
 @njit(cache=True)
-def cover(pieces, n, guess, qc, t, M, l1, l2sq, b):
+def cover(pieces, n, guess, qc, t, M, l1, l2sq, b, deadline=0.0):
     """:func:`cover_box` with one tube, else slabs across the needle (:data:`SLABS`), else 2**3 and
-    3**3 parts.  Returns (new count, -1 when none closed; tube tests used)."""
+    3**3 parts, until the ``deadline``.  Returns (new count, -1 when none closed; tube tests used)."""
     tests = 1
     m = cover_box(pieces, n, guess, qc, t, 1, M, l1, l2sq, b)
-    if m > 0:
+    if m > 0 or expired(deadline):
         return m, tests
     if n < pieces.shape[0] and pieces[n, TUBE_S] == pieces[n, TUBE_S]:   # the failed test left S
         V = np.empty((3, 3))
@@ -137,13 +140,13 @@ def cover(pieces, n, guess, qc, t, M, l1, l2sq, b):
         needle_frame(S, V)
         for slabs in SLABS:
             tests += slabs
-            m = slab_cover(pieces, n, guess, qc, t, slabs, V, M, l1, l2sq, b)
-            if m > 0:
+            m = slab_cover(pieces, n, guess, qc, t, slabs, V, M, l1, l2sq, b, deadline)
+            if m > 0 or expired(deadline):
                 return m, tests
     for parts in range(2, COVER_PARTS + 1):
         tests += parts ** 3
-        m = cover_box(pieces, n, guess, qc, t, parts, M, l1, l2sq, b)
-        if m > 0:
+        m = cover_box(pieces, n, guess, qc, t, parts, M, l1, l2sq, b, deadline)
+        if m > 0 or expired(deadline):
             return m, tests
     return -1, tests
 

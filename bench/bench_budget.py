@@ -1,0 +1,153 @@
+"""The tracker's step budget: step times, false alarms and errors with and without a budget.
+
+    python bench/bench_budget.py [--budgets 500e-6 2e-3] [--grades 16-bit-1e-4 exact] [--suite all|default|hard]
+                                 [--limit N] [--no-fmu]
+
+Encoder streams as ``bench/bench_sensors.py`` makes them (the suites at 1 kHz, each grade's
+simulated encoder; truth and counted steps as there), the tracker configured as the README says
+(``joint_tolerance = Sensor.tolerance(3)``, a speed bound 1.25x the fastest path's, ``stuck_after``,
+``dt = 1 ms``), run without a budget and with each ``--budgets`` (seconds), every run in this
+process, one after the other.
+
+Step time: wall time (``time.perf_counter``) and the thread's CPU time (``time.thread_time``) of
+each :meth:`Tracker.step`.  A step whose wall time exceeds its CPU time by more than
+:data:`STALL` was not running for part of it (the machine ran something else: a stall, not the
+tracker); the percentiles are printed over all steps (wall) and over the CPU time, and the
+stalls are counted.  Counts (errors, silent errors, false alarms) are exact whatever the load.
+
+With ``--fmu`` (default on) the DK FMU is built into a temporary folder (coarse map) and its
+``doStep`` timed through fmpy's FMU2Slave on one stream, with and without its ``step_budget``
+parameter.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_sensors import EXACT_START, _suite_and_speed, score  # noqa: E402
+from experiments.sensors import SENSOR_GRADES, sensor_truth  # noqa: E402
+from solver import DEFAULT_RULE, DEFAULT_STEP, Manipulator, SolverInputError, Tracker, cached_map  # noqa: E402
+
+#: A step whose wall time exceeds its CPU time by more than this (s) counts as a machine stall.
+STALL = 200e-6
+REJECTED = 3
+
+
+def run_timed(tracker, q, X0, dt):
+    """Track ``q`` (n, 3) sample by sample: poses, certain, refused, out_of_budget (n,), wall and CPU seconds (n,)."""
+    n = len(q)
+    X = np.full((n, 3), np.nan)
+    certain, refused, oob = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
+    wall, cpu = np.zeros(n), np.zeros(n)
+    start = tracker.reset(X0, q[0])
+    X[0], certain[0] = tracker.state.X, start.certain
+    for k in range(1, n):
+        t0, c0 = time.perf_counter(), time.thread_time()
+        try:
+            X[k], info = tracker.step(q[k], dt)
+        except SolverInputError:
+            refused[k], X[k] = True, tracker.state.X
+        else:
+            certain[k], refused[k], oob[k] = info.certain, info.status == REJECTED, info.out_of_budget
+        wall[k], cpu[k] = time.perf_counter() - t0, time.thread_time() - c0
+    return X, certain, refused, oob, wall, cpu
+
+
+def percentiles(a) -> str:
+    a = 1e6 * np.asarray(a)
+    p50, p99, p999 = np.percentile(a, [50, 99, 99.9])
+    return f"{p50:.0f} | {p99:.0f} | {p999:.0f} | {a.max():.0f}"
+
+
+def run_grade(model, maps, suite, sensor, speed, budgets, dt):
+    """Every budget on every path of ``sensor``'s streams: totals per budget."""
+    tol = sensor.tolerance(3.0)
+    tot = {b: dict(counted=0, errors=0, silent=0, alarms=0, oob=0, wall=[], cpu=[]) for b in budgets}
+    for i, path in enumerate(suite):
+        stream = sensor.measure(path.q, seed=1000 + i)
+        q = stream.q.copy()
+        q[0] = path.q[0]
+        truth, counted = sensor_truth(model, q, path.X, stream.glitch)
+        for b in budgets:
+            tr = Tracker(model, maps[path.posture], joint_tolerance=tol, speed_bound=speed,
+                         stuck_after=sensor.stuck_after(), start_tolerance=EXACT_START, step_budget=b)
+            X, certain, refused, oob, wall, cpu = run_timed(tr, q, path.X[0], dt)
+            sc = score(X, certain, refused, truth, counted, stream.glitch, True)
+            t = tot[b]
+            for key in ("counted", "errors", "silent", "alarms"):
+                t[key] += sc[key]
+            t["oob"] += int(oob.sum())
+            t["wall"].append(wall[1:])
+            t["cpu"].append(cpu[1:])
+    return tot
+
+
+def fmu_rows(budgets, steps: int = 2000) -> list:
+    """The DK FMU's doStep through FMU2Slave on the reference circle, per budget: (budget, wall, cpu) percentiles."""
+    import tempfile
+
+    from cosim.fmus.builds import build_fmus
+    from cosim.unit import FMUUnit
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        fmus = build_fmus(Path(tmp), names=("RRRDirectKinematics",), resolution=(0.04, np.deg2rad(6.0)),
+                          quiet=True)
+        for b in budgets:
+            unit = FMUUnit(fmus["RRRDirectKinematics"], start={"step_budget": 0.0 if b is None else b})
+            wall, cpu = unit.time_steps(steps, 1e-3)
+            unit.close()
+            rows.append((b, wall, cpu))
+    return rows
+
+
+def _parser():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--budgets", type=float, nargs="+", default=[500e-6, 2e-3], help="step budgets, s")
+    ap.add_argument("--grades", nargs="+", default=["16-bit-1e-4", "20-bit-2e-5", "exact"],
+                    help="sensor grades (experiments.sensors.SENSOR_GRADES)")
+    ap.add_argument("--suite", choices=("all", "default", "hard"), default="all")
+    ap.add_argument("--limit", type=int, default=0, help="only the first N paths")
+    ap.add_argument("--no-fmu", dest="fmu", action="store_false", help="skip the DK FMU's doStep")
+    return ap
+
+
+def main(argv=None):
+    args = _parser().parse_args(argv)
+    args.rate, args.coarse, args.speed, args.no_speed = 1000, False, None, False
+    model = Manipulator.paper()
+    dt = 1e-3
+    suite, speed = _suite_and_speed(model, args, dt)
+    maps = {p: cached_map(model, p, DEFAULT_RULE, DEFAULT_STEP) for p in sorted({s.posture for s in suite})}
+    grades = {s.name: s for s in SENSOR_GRADES}
+    budgets = [None] + list(args.budgets)
+    for b in budgets:                                   # compile or load the kernels first
+        tr = Tracker(model, maps[suite[0].posture], joint_tolerance=1e-4, speed_bound=speed, step_budget=b)
+        run_timed(tr, suite[0].q[:30], suite[0].X[0], dt)
+    t0 = time.perf_counter()
+    rows = {g: run_grade(model, maps, suite, grades[g], speed, budgets, dt) for g in args.grades}
+    print(f"{len(suite)} paths at 1 kHz, {time.perf_counter() - t0:.0f} s; stalls: wall - CPU > {STALL * 1e6:.0f} us")
+    print("\n| sensor | budget | counted | errors | silent | false alarms | out of budget | wall p50 | p99 | p99.9 | "
+          "max (us) | CPU p50 | p99 | p99.9 | max (us) | stalls |\n|" + "---|" * 16)
+    for g, tot in rows.items():
+        for b, t in tot.items():
+            wall, cpu = np.concatenate(t["wall"]), np.concatenate(t["cpu"])
+            stalls = int(np.sum(wall - cpu > STALL))
+            name = "none" if b is None else f"{b * 1e6:.0f} us"
+            print(f"| {g} | {name} | {t['counted']:,} | {t['errors']:,} | {t['silent']} | {t['alarms']:,} "
+                  f"({100 * t['alarms'] / max(t['counted'], 1):.2f} %) | {t['oob']:,} | {percentiles(wall)} | "
+                  f"{percentiles(cpu)} | {stalls} |")
+    if args.fmu:
+        print("\n| DK FMU doStep (FMU2Slave) | wall p50 | p99 | p99.9 | max (us) | CPU p50 | p99 | p99.9 | max (us) |"
+              "\n|" + "---|" * 9)
+        for b, wall, cpu in fmu_rows(budgets):
+            print(f"| {'none' if b is None else f'{b * 1e6:.0f} us'} | {percentiles(wall)} | {percentiles(cpu)} |")
+
+
+if __name__ == "__main__":
+    main()

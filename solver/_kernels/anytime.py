@@ -1,0 +1,149 @@
+"""The step budget and anytime tube chains: a proof that stops at a deadline and goes on at the next step.
+
+A tracker with a step budget (``Tracker(step_budget=...)``) gives each step a *deadline* (a cycle
+count, :mod:`.clock`); every search of the certify phase (the tube chain, the chains of Krawczyk
+boxes, re-acquisition, the set-membership branch and bound, the speed gate's chain back) stops
+when it passes, and the step returns its choice, not certain.
+
+The tube chain does not throw its work away.  Its state is a *walk*: the tubes laid so far along
+the joint path, where the walk stands on that path (segment, ``s``, the step length, the tests
+used), and the path itself, the readings still to reach.  The next step appends its reading and
+walks on from there within its own deadline; when the walk covers the last reading's own box, the
+step that got there is certain (its proof was complete when it returned: never back-dated).  The
+walk is the same computation as :func:`.tube_chain.tube_chain` cut into parts: the tubes of a
+segment are checked against every earlier tube of that segment, and at each reading the walk
+keeps only that reading's cover, as a certain step does.  A segment that needs more than
+``max_tests`` tube tests, or a path longer than :data:`MAX_PATH` readings, ends the walk
+(certainty then comes back by re-acquisition, as without a budget).
+
+The *anytime pack* (:data:`ANY_SIZE` floats) carries the step's deadline in, whether the deadline
+cut the step out, and the walk in and out (read and rewritten in place by :func:`walk_on`).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .clock import expired
+from .linalg import wrap
+from .tube import TUBE_Q, TUBE_SIZE
+from .tube_chain import MAX_COVER, MAX_PIECES, cover, refine
+
+#: Most readings a walk's path may hold (its start and the readings it has not reached).
+MAX_PATH = 32
+
+# the anytime pack
+ANY_DEADLINE = 0          # the step's deadline (cycle count, :mod:`.clock`; 0: no budget)
+ANY_CUT = 1               # out: 1 when the deadline passed before the step's searches ended
+ANY_N = 2                 # the walk's tubes (0: no walk)
+ANY_LAST = 3              # where the last piece's cover starts among them
+ANY_S = 4                 # how far along the path's first segment the walk stands (0..1)
+ANY_STEP = 5              # the next piece's length (fraction of the segment)
+ANY_TESTS = 6             # tube tests used on this segment
+ANY_N_PATH = 7            # the path's readings (its first: the segment's start)
+ANY_PATH = 8              # (MAX_PATH, 3) the path, rad, unwrapped along it
+ANY_PIECES = ANY_PATH + 3 * MAX_PATH   # (MAX_PIECES, TUBE_SIZE) the walk's tubes
+ANY_SIZE = ANY_PIECES + MAX_PIECES * TUBE_SIZE
+
+#: What :func:`walk_on` ends with.
+WALK_FAILED, WALK_CLOSED, WALK_PENDING = 0, 1, 2
+
+
+def walk_floats(anytime: np.ndarray) -> int:
+    """How many leading floats of the anytime pack ``anytime`` hold its walk (0 when it has none)."""
+    n = int(anytime[ANY_N])
+    return ANY_PIECES + n * TUBE_SIZE if n > 0 else 0
+
+
+@njit(cache=True)
+def walk_begin(anytime, old, n_old, qp):
+    """A new walk from the cover ``old[:n_old]`` (n, TUBE_SIZE) of the reading ``qp`` (3,) (rad)."""
+    pieces = anytime[ANY_PIECES:].reshape((MAX_PIECES, TUBE_SIZE))
+    for j in range(n_old):
+        pieces[j, :] = old[j]
+        for i in range(3):                             # the tubes' joints next to qp
+            pieces[j, TUBE_Q + i] = qp[i] + wrap(old[j, TUBE_Q + i] - qp[i])
+    anytime[ANY_N], anytime[ANY_LAST], anytime[ANY_S], anytime[ANY_STEP] = n_old, 0.0, 0.0, 1.0
+    anytime[ANY_TESTS], anytime[ANY_N_PATH] = 0.0, 1.0
+    anytime[ANY_PATH:ANY_PATH + 3] = qp
+
+
+@njit(cache=True)
+def walk_append(anytime, q):
+    """Add the reading ``q`` (3,) at the path's end (unwrapped next to the last); False when full."""
+    k = int(anytime[ANY_N_PATH])
+    if k >= MAX_PATH:
+        return False
+    for i in range(3):
+        prev = anytime[ANY_PATH + 3 * (k - 1) + i]
+        anytime[ANY_PATH + 3 * k + i] = prev + wrap(q[i] - prev)
+    anytime[ANY_N_PATH] = k + 1
+    return True
+
+
+@njit(cache=True)
+def walk_on(anytime, tol, max_tests, deadline, M, l1, l2sq, b, out):
+    """Walk on along the path until the last reading's box is covered, the ``deadline`` passes or the
+    walk fails.
+
+    Each segment as :func:`.tube_chain.tube_chain` (pieces of the segment widened by ``tol``,
+    rad, each covered by :func:`.tube_chain.cover`, then the reading's own box); at an
+    intermediate reading the walk goes on from that reading's cover alone.  Returns
+    (WALK_CLOSED, n): ``out[:n]`` (MAX_COVER, TUBE_SIZE) covers the last reading's box and the
+    walk is over; (WALK_PENDING, 0): the deadline passed, the pack holds where the walk stands;
+    (WALK_FAILED, 0): a segment used ``max_tests`` tests, its pieces got too short or its cover
+    too wide (the walk is over).
+    """
+    pieces = anytime[ANY_PIECES:].reshape((MAX_PIECES, TUBE_SIZE))
+    n, last = int(anytime[ANY_N]), int(anytime[ANY_LAST])
+    s, step, tests = anytime[ANY_S], anytime[ANY_STEP], int(anytime[ANY_TESTS])
+    qc, t, dq = np.empty(3), np.empty(3), np.empty(3)
+    while int(anytime[ANY_N_PATH]) >= 2:
+        qp = anytime[ANY_PATH:ANY_PATH + 3]
+        for i in range(3):
+            dq[i] = anytime[ANY_PATH + 3 + i] - qp[i]
+        while s < 1.0:
+            if tests >= max_tests or step < 1.0 / 256.0:
+                anytime[ANY_N] = 0.0
+                return WALK_FAILED, 0
+            if expired(deadline):
+                break
+            sb = min(1.0, s + step)
+            for i in range(3):
+                qc[i] = qp[i] + 0.5 * (s + sb) * dq[i]
+                t[i] = 0.5 * abs(dq[i]) * (sb - s) + tol
+            m, used = cover(pieces, n, pieces[n - 1], qc, t, M, l1, l2sq, b, deadline)
+            tests += used
+            if m > 0:
+                last, n = n, m
+                s = sb
+                step = min(1.25 * step, 1.0)
+            elif not expired(deadline):                # a cover the deadline cut is tried again
+                step *= 0.5
+        if s < 1.0:
+            anytime[ANY_N], anytime[ANY_LAST], anytime[ANY_S], anytime[ANY_STEP] = n, last, s, step
+            anytime[ANY_TESTS] = tests
+            return WALK_PENDING, 0
+        for i in range(3):                             # the reading's own box (else the last piece's cover)
+            qc[i] = qp[i] + dq[i]
+            t[i] = tol
+        m, used = cover(pieces, n, pieces[n - 1], qc, t, M, l1, l2sq, b, deadline)
+        tests += used
+        if m > 0:
+            last, n = n, m
+        if n - last > MAX_COVER:
+            anytime[ANY_N] = 0.0
+            return WALK_FAILED, 0
+        k = int(anytime[ANY_N_PATH])
+        for j in range(n - last):                      # the reading's cover alone, as a certain step keeps
+            pieces[j, :] = pieces[last + j]
+        n, last, s, step, tests = n - last, 0, 0.0, 1.0, 0
+        for j in range(3 * (k - 1)):
+            anytime[ANY_PATH + j] = anytime[ANY_PATH + 3 + j]
+        anytime[ANY_N_PATH] = k - 1
+    for j in range(n):
+        out[j, :] = pieces[j]
+    if n == 1 and not expired(deadline):
+        refine(out, pieces, n, qc, t, M, l1, l2sq, b)
+    anytime[ANY_N] = 0.0
+    return WALK_CLOSED, n

@@ -1,0 +1,152 @@
+"""The step budget: a step stops its searches at a deadline, and the tube chain's proof goes on later.
+
+Times are not asserted (``bench/bench_budget.py`` measures them); what is asserted is what a budget
+may and may not change: nothing without one or with a generous one, certainty (never the choice
+where the unbudgeted tracker is right) with a budget too small for any proof, and a walk cut short
+that closes at a later step, never back-dated, also through a saved and restored state.
+"""
+import numpy as np
+import pytest
+
+from conftest import pose_distance
+from experiments.sensors import Sensor
+from experiments.suite import default_suite
+from solver import SolverInputError, Tracker, TrackerError
+from solver._kernels.anytime import ANY_N_PATH, MAX_PATH
+from solver._kernels.certify import CERT_TUBE
+from solver._kernels.clock import cycles, cycles_per_second, deadline_after, expired
+from solver.tracker_state import TrackerState
+
+SENSOR = Sensor("16-bit", bits=16, noise=1e-4)
+
+
+@pytest.fixture(scope="module")
+def circle(model):
+    """The paper's circle at 1 kHz (far from singularities)."""
+    return default_suite(model, samplings=(1000,))[0]
+
+
+def _measured(path, seed=3):
+    q = SENSOR.measure(path.q, seed=seed).q.copy()
+    q[0] = path.q[0]
+    return q
+
+
+def _tracker(model, map1, budget, tol=SENSOR.tolerance(3.0)):
+    return Tracker(model, map1, joint_tolerance=tol, speed_bound=(3.0, 1.0), start_tolerance=(1e-9,) * 3,
+                   step_budget=budget)
+
+
+def _track(tracker, q, X0, n=None):
+    """Poses (n, 3), infos of a stream stepped at 1 kHz."""
+    tracker.reset(X0, q[0])
+    n = len(q) if n is None else n
+    X, infos = np.empty((n, 3)), [None]
+    X[0] = tracker.state.X
+    for k in range(1, n):
+        X[k], info = tracker.step(q[k], 1e-3)
+        infos.append(info)
+    return X, infos
+
+
+def test_the_clock_counts_and_a_deadline_passes(model):
+    rate = cycles_per_second()
+    assert 1e8 < rate < 1e11                               # counts per second of a CPU's cycle counter
+    a = cycles()
+    assert cycles() >= a
+    assert not expired(0.0) and not expired(deadline_after(10.0)) and expired(deadline_after(1e-9) - 1.0)
+    assert deadline_after(None) == 0.0
+
+
+def test_a_generous_budget_changes_nothing(model, coarse_map1, circle):
+    """The walk is the unbudgeted tube chain cut into parts: given all the time it needs, the same steps."""
+    q = _measured(circle)
+    X0, info0 = _track(_tracker(model, coarse_map1, None), q, circle.X[0], 400)
+    X1, info1 = _track(_tracker(model, coarse_map1, 10.0), q, circle.X[0], 400)
+    np.testing.assert_array_equal(X0, X1)
+    assert [i.certain for i in info0[1:]] == [i.certain for i in info1[1:]]
+    assert all(i.certain for i in info0[1:])
+    b0 = np.array([i.pose_bound for i in info0[1:]])
+    b1 = np.array([i.pose_bound for i in info1[1:]])
+    np.testing.assert_allclose(b1, b0, rtol=1e-9, atol=1e-15)
+    assert not any(i.out_of_budget for i in info1[1:])
+
+
+def test_a_budget_too_small_for_any_proof_leaves_every_step_uncertain_but_right(model, coarse_map1, circle):
+    q = _measured(circle)
+    X0, info0 = _track(_tracker(model, coarse_map1, None), q, circle.X[0], 400)
+    X1, info1 = _track(_tracker(model, coarse_map1, 1e-9), q, circle.X[0], 400)
+    assert not any(i.certain for i in info1[1:])
+    assert all(i.out_of_budget and not np.isfinite(i.pose_bound).any() for i in info1[1:])
+    right = pose_distance(X0, circle.X[:400]) < 1e-3            # where the unbudgeted tracker is right
+    assert right[1:].all()
+    assert np.all(pose_distance(X1[right], X0[right]) < 1e-12)  # the same choice
+
+
+def test_certainty_returns_when_the_walk_closes_and_is_never_back_dated(model, coarse_map1, circle):
+    """Steps cut short leave a walk with their readings; the first step with time enough closes it and is
+    certain (its proof complete when it returned), the steps before stay uncertain."""
+    q = _measured(circle)
+    tr = _tracker(model, coarse_map1, 1e-9)
+    tr.reset(circle.X[0], q[0])
+    for k in range(1, 6):
+        _, info = tr.step(q[k], 1e-3)
+        assert not info.certain and info.out_of_budget
+    walk = tr.state.walk
+    assert walk is not None and int(walk[ANY_N_PATH]) == 6          # the start's reading and five more
+    tr.step_budget = 10.0
+    X, info = tr.step(q[6], 1e-3)
+    assert info.certain and info.certificate == CERT_TUBE and not info.out_of_budget
+    assert tr.state.walk is None
+    assert np.all(np.abs(X - circle.X[6]) <= info.pose_bound + 1e-12)  # the robot within the bound
+
+
+def test_a_walk_longer_than_its_path_ends(model, coarse_map1, circle):
+    q = _measured(circle)
+    tr = _tracker(model, coarse_map1, 1e-9)
+    tr.reset(circle.X[0], q[0])
+    for k in range(1, MAX_PATH + 2):
+        tr.step(q[k], 1e-3)
+    assert tr.state.walk is None                         # past MAX_PATH readings the walk is given up
+    tr.step_budget = 10.0
+    _, info = tr.step(q[MAX_PATH + 2], 1e-3)
+    assert info.certificate != CERT_TUBE                 # no walk to close (re-acquisition may vouch)
+
+
+def test_a_saved_state_keeps_the_unfinished_proof(model, coarse_map1, circle):
+    q = _measured(circle)
+    tr = _tracker(model, coarse_map1, 1e-9)
+    tr.reset(circle.X[0], q[0])
+    for k in range(1, 4):
+        tr.step(q[k], 1e-3)
+    saved = tr.state.as_array()
+    restored = TrackerState.from_array(saved)
+    np.testing.assert_array_equal(restored.walk, tr.state.walk)
+    other = _tracker(model, coarse_map1, 10.0)
+    other.reset(circle.X[0], q[0])
+    other.state = restored
+    tr.step_budget = 10.0
+    Xa, ia = tr.step(q[4], 1e-3)
+    Xb, ib = other.step(q[4], 1e-3)
+    assert ia.certain and ib.certain and ib.certificate == CERT_TUBE
+    np.testing.assert_array_equal(Xa, Xb)
+    np.testing.assert_array_equal(ia.pose_bound, ib.pose_bound)
+    with pytest.raises(TrackerError):
+        TrackerState.from_array(np.concatenate([saved, [0.0]]))
+
+
+def test_a_rejected_input_keeps_the_walk(model, coarse_map1, circle):
+    q = _measured(circle)
+    tr = _tracker(model, coarse_map1, 1e-9)
+    tr.reset(circle.X[0], q[0])
+    tr.step(q[1], 1e-3)
+    before = tr.state
+    with pytest.raises(SolverInputError):
+        tr.step([np.nan, 0.0, 0.0], 1e-3)
+    assert tr.state is before and tr.state.walk is not None
+
+
+@pytest.mark.parametrize("bad", [0.0, -1e-3, float("nan"), float("inf"), "fast", True])
+def test_the_budget_is_checked(model, coarse_map1, bad):
+    with pytest.raises(TrackerError, match="step_budget"):
+        Tracker(model, coarse_map1, step_budget=bad)
