@@ -15,9 +15,9 @@ each :meth:`Tracker.step`.  A step whose wall time exceeds its CPU time by more 
 tracker); the percentiles are printed over all steps (wall) and over the CPU time, and the
 stalls are counted.  Counts (errors, silent errors, false alarms) are exact whatever the load.
 
-With ``--fmu`` (default on) the DK FMU is built into a temporary folder (coarse map) and its
-``doStep`` timed through fmpy's FMU2Slave on one stream, with and without its ``step_budget``
-parameter.
+The DK FMU (built into ``--build-dir`` or reused) is timed too (``--no-fmu`` skips it): set the
+joints, ``doStep``, get ``certain`` through fmpy's FMU2Slave on one stream (``--fmu-path``, the first
+grade), without a budget and with ``step_budget_share`` = each budget / 1 ms.
 """
 from __future__ import annotations
 
@@ -87,22 +87,37 @@ def run_grade(model, maps, suite, sensor, speed, budgets, dt):
     return tot
 
 
-def fmu_rows(budgets, steps: int = 2000) -> list:
-    """The DK FMU's doStep through FMU2Slave on the reference circle, per budget: (budget, wall, cpu) percentiles."""
-    import tempfile
+def fmu_rows(build_dir, path, q, tol, speed, stuck, shares, dt) -> list:
+    """The DK FMU's doStep through fmpy's FMU2Slave on the stream ``q`` (n, 3) of ``path``, per budget share
+    of the communication step: (share, wall seconds (n - 1,), CPU seconds, certain (n - 1,))."""
+    from fmpy.fmi2 import fmi2Boolean, fmi2Real, fmi2True
 
     from cosim.fmus.builds import build_fmus
     from cosim.unit import FMUUnit
 
+    fmu_path = build_fmus(build_dir)["RRRDirectKinematics"]
     rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        fmus = build_fmus(Path(tmp), names=("RRRDirectKinematics",), resolution=(0.04, np.deg2rad(6.0)),
-                          quiet=True)
-        for b in budgets:
-            unit = FMUUnit(fmus["RRRDirectKinematics"], start={"step_budget": 0.0 if b is None else b})
-            wall, cpu = unit.time_steps(steps, 1e-3)
-            unit.close()
-            rows.append((b, wall, cpu))
+    for share in shares:
+        with FMUUnit(fmu_path, name="dk") as unit:
+            start = {"x0": path.X[0][0], "y0": path.X[0][1], "phi0": path.X[0][2], "posture": path.posture,
+                     "q1": q[0][0], "q2": q[0][1], "q3": q[0][2], "joint_tolerance": tol,
+                     "speed_bound_linear": speed[0], "speed_bound_angular": speed[1], "stuck_after": stuck,
+                     "start_tolerance_linear": EXACT_START[0], "start_tolerance_angular": EXACT_START[2],
+                     "step_budget_share": share}
+            unit.initialize(0.0, start)
+            fmu, c = unit.fmu, unit.fmu.component
+            q_vr, b_vr = unit.vr_array("q1", "q2", "q3"), unit.vr_array("certain")
+            q_buf, b_buf = (fmi2Real * 3)(), (fmi2Boolean * 1)()
+            wall, cpu, certain = np.zeros(len(q) - 1), np.zeros(len(q) - 1), np.zeros(len(q) - 1, bool)
+            for k in range(1, len(q)):
+                t0, c0 = time.perf_counter(), time.thread_time()
+                q_buf[:] = q[k]
+                fmu.fmi2SetReal(c, q_vr, 3, q_buf)
+                fmu.fmi2DoStep(c, (k - 1) * dt, dt, fmi2True)
+                fmu.fmi2GetBoolean(c, b_vr, 1, b_buf)
+                wall[k - 1], cpu[k - 1] = time.perf_counter() - t0, time.thread_time() - c0
+                certain[k - 1] = bool(b_buf[0])
+            rows.append((share, wall, cpu, certain))
     return rows
 
 
@@ -114,6 +129,8 @@ def _parser():
     ap.add_argument("--suite", choices=("all", "default", "hard"), default="all")
     ap.add_argument("--limit", type=int, default=0, help="only the first N paths")
     ap.add_argument("--no-fmu", dest="fmu", action="store_false", help="skip the DK FMU's doStep")
+    ap.add_argument("--fmu-path", default="p1-circle-5mm/1000", help="the path of the FMU's stream (a suite path)")
+    ap.add_argument("--build-dir", default="build", help="where the FMUs are built (or reused)")
     return ap
 
 
@@ -143,11 +160,20 @@ def main(argv=None):
                   f"({100 * t['alarms'] / max(t['counted'], 1):.2f} %) | {t['oob']:,} | {percentiles(wall)} | "
                   f"{percentiles(cpu)} | {stalls} |")
     if args.fmu:
-        print("\n| DK FMU doStep (FMU2Slave) | wall p50 | p99 | p99.9 | max (us) | CPU p50 | p99 | p99.9 | max (us) |"
-              "\n|" + "---|" * 9)
-        for b, wall, cpu in fmu_rows(budgets):
-            print(f"| {'none' if b is None else f'{b * 1e6:.0f} us'} | {percentiles(wall)} | {percentiles(cpu)} |")
-
+        sensor = grades[args.grades[0]]
+        path = next(p for p in suite if p.name == args.fmu_path)
+        q = sensor.measure(path.q, seed=1000 + suite.index(path)).q.copy()
+        q[0] = path.q[0]
+        shares = [0.0] + [b / dt for b in args.budgets]
+        print(f"\nThe DK FMU's doStep through FMU2Slave (set q, doStep, get certain), {path.name}, {sensor.name}, "
+              f"step_budget_share = budget / communication step ({dt * 1e3:g} ms):")
+        print("\n| budget | certain steps | wall p50 | p99 | p99.9 | max (us) | CPU p50 | p99 | p99.9 | max (us) | "
+              "stalls |\n|" + "---|" * 11)
+        for share, wall, cpu, certain in fmu_rows(args.build_dir, path, q, sensor.tolerance(3.0), speed,
+                                                  sensor.stuck_after(), shares, dt):
+            name = "none" if share == 0.0 else f"{share * dt * 1e6:.0f} us"
+            print(f"| {name} | {100 * certain.mean():.1f} % | {percentiles(wall)} | {percentiles(cpu)} | "
+                  f"{int(np.sum(wall - cpu > STALL))} |")
 
 if __name__ == "__main__":
     main()

@@ -27,10 +27,11 @@ from numba import njit
 from .clock import expired
 from .linalg import wrap
 from .tube import TUBE_Q, TUBE_SIZE
-from .tube_chain import MAX_COVER, MAX_PIECES, cover, refine
+from .tube import TUBE_S
+from .tube_chain import COVER_PARTS, MAX_COVER, MAX_PIECES, SLABS, cover_box, needle_frame, refine, slab_cover
 
 #: Most readings a walk's path may hold (its start and the readings it has not reached).
-MAX_PATH = 32
+MAX_PATH = 256
 
 # the anytime pack
 ANY_DEADLINE = 0          # the step's deadline (cycle count, :mod:`.clock`; 0: no budget)
@@ -41,7 +42,10 @@ ANY_S = 4                 # how far along the path's first segment the walk stan
 ANY_STEP = 5              # the next piece's length (fraction of the segment)
 ANY_TESTS = 6             # tube tests used on this segment
 ANY_N_PATH = 7            # the path's readings (its first: the segment's start)
-ANY_PATH = 8              # (MAX_PATH, 3) the path, rad, unwrapped along it
+ANY_C_STAGE = 8           # the cover in progress (:func:`walk_cover`): its stage (0: none or one tube)
+ANY_C_K = 9               # ... the next tube of that stage (its tubes so far follow the walk's)
+ANY_C_V = 10              # (3, 3) ... the needle's frame of its slabs
+ANY_PATH = 19             # (MAX_PATH, 3) the path, rad, unwrapped along it
 ANY_PIECES = ANY_PATH + 3 * MAX_PATH   # (MAX_PIECES, TUBE_SIZE) the walk's tubes
 ANY_SIZE = ANY_PIECES + MAX_PIECES * TUBE_SIZE
 
@@ -52,7 +56,7 @@ WALK_FAILED, WALK_CLOSED, WALK_PENDING = 0, 1, 2
 def walk_floats(anytime: np.ndarray) -> int:
     """How many leading floats of the anytime pack ``anytime`` hold its walk (0 when it has none)."""
     n = int(anytime[ANY_N])
-    return ANY_PIECES + n * TUBE_SIZE if n > 0 else 0
+    return ANY_PIECES + (n + int(anytime[ANY_C_K])) * TUBE_SIZE if n > 0 else 0
 
 
 @njit(cache=True)
@@ -65,6 +69,7 @@ def walk_begin(anytime, old, n_old, qp):
             pieces[j, TUBE_Q + i] = qp[i] + wrap(old[j, TUBE_Q + i] - qp[i])
     anytime[ANY_N], anytime[ANY_LAST], anytime[ANY_S], anytime[ANY_STEP] = n_old, 0.0, 0.0, 1.0
     anytime[ANY_TESTS], anytime[ANY_N_PATH] = 0.0, 1.0
+    anytime[ANY_C_STAGE], anytime[ANY_C_K] = 0.0, 0.0
     anytime[ANY_PATH:ANY_PATH + 3] = qp
 
 
@@ -86,9 +91,10 @@ def walk_on(anytime, tol, max_tests, deadline, M, l1, l2sq, b, out):
     """Walk on along the path until the last reading's box is covered, the ``deadline`` passes or the
     walk fails.
 
-    Each segment as :func:`.tube_chain.tube_chain` (pieces of the segment widened by ``tol``,
-    rad, each covered by :func:`.tube_chain.cover`, then the reading's own box); at an
-    intermediate reading the walk goes on from that reading's cover alone.  Returns
+    Each segment as :func:`.tube_chain.tube_chain` (pieces of the segment widened by ``tol``, rad,
+    each covered as :func:`.tube_chain.cover` does, then the reading's own box), but a cover the
+    deadline cuts goes on at the next call from the tube where it stopped (:func:`walk_cover`); at
+    an intermediate reading the walk goes on from that reading's cover alone.  Returns
     (WALK_CLOSED, n): ``out[:n]`` (MAX_COVER, TUBE_SIZE) covers the last reading's box and the
     walk is over; (WALK_PENDING, 0): the deadline passed, the pack holds where the walk stands;
     (WALK_FAILED, 0): a segment used ``max_tests`` tests, its pieces got too short or its cover
@@ -112,14 +118,16 @@ def walk_on(anytime, tol, max_tests, deadline, M, l1, l2sq, b, out):
             for i in range(3):
                 qc[i] = qp[i] + 0.5 * (s + sb) * dq[i]
                 t[i] = 0.5 * abs(dq[i]) * (sb - s) + tol
-            m, used = cover(pieces, n, pieces[n - 1], qc, t, M, l1, l2sq, b, deadline)
+            m, used = walk_cover(pieces, n, pieces[n - 1], qc, t, M, l1, l2sq, b, deadline, anytime)
             tests += used
             if m > 0:
                 last, n = n, m
                 s = sb
                 step = min(1.25 * step, 1.0)
-            elif not expired(deadline):                # a cover the deadline cut is tried again
+            elif m == -1:
                 step *= 0.5
+            else:                                      # the deadline cut the cover: it goes on next time
+                break
         if s < 1.0:
             anytime[ANY_N], anytime[ANY_LAST], anytime[ANY_S], anytime[ANY_STEP] = n, last, s, step
             anytime[ANY_TESTS] = tests
@@ -127,8 +135,12 @@ def walk_on(anytime, tol, max_tests, deadline, M, l1, l2sq, b, out):
         for i in range(3):                             # the reading's own box (else the last piece's cover)
             qc[i] = qp[i] + dq[i]
             t[i] = tol
-        m, used = cover(pieces, n, pieces[n - 1], qc, t, M, l1, l2sq, b, deadline)
+        m, used = walk_cover(pieces, n, pieces[n - 1], qc, t, M, l1, l2sq, b, deadline, anytime)
         tests += used
+        if m < -1:                                     # cut: the reading's cover goes on next time
+            anytime[ANY_N], anytime[ANY_LAST], anytime[ANY_S], anytime[ANY_STEP] = n, last, s, step
+            anytime[ANY_TESTS] = tests
+            return WALK_PENDING, 0
         if m > 0:
             last, n = n, m
         if n - last > MAX_COVER:
@@ -147,3 +159,48 @@ def walk_on(anytime, tol, max_tests, deadline, M, l1, l2sq, b, out):
         refine(out, pieces, n, qc, t, M, l1, l2sq, b)
     anytime[ANY_N] = 0.0
     return WALK_CLOSED, n
+
+
+#: The stages of a cover (:func:`walk_cover`): one tube, the slab counts of :data:`.tube_chain.SLABS`,
+#: then 2**3 .. COVER_PARTS**3 parts (the order of :func:`.tube_chain.cover`).
+N_STAGES = 1 + len(SLABS) + COVER_PARTS - 1
+
+
+@njit(cache=True)
+def walk_cover(pieces, n, guess, qc, t, M, l1, l2sq, b, deadline, anytime):
+    """:func:`.tube_chain.cover` of the joint box ``qc +- t`` (3,), resumable: a cover the ``deadline``
+    cuts keeps its stage, next tube and frame in the anytime pack (its tubes so far after
+    ``pieces[:n]``) and goes on from there at the next call.  Returns (new count, -1 when every
+    stage failed, -2 when cut; tube tests, counted per stage as :func:`.tube_chain.cover` does)."""
+    stage, k0 = int(anytime[ANY_C_STAGE]), int(anytime[ANY_C_K])
+    V = anytime[ANY_C_V:ANY_C_V + 9].reshape((3, 3))
+    tests = 0
+    while stage < N_STAGES:
+        if stage == 0:
+            count = 1
+        elif stage <= len(SLABS):
+            count = SLABS[stage - 1]
+        else:
+            count = (stage - len(SLABS) + 1) ** 3
+        if k0 == 0:
+            tests += count
+        if stage == 0:
+            r = cover_box(pieces, n, guess, qc, t, 1, M, l1, l2sq, b, deadline, k0)
+        elif stage <= len(SLABS):
+            if stage == 1 and k0 == 0:                 # the frame of the failed one-tube test's S
+                if not (n < pieces.shape[0] and pieces[n, TUBE_S] == pieces[n, TUBE_S]):
+                    stage, k0 = len(SLABS) + 1, 0
+                    continue
+                needle_frame(pieces[n, TUBE_S:TUBE_S + 9].reshape((3, 3)).copy(), V)
+            r = slab_cover(pieces, n, guess, qc, t, count, V, M, l1, l2sq, b, deadline, k0)
+        else:
+            r = cover_box(pieces, n, guess, qc, t, stage - len(SLABS) + 1, M, l1, l2sq, b, deadline, k0)
+        if r > 0:
+            anytime[ANY_C_STAGE], anytime[ANY_C_K] = 0.0, 0.0
+            return r, tests
+        if r < -1:                                     # cut before tube -2 - r of this stage
+            anytime[ANY_C_STAGE], anytime[ANY_C_K] = stage, -2 - r
+            return -2, tests
+        stage, k0 = stage + 1, 0
+    anytime[ANY_C_STAGE], anytime[ANY_C_K] = 0.0, 0.0
+    return -1, tests

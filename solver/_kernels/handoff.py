@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .clock import expired
 from .krawczyk import PAD
 from .linalg import wrap
 from .tube import SLACK, TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_V, TUBE_W, TUBE_X, lin_bound, slab_test
@@ -74,16 +75,18 @@ def meeting(a, b_, qm, U, h):
 
 
 @njit(cache=True)
-def takes_over(pieces, n, new, need):
+def takes_over(pieces, n, new, need, deadline=0.0):
     """Does tube ``new`` take over from every tube of ``pieces[:n]`` (n, TUBE_SIZE) where their joint
     sets may meet (:func:`meeting`, :func:`handoff`)?  ``need`` (3,) receives the largest
-    half-widths ``new`` would need."""
+    half-widths ``new`` would need.  False also when the ``deadline`` (:mod:`.clock`) passes first."""
     ok = True
     qm, h, nd = np.empty(3), np.empty(3), np.empty(3)
     U = np.empty((3, 3))
     for r in range(3):
         need[r] = 0.0
     for j in range(n):
+        if (j & 15) == 15 and expired(deadline):
+            return False
         if meeting(pieces[j], new, qm, U, h):
             ok = handoff(pieces[j], new, qm, U, h, nd) and ok
             for r in range(3):
@@ -92,16 +95,18 @@ def takes_over(pieces, n, new, need):
 
 
 @njit(cache=True)
-def tested_takeover(pieces, n, xg, qc, V, tw, tq, M, l1, l2sq, b, new):
+def tested_takeover(pieces, n, xg, qc, V, tw, tq, M, l1, l2sq, b, new, deadline=0.0):
     """A tube test of the joints ``qc + V w``, ``|w| <= tw``, within ``tq`` of ``qc`` (:func:`slab_test`, from the
     guess ``xg``) that also takes over from the tubes ``pieces[:n]`` (:func:`takes_over`): when the
     test passes but its tube is too narrow for a hand-off, it is tried once more with the
-    half-widths the hand-offs need."""
+    half-widths the hand-offs need (until the ``deadline``)."""
     need = np.zeros(3)
     if not slab_test(xg, qc, V, tw, tq, need, M, l1, l2sq, b, new):
         return False
-    if takes_over(pieces, n, new, need):
+    if takes_over(pieces, n, new, need, deadline):
         return True
+    if expired(deadline):
+        return False
     for r in range(3):
         need[r] = max(1.25 * need[r], new[TUBE_R + r])
-    return slab_test(xg, qc, V, tw, tq, need, M, l1, l2sq, b, new) and takes_over(pieces, n, new, need)
+    return slab_test(xg, qc, V, tw, tq, need, M, l1, l2sq, b, new) and takes_over(pieces, n, new, need, deadline)

@@ -40,26 +40,29 @@ MAX_COVER = 27
 
 
 @njit(cache=True)
-def cover_box(pieces, n, guess, qc, t, parts, M, l1, l2sq, b, deadline=0.0):
+def cover_box(pieces, n, guess, qc, t, parts, M, l1, l2sq, b, deadline=0.0, k0=0):
     """Cover the joint box ``qc +- t`` (3,) with ``parts**3`` tubes appended to ``pieces`` (m, TUBE_SIZE)
     after its first ``n``, each taking over from every earlier tube whose joint box meets its own
     (:func:`tested_takeover`); ``guess`` (TUBE_SIZE,): a tube whose predictor starts Newton.
-    Returns the new number of tubes, or -1 when a part fails, ``pieces`` is full or the ``deadline``
-    (:mod:`.clock`) passed."""
+    Returns the new number of tubes, or -1 when a part fails or ``pieces`` is full.  With a
+    ``deadline`` (:mod:`.clock`): ``-2 - k`` when it passed before part ``k`` (the parts before it are
+    ``pieces[n:n + k]``); a cover cut there goes on from part ``k0`` (its first part always runs)."""
     q, h, xg = np.empty(3), np.empty(3), np.empty(3)
     new = np.empty(TUBE_SIZE)
     eye = np.eye(3)
-    m = n
-    for k in range(parts ** 3):
-        if m >= pieces.shape[0] or (k > 0 and expired(deadline)):
+    m = n + k0
+    for k in range(k0, parts ** 3):
+        if m >= pieces.shape[0]:
             return -1
+        if k > k0 and expired(deadline):
+            return -2 - k
         for i in range(3):
             idx = (k // parts ** i) % parts
             h[i] = t[i] / parts
             q[i] = qc[i] - t[i] + (2 * idx + 1) * h[i]
         predictor(guess, q, xg)
         new[TUBE_S] = np.nan
-        if not tested_takeover(pieces, m, xg, q, eye, h, h, M, l1, l2sq, b, new):
+        if not tested_takeover(pieces, m, xg, q, eye, h, h, M, l1, l2sq, b, new, deadline):
             pieces[m, :] = new                         # scratch past the count: S for a slab cover
             return -1
         pieces[m, :] = new
@@ -94,12 +97,12 @@ def needle_frame(S, V):
 
 
 @njit(cache=True)
-def slab_cover(pieces, n, guess, qc, t, slabs, V, M, l1, l2sq, b, deadline=0.0):
+def slab_cover(pieces, n, guess, qc, t, slabs, V, M, l1, l2sq, b, deadline=0.0, k0=0):
     """Cover the joint box ``qc +- t`` (3,) with ``slabs`` slabs across ``V[:, 0]`` (the needle's joint
     direction, :func:`needle_frame`), each a parallelepiped ``q_m + V w`` with its tube
     (:func:`.tube.slab_test`), appended to ``pieces`` after its first ``n`` and each taking over
-    from every earlier tube it may meet.  Returns the new number of tubes, or -1 (also when the
-    ``deadline`` passed)."""
+    from every earlier tube it may meet.  Returns the new number of tubes, or -1; with a ``deadline``,
+    ``-2 - k`` as :func:`cover_box` (and from slab ``k0`` on)."""
     tw = np.empty(3)
     for j in range(3):                                  # the box in the frame: |w_j| <= sum_i |V_ij| t_i
         tw[j] = (abs(V[0, j]) * t[0] + abs(V[1, j]) * t[1] + abs(V[2, j]) * t[2]) * (1.0 + 1e-12)
@@ -107,10 +110,12 @@ def slab_cover(pieces, n, guess, qc, t, slabs, V, M, l1, l2sq, b, deadline=0.0):
     tw[0] = width / slabs
     q, xg, tq = np.empty(3), np.empty(3), np.empty(3)
     new = np.empty(TUBE_SIZE)
-    m = n
-    for k in range(slabs):
-        if m >= pieces.shape[0] or expired(deadline):
+    m = n + k0
+    for k in range(k0, slabs):
+        if m >= pieces.shape[0]:
             return -1
+        if k > k0 and expired(deadline):
+            return -2 - k
         off = -width + (2 * k + 1) * tw[0]
         for i in range(3):                              # the slab's centre, and the box about it holding box & slab
             q[i] = qc[i] + V[i, 0] * off
@@ -119,7 +124,7 @@ def slab_cover(pieces, n, guess, qc, t, slabs, V, M, l1, l2sq, b, deadline=0.0):
             hi = min(qc[i] + t[i], q[i] + hull)
             tq[i] = max(q[i] - lo, hi - q[i]) * (1.0 + 1e-12) + PAD
         predictor(guess, q, xg)
-        if not tested_takeover(pieces, m, xg, q, V, tw, tq, M, l1, l2sq, b, new):
+        if not tested_takeover(pieces, m, xg, q, V, tw, tq, M, l1, l2sq, b, new, deadline):
             return -1
         pieces[m, :] = new
         m += 1
@@ -131,7 +136,7 @@ def cover(pieces, n, guess, qc, t, M, l1, l2sq, b, deadline=0.0):
     """:func:`cover_box` with one tube, else slabs across the needle (:data:`SLABS`), else 2**3 and
     3**3 parts, until the ``deadline``.  Returns (new count, -1 when none closed; tube tests used)."""
     tests = 1
-    m = cover_box(pieces, n, guess, qc, t, 1, M, l1, l2sq, b)
+    m = cover_box(pieces, n, guess, qc, t, 1, M, l1, l2sq, b, deadline)
     if m > 0 or expired(deadline):
         return m, tests
     if n < pieces.shape[0] and pieces[n, TUBE_S] == pieces[n, TUBE_S]:   # the failed test left S
