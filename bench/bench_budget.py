@@ -134,6 +134,29 @@ def _parser():
     return ap
 
 
+def grade_table(rows) -> tuple:
+    """The markdown table of the streams' results, and the headline rows of the first budget."""
+    from report import table
+
+    lines, head = [], []
+    for g, tot in rows.items():
+        base = tot[None]
+        for b, t in tot.items():
+            wall, cpu = np.concatenate(t["wall"]), np.concatenate(t["cpu"])
+            pct = 100 * t["alarms"] / max(t["counted"], 1)
+            lines.append((g, "none" if b is None else f"{b * 1e6:.0f} us", f"{t['counted']:,}", f"{t['errors']:,}",
+                          str(t["silent"]), f"{t['alarms']:,} ({pct:.2f} %)", f"{t['oob']:,}", percentiles(wall),
+                          percentiles(cpu), str(int(np.sum(wall - cpu > STALL)))))
+            if b is not None and g != "exact":
+                p999, worst = np.percentile(cpu, 99.9) / b, cpu.max()
+                more = pct - 100 * base["alarms"] / max(base["counted"], 1)
+                head.append((g, b, p999, worst, t["silent"], more))
+    header = ["sensor", "budget", "counted", "errors", "silent", "false alarms", "out of budget",
+              "wall p50 &#124; p99 &#124; p99.9 &#124; max (us)", "CPU p50 &#124; p99 &#124; p99.9 &#124; max (us)",
+              "stalls"]
+    return table(header, [tuple(c.replace(" | ", " / ") for c in row) for row in lines]), head
+
+
 def main(argv=None):
     args = _parser().parse_args(argv)
     args.rate, args.coarse, args.speed, args.no_speed = 1000, False, None, False
@@ -148,32 +171,45 @@ def main(argv=None):
         run_timed(tr, suite[0].q[:30], suite[0].X[0], dt)
     t0 = time.perf_counter()
     rows = {g: run_grade(model, maps, suite, grades[g], speed, budgets, dt) for g in args.grades}
-    print(f"{len(suite)} paths at 1 kHz, {time.perf_counter() - t0:.0f} s; stalls: wall - CPU > {STALL * 1e6:.0f} us")
-    print("\n| sensor | budget | counted | errors | silent | false alarms | out of budget | wall p50 | p99 | p99.9 | "
-          "max (us) | CPU p50 | p99 | p99.9 | max (us) | stalls |\n|" + "---|" * 16)
-    for g, tot in rows.items():
-        for b, t in tot.items():
-            wall, cpu = np.concatenate(t["wall"]), np.concatenate(t["cpu"])
-            stalls = int(np.sum(wall - cpu > STALL))
-            name = "none" if b is None else f"{b * 1e6:.0f} us"
-            print(f"| {g} | {name} | {t['counted']:,} | {t['errors']:,} | {t['silent']} | {t['alarms']:,} "
-                  f"({100 * t['alarms'] / max(t['counted'], 1):.2f} %) | {t['oob']:,} | {percentiles(wall)} | "
-                  f"{percentiles(cpu)} | {stalls} |")
+    elapsed = time.perf_counter() - t0
+    body, head = grade_table(rows)
+    print(f"{len(suite)} paths at 1 kHz, {elapsed:.0f} s; stalls: wall - CPU > {STALL * 1e6:.0f} us\n\n{body}")
     if args.fmu:
-        sensor = grades[args.grades[0]]
-        path = next(p for p in suite if p.name == args.fmu_path)
-        q = sensor.measure(path.q, seed=1000 + suite.index(path)).q.copy()
-        q[0] = path.q[0]
-        shares = [0.0] + [b / dt for b in args.budgets]
-        print(f"\nThe DK FMU's doStep through FMU2Slave (set q, doStep, get certain), {path.name}, {sensor.name}, "
-              f"step_budget_share = budget / communication step ({dt * 1e3:g} ms):")
-        print("\n| budget | certain steps | wall p50 | p99 | p99.9 | max (us) | CPU p50 | p99 | p99.9 | max (us) | "
-              "stalls |\n|" + "---|" * 11)
-        for share, wall, cpu, certain in fmu_rows(args.build_dir, path, q, sensor.tolerance(3.0), speed,
-                                                  sensor.stuck_after(), shares, dt):
-            name = "none" if share == 0.0 else f"{share * dt * 1e6:.0f} us"
-            print(f"| {name} | {100 * certain.mean():.1f} % | {percentiles(wall)} | {percentiles(cpu)} | "
-                  f"{int(np.sum(wall - cpu > STALL))} |")
+        body += "\n\n" + fmu_table(args, suite, grades, speed, dt)
+    from report import publish
+
+    headline = [(f"step budget {b * 1e6:.0f} us ({g}): CPU p99.9 / budget; slowest; silent; false alarms vs none",
+                 f"{p999:.2f}x; {worst * 1e3:.2f} ms; {silent}; {more:+.1f} points",
+                 "<= 1.5x; <= 5 ms; 0; <= +2 points" + ("" if p999 <= 1.5 and worst <= 5e-3 and silent == 0
+                                                         and more <= 2.0 else " (not met)"))
+                for g, b, p999, worst, silent, more in head if b == args.budgets[0]]
+    publish("budget", body, headline=headline,
+            note=f"{len(suite)} paths at 1 kHz, {elapsed:.0f} s, every run in one process. Times per step: wall "
+                 f"(perf_counter) and the thread's CPU time; a stall is a step whose wall time exceeds its CPU time "
+                 f"by more than {STALL * 1e6:.0f} us (the machine ran something else). Counts as bench_sensors.py.")
+
+
+def fmu_table(args, suite, grades, speed, dt) -> str:
+    """The DK FMU's doStep timings (:func:`fmu_rows`) as a markdown table (printed too)."""
+    from report import table
+
+    sensor = grades[args.grades[0]]
+    path = next((p for p in suite if p.name == args.fmu_path), suite[-1])
+    q = sensor.measure(path.q, seed=1000 + suite.index(path)).q.copy()
+    q[0] = path.q[0]
+    shares = [0.0] + [b / dt for b in args.budgets]
+    lines = []
+    for share, wall, cpu, certain in fmu_rows(args.build_dir, path, q, sensor.tolerance(3.0), speed,
+                                              sensor.stuck_after(), shares, dt):
+        lines.append(("none" if share == 0.0 else f"{share * dt * 1e6:.0f} us ({share:g})",
+                      f"{100 * certain.mean():.1f} %", percentiles(wall).replace(" | ", " / "),
+                      percentiles(cpu).replace(" | ", " / "), str(int(np.sum(wall - cpu > STALL)))))
+    text = (f"The DK FMU's doStep through fmpy's FMU2Slave (set q, doStep, get certain) on {path.name}, "
+            f"{sensor.name}, step_budget_share = budget / communication step ({dt * 1e3:g} ms):\n\n"
+            + table(["budget (share)", "certain steps", "wall p50 / p99 / p99.9 / max (us)",
+                     "CPU p50 / p99 / p99.9 / max (us)", "stalls"], lines))
+    print("\n" + text)
+    return text
 
 if __name__ == "__main__":
     main()

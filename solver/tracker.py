@@ -149,6 +149,15 @@ The proofs hold while the sensor keeps its tolerance: the ``stuck_after - 1``
 repeated readings before a detection, and a joint stuck on an exact (noise-free)
 encoder, break it unnoticed.  Measured on noisy streams: ``bench/bench_sensors.py``.
 
+A step budget
+-------------
+``step_budget`` (seconds) gives each :meth:`step` a deadline on the CPU's cycle counter
+(:mod:`._kernels.clock`): every search of the step stops at it and the step returns its choice,
+not certain, with ``out_of_budget``.  The tube chain's unfinished proof is a walk
+(:mod:`._kernels.anytime`) kept in the state; the next steps continue it within their own
+budgets, and the step whose walk reaches its own reading is certain (never back-dated).  Without
+a budget every search runs to its test limits, as before.  Measured: ``bench/bench_budget.py``.
+
 Every step reports a :class:`StepInfo`.
 """
 from __future__ import annotations

@@ -21,6 +21,9 @@ into flat float arrays whose fields are read through the named offsets of :mod:`
 - :mod:`.gates`: the outlier and speed gates for measured joints;
 - :mod:`.choice`: the predictor along the joint step and the nearest solution to a prediction;
 - :mod:`.tracker_packs`: the named packs of a tracker step (the step's scratch and its result);
+- :mod:`.clock`: the CPU's cycle counter, the step budget's deadline;
+- :mod:`.anytime`: with a step budget, the tube chain as a walk the next steps continue;
+- :mod:`.cache_stamp`: numba's cache stamped with the content of every kernel module;
 - :mod:`.certified`: the certify phase of a step;
 - :mod:`.tracker`, :mod:`.baselines`: one step of procedure 3, as phases (gate, solve, predict,
   choose, certify, speed gate, publish), and one step of each baseline.
