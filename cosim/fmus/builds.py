@@ -116,16 +116,22 @@ class BuildResult:
         return self.fmu.stat().st_size
 
 
-def _stage_script(dest: Path, posture: int, mode: str) -> Path:
-    source = slave_script(DK_NAME)
-    text = source.read_text()
-    for pattern, value in ((r"^BUILD_POSTURE = \d+$", f"BUILD_POSTURE = {posture:d}"),
+def with_build_constants(text: str, posture: int, mode: str, where) -> str:
+    """The slave script ``text`` with its build constants ``BUILD_POSTURE`` and ``BUILD_MODE`` set to
+    ``posture`` and ``mode`` (the start values of its parameters); ``where`` names it in the error
+    when a constant is not there exactly once."""
+    for pattern, value in ((r"^BUILD_POSTURE = \d+$", f"BUILD_POSTURE = {int(posture):d}"),
                            (r'^BUILD_MODE = "\w+"$', f'BUILD_MODE = "{mode}"')):
         text, n = re.subn(pattern, value, text, flags=re.MULTILINE)
         if n != 1:
-            raise RuntimeError(f"{source}: expected one line matching {pattern!r}, found {n}")
+            raise RuntimeError(f"{where}: expected one line matching {pattern!r}, found {n}")
+    return text
+
+
+def _stage_script(dest: Path, posture: int, mode: str) -> Path:
+    source = slave_script(DK_NAME)
     script = dest / source.name
-    script.write_text(text)
+    script.write_text(with_build_constants(source.read_text(), posture, mode, source))
     return script
 
 

@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
-import os
-import re
 import shutil
 import sys
 import tempfile
@@ -46,7 +44,7 @@ from .builds import DEFAULT_RESOLUTION, MODES, BuildResult
 from .fmi3_description import model_description_xml
 from .kernels import Run, Scenario, warm_up
 from .packaging import (BuildError, _check_module_name_is_free, _isolated_module, _stage_data_files, bundled_files,
-                        declared_requirements, third_party_modules)
+                        declared_requirements, third_party_modules, write_zip)
 from .sources import SLAVE_DIR, slave_script
 
 __all__ = ["DK3_NAME", "DK3_FILE", "PLATFORM", "build_dk3", "warm_up_scenario3"]
@@ -56,7 +54,6 @@ DK3_NAME = "RRRDirectKinematics3"
 DK3_FILE = "RRRDirectKinematics.fmu"
 #: the one platform whose binary the FMU keeps (the only one its tests ran on)
 PLATFORM = "x86_64-linux"
-_ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
 _TOKEN_NAMESPACE = uuid.UUID("0b6e0f0e-3d5a-4c1f-8f61-2f7d5c3a9e41")
 
 
@@ -106,15 +103,7 @@ def _archive(raw: Path, final: Path, cls, extra: dict | None = None) -> None:
         digest.update(name.encode() + b"\0" + hashlib.sha256(entries[name]).digest())
     token = "{" + str(uuid.uuid5(_TOKEN_NAMESPACE, digest.hexdigest())) + "}"
     entries["modelDescription.xml"] = model_description_xml(cls, token=token)
-    tmp = final.with_name(final.name + ".part")
-    with zipfile.ZipFile(tmp, "w") as z:
-        for name in sorted(entries):
-            info = zipfile.ZipInfo(name, date_time=_ZIP_EPOCH)
-            info.compress_type = zipfile.ZIP_DEFLATED
-            info.create_system = 3
-            info.external_attr = (0o100000 | (0o755 if name.startswith("binaries/") else 0o644)) << 16
-            z.writestr(info, entries[name], compresslevel=9)
-    os.replace(tmp, final)
+    write_zip(final, entries)
 
 
 def build_dk3(out_dir="build/fmi3", postures=(1,), resolution=DEFAULT_RESOLUTION, map_files=(), mode: str = "default",
@@ -162,13 +151,7 @@ def build_dk3(out_dir="build/fmi3", postures=(1,), resolution=DEFAULT_RESOLUTION
 def _set_start(script: Path, posture: int, mode: str) -> None:
     """The start values of ``posture`` and ``mode``: the build constants of the staged script, rewritten
     as the FMI 2.0 build rewrites its own."""
-    text = script.read_text()
-    for pattern, value in ((r"^BUILD_POSTURE = \d+$", f"BUILD_POSTURE = {int(posture):d}"),
-                           (r'^BUILD_MODE = "\w+"$', f'BUILD_MODE = "{mode}"')):
-        text, n = re.subn(pattern, value, text, flags=re.MULTILINE)
-        if n != 1:
-            raise BuildError(f"{script}: expected one line matching {pattern!r}, found {n}")
-    script.write_text(text)
+    script.write_text(builds.with_build_constants(script.read_text(), posture, mode, script))
 
 
 def _validate(fmu: Path) -> list[str]:

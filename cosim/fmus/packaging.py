@@ -372,6 +372,13 @@ def _postprocess(raw: Path, final: Path, cls: type[TableSlave], can_serialize_st
     guid = str(uuid.uuid5(_GUID_NAMESPACE, digest.hexdigest()))
     entries["modelDescription.xml"] = model_description_xml(cls, guid=guid,
                                                             can_serialize_state=can_serialize_state)
+    write_zip(final, entries)
+
+
+def write_zip(final: Path, entries: dict) -> None:
+    """Write ``entries`` ({name: bytes}) as the zip ``final``, byte for byte the same for the same entries
+    (sorted names, one date, fixed modes: executables under ``binaries/``); written beside and moved
+    into place, so a reader never sees half a file."""
     tmp = final.with_name(final.name + ".part")
     with zipfile.ZipFile(tmp, "w") as z:
         for name in sorted(entries):
