@@ -27,6 +27,7 @@ from fmu_src.dk_variables import NO_BOUND, dk_outputs, initial_pose, sensor_para
 from fmu_src.table_slave import TableSlave, Var
 from solver import (HOME_POSE, STATUS, Manipulator, MapTensor, MapTensorFileError, Tracker, TrackerState, dk_all,
                     ik, jacobians, wrap_angle)
+from solver._kernels.clock import cycles_per_second
 from solver.tracker_state import TRUST
 TRUST_CERTAIN, TRUST_LOST = (next(k for k, v in TRUST.items() if v == name) for name in ("certain", "lost"))
 
@@ -183,6 +184,8 @@ class RRRDirectKinematics(TableSlave):
         if not 0 <= mode < len(self.MODES):
             raise ValueError(f"parameter 'mode' = {mode!r}: expected 0 (default) or 1 (paper)")
         tol, speed, stuck, start_tol = self._options()
+        if self.step_budget_share > 0.0:
+            cycles_per_second()                   # the budget's clock calibrated now, not in the first doStep
         return Tracker(self._model, self._maps[posture], mode=self.MODES[mode], singular_tol=self.SINGULAR_TOL,
                        joint_tolerance=tol, speed_bound=speed, stuck_after=stuck, start_tolerance=start_tol)
 

@@ -168,7 +168,8 @@ from dataclasses import replace
 import numpy as np
 
 from ._kernels import layout as _lay
-from ._kernels.anytime import ANY_CUT, ANY_DEADLINE, ANY_N, ANY_SIZE, walk_floats
+from ._kernels.anytime import ANY_CUT, ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_SIZE, walk_floats
+from ._kernels.clock import cycles_per_second
 from ._kernels.tracker import tracker_step
 from .checks import as_array
 from .grid import default_bounds
@@ -275,6 +276,8 @@ class Tracker(_TrackerBase):
                                             and step_budget > 0):
             raise TrackerError(f"step_budget: expected seconds > 0 or None, got {step_budget!r}")
         self.step_budget = None if step_budget is None else float(step_budget)
+        if step_budget is not None:
+            cycles_per_second()                 # calibrated now, not in the first step's budget
         self._anytime = np.zeros(ANY_SIZE)
         r0 = as_array("start_tolerance", start_tolerance, (3,))
         if r0.shape != (3,) or not np.all(r0 > 0):
@@ -386,7 +389,7 @@ class Tracker(_TrackerBase):
     def _kernel(self, q, state_pack, deadline):
         anytime, walk = self._anytime, self.state.walk
         if walk is None:
-            anytime[ANY_N] = 0.0
+            anytime[ANY_N] = anytime[ANY_K_ON] = 0.0
         else:
             anytime[:len(walk)] = walk
         anytime[ANY_DEADLINE] = deadline

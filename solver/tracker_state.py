@@ -18,7 +18,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ._kernels.anytime import ANY_N, ANY_SIZE, walk_floats
+from ._kernels.anytime import (ANY_C_K, ANY_C_STAGE, ANY_K_N_PATH, ANY_K_ON, ANY_K_PATH, ANY_LAST, ANY_N, ANY_N_PATH,
+                               ANY_PATH, ANY_PIECES, ANY_SIZE, MAX_KPATH, MAX_PATH, N_STAGES, walk_floats)
 from ._kernels.certify import CERT_CONTINUATION, CERT_REACQUIRED
 from ._kernels.layout import (F_DQ, F_INNOV, I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_STATUS, MAX_REFUSED,
                               OUT_BOUND, OUT_CANDS, OUT_INFO, OUT_N_TUBES, OUT_REGION, OUT_TUBE, OUT_X, STATE_A_SCALE,
@@ -27,7 +28,7 @@ from ._kernels.layout import (F_DQ, F_INNOV, I_CERTAIN, I_CERTIFICATE, I_INTACT,
                               STATE_N_TUBES, STATE_Q, STATE_Q2, STATE_REFUSED, STATE_STEP_DT, STATE_TUBE,
                               STATE_VERIFIED, STATE_X, STATE_X2, STATUS_REJECTED, STATUS_UNREACHABLE)
 from ._kernels.tube import TUBE_SIZE
-from ._kernels.tube_chain import MAX_COVER
+from ._kernels.tube_chain import MAX_COVER, MAX_PIECES
 # what a step reports lives in step_info; re-exported here, where callers have always found it
 from .step_info import CERTIFICATES, NO_BOUND, STATUS, STEP_FIELDS, TRUST, StepInfo, TrackResult  # noqa: F401
 
@@ -65,6 +66,38 @@ def _saved_cover(a: np.ndarray) -> np.ndarray | None:
     if not np.all(np.isfinite(cover)):
         raise TrackerError(f"state: {n} tubes expected, got non-finite values")
     return cover
+
+
+def _saved_walk(a: np.ndarray, state) -> np.ndarray | None:
+    """The walk of a saved state (the floats after its clean state), checked: None when there is none;
+    :class:`TrackerError` when it is not one the tracker can have left at ``state.q`` (a corrupt state
+    must not reach the kernels, which do not check their bounds)."""
+    if np.isnan(a[ANY_N]):
+        return None
+    head = a[:ANY_PIECES]
+    n, k, stage = head[ANY_N], head[ANY_C_K], head[ANY_C_STAGE]
+    ok = (np.all(np.isfinite(head)) and n == int(n) and 0 <= n <= MAX_PIECES and k == int(k) and stage == int(stage)
+          and 0 <= stage < N_STAGES and 0 <= k and n + k <= MAX_PIECES and (n > 0 or head[ANY_K_ON] > 0))
+    if ok and n > 0:
+        m = int(head[ANY_N_PATH])
+        ok = head[ANY_N_PATH] == m and 2 <= m <= MAX_PATH and 0 <= head[ANY_LAST] < n and \
+            _same_angles(head[ANY_PATH + 3 * (m - 1):ANY_PATH + 3 * m], state.q)
+    if ok and head[ANY_K_ON] > 0:
+        m = int(head[ANY_K_N_PATH])
+        ok = head[ANY_K_N_PATH] == m and 1 <= m <= MAX_KPATH and \
+            _same_angles(head[ANY_K_PATH + 3 * (m - 1):ANY_K_PATH + 3 * m], state.q)
+    walk = a[:walk_floats(head)].copy() if ok else None
+    if walk is None or not np.all(np.isfinite(walk)) or state.tube is not None:
+        raise TrackerError(f"state: the walk of an unfinished proof expected after the clean state, at the "
+                           f"joints {state.q.tolist()} of an uncertain state, got "
+                           f"{np.array2string(a[:12], threshold=12)}...")
+    return walk
+
+
+def _same_angles(a, b) -> bool:
+    """The joints ``a`` and ``b`` (3,) are the same up to whole turns."""
+    d = np.asarray(a) - np.asarray(b)
+    return bool(np.all(np.abs(d - 2 * np.pi * np.round(d / (2 * np.pi))) < 1e-9))
 
 
 def _no_candidates() -> np.ndarray:
@@ -315,11 +348,8 @@ class TrackerState:
             raise TrackerError(f"state: expected {STATE_FLOATS} floats (X, q, X2, dq_scale, steps, dt, q2, "
                                f"candidates, ..., the clean state), got {np.array2string(a, threshold=40)}")
         clean = None if np.all(np.isnan(a[_BASE:2 * _BASE])) else cls._from_base(a[_BASE:2 * _BASE])
-        walk = a[_WALK:_WALK + walk_floats(a[_WALK:])].copy() if np.isfinite(a[_WALK + ANY_N]) else None
-        if walk is not None and (len(walk) == 0 or not np.all(np.isfinite(walk))):
-            raise TrackerError(f"state: a walk of the tube chain expected after the clean state, got "
-                               f"{np.array2string(a[_WALK:_WALK + 12], threshold=12)}...")
-        return replace(cls._from_base(a[:_BASE]), clean=clean, walk=walk)
+        base = cls._from_base(a[:_BASE])
+        return replace(base, clean=clean, walk=_saved_walk(a[_WALK:], base))
 
     @classmethod
     def _from_base(cls, a) -> "TrackerState":

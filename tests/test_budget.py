@@ -150,3 +150,40 @@ def test_a_rejected_input_keeps_the_walk(model, coarse_map1, circle):
 def test_the_budget_is_checked(model, coarse_map1, bad):
     with pytest.raises(TrackerError, match="step_budget"):
         Tracker(model, coarse_map1, step_budget=bad)
+
+
+def test_a_step_without_budget_drops_the_unfinished_proof(model, coarse_map1, circle):
+    """The walk holds the readings up to the last budgeted step: a step without a budget (which does not
+    extend it) must not leave it for a later budgeted step to skip a reading."""
+    q = _measured(circle)
+    tr = _tracker(model, coarse_map1, 1e-9)
+    tr.reset(circle.X[0], q[0])
+    for k in range(1, 4):
+        tr.step(q[k], 1e-3)
+    assert tr.state.walk is not None
+    tr.step_budget = None
+    tr.step(q[4], 1e-3)
+    assert tr.state.walk is None
+
+
+def test_a_saved_walk_that_does_not_fit_its_state_is_refused(model, coarse_map1, circle):
+    """A corrupt saved state must not reach the kernels: a walk not ending at the state's joints, or with
+    counts past its buffers, is refused by name."""
+    from solver._kernels.anytime import ANY_N, ANY_N_PATH, ANY_PATH
+    from solver.tracker_state import _WALK
+
+    q = _measured(circle)
+    tr = _tracker(model, coarse_map1, 1e-9)
+    tr.reset(circle.X[0], q[0])
+    for k in range(1, 4):
+        tr.step(q[k], 1e-3)
+    saved = tr.state.as_array()
+    TrackerState.from_array(saved)                                     # as saved: fine
+    m = int(saved[_WALK + ANY_N_PATH])
+    end = _WALK + ANY_PATH + 3 * (m - 1)
+    for at, value in ((end, saved[end] + 0.1), (_WALK + ANY_N, 1e6), (_WALK + ANY_N_PATH, 1e6),
+                      (_WALK + ANY_N, np.inf)):
+        bad = saved.copy()
+        bad[at] = value
+        with pytest.raises(TrackerError, match="walk"):
+            TrackerState.from_array(bad)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .certify import FOLLOW_DONE, FOLLOW_FAILED, follow_on, tiny_box
 from .clock import expired
 from .linalg import wrap
 from .tube import TUBE_Q, TUBE_SIZE
@@ -32,6 +33,8 @@ from .tube_chain import COVER_PARTS, MAX_COVER, MAX_PIECES, SLABS, cover_box, ne
 
 #: Most readings a walk's path may hold (its start and the readings it has not reached).
 MAX_PATH = 256
+#: ... and a continuation's.
+MAX_KPATH = 64
 
 # the anytime pack
 ANY_DEADLINE = 0          # the step's deadline (cycle count, :mod:`.clock`; 0: no budget)
@@ -45,7 +48,13 @@ ANY_N_PATH = 7            # the path's readings (its first: the segment's start)
 ANY_C_STAGE = 8           # the cover in progress (:func:`walk_cover`): its stage (0: none or one tube)
 ANY_C_K = 9               # ... the next tube of that stage (its tubes so far follow the walk's)
 ANY_C_V = 10              # (3, 3) ... the needle's frame of its slabs
-ANY_PATH = 19             # (MAX_PATH, 3) the path, rad, unwrapped along it
+ANY_K_ON = 19             # > 0: a continuation (chain of Krawczyk boxes) is under way (:func:`cont_on`)
+ANY_K_INTACT = 20         # ... the state's chain was intact where it began
+ANY_K_X = 21              # (3,) ... the branch where it stands
+ANY_K_PROG = 24           # (3,) ... s on its first segment, the next piece's length, the tests (-1: first the tiny box)
+ANY_K_N_PATH = 27         # ... its readings (the first: the segment's start)
+ANY_K_PATH = 28           # (MAX_KPATH, 3) ... its path, rad, unwrapped along it
+ANY_PATH = ANY_K_PATH + 3 * 64  # (MAX_PATH, 3) the walk's path, rad, unwrapped along it
 ANY_PIECES = ANY_PATH + 3 * MAX_PATH   # (MAX_PIECES, TUBE_SIZE) the walk's tubes
 ANY_SIZE = ANY_PIECES + MAX_PIECES * TUBE_SIZE
 
@@ -54,9 +63,12 @@ WALK_FAILED, WALK_CLOSED, WALK_PENDING = 0, 1, 2
 
 
 def walk_floats(anytime: np.ndarray) -> int:
-    """How many leading floats of the anytime pack ``anytime`` hold its walk (0 when it has none)."""
+    """How many leading floats of the anytime pack ``anytime`` hold its walk and continuation (0 when it
+    has neither)."""
     n = int(anytime[ANY_N])
-    return ANY_PIECES + (n + int(anytime[ANY_C_K])) * TUBE_SIZE if n > 0 else 0
+    if n <= 0 and not anytime[ANY_K_ON] > 0.0:
+        return 0
+    return ANY_PIECES + (n + int(anytime[ANY_C_K])) * TUBE_SIZE if n > 0 else ANY_PIECES
 
 
 @njit(cache=True)
@@ -109,7 +121,7 @@ def walk_on(anytime, tol, max_tests, deadline, M, l1, l2sq, b, out):
         for i in range(3):
             dq[i] = anytime[ANY_PATH + 3 + i] - qp[i]
         while s < 1.0:
-            if tests >= max_tests or step < 1.0 / 256.0:
+            if (tests >= max_tests or step < 1.0 / 256.0) and anytime[ANY_C_K] == 0.0:
                 anytime[ANY_N] = 0.0
                 return WALK_FAILED, 0
             if expired(deadline):
@@ -204,3 +216,63 @@ def walk_cover(pieces, n, guess, qc, t, M, l1, l2sq, b, deadline, anytime):
         stage, k0 = stage + 1, 0
     anytime[ANY_C_STAGE], anytime[ANY_C_K] = 0.0, 0.0
     return -1, tests
+
+
+@njit(cache=True)
+def cont_begin(anytime, X0, verified, intact, qp):
+    """A continuation (the chain of Krawczyk boxes of :func:`.certify.follow_branch`) from the single
+    candidate ``X0`` (3,) at the reading ``qp`` (3,); ``verified``: its tiny box is proved; ``intact``:
+    the state's chain of certificates was intact there."""
+    anytime[ANY_K_ON], anytime[ANY_K_INTACT] = 1.0, 1.0 if intact else 0.0
+    anytime[ANY_K_X:ANY_K_X + 3] = X0
+    anytime[ANY_K_PROG], anytime[ANY_K_PROG + 1], anytime[ANY_K_PROG + 2] = 0.0, 1.0, 0.0 if verified else -1.0
+    anytime[ANY_K_N_PATH] = 1.0
+    anytime[ANY_K_PATH:ANY_K_PATH + 3] = qp
+
+
+@njit(cache=True)
+def cont_append(anytime, q):
+    """Add the reading ``q`` (3,) at the continuation's path end; False (and the continuation ended) when full."""
+    k = int(anytime[ANY_K_N_PATH])
+    if k >= MAX_KPATH:
+        anytime[ANY_K_ON] = 0.0
+        return False
+    for i in range(3):
+        prev = anytime[ANY_K_PATH + 3 * (k - 1) + i]
+        anytime[ANY_K_PATH + 3 * k + i] = prev + wrap(q[i] - prev)
+    anytime[ANY_K_N_PATH] = k + 1
+    return True
+
+
+@njit(cache=True)
+def cont_on(anytime, max_tests, deadline, M, l1, b, l2sq, out):
+    """Go on with the continuation along its path (straight segments between the readings, exact joints
+    on them), each segment with at most ``max_tests`` Krawczyk tests, until the ``deadline``.
+    Returns FOLLOW_DONE (``out`` (3,): the branch at the last reading, within TINY of the only
+    solution there; the continuation is over), FOLLOW_CUT (it goes on at the next call) or
+    FOLLOW_FAILED (over)."""
+    x = anytime[ANY_K_X:ANY_K_X + 3]
+    prog = anytime[ANY_K_PROG:ANY_K_PROG + 3]
+    zero, d1 = np.zeros(3), np.empty(3)
+    while int(anytime[ANY_K_N_PATH]) >= 2:
+        q0 = anytime[ANY_K_PATH:ANY_K_PATH + 3]
+        for i in range(3):
+            d1[i] = anytime[ANY_K_PATH + 3 + i] - q0[i]
+        if prog[2] < 0.0:                              # the start's tiny box first
+            if not tiny_box(x, q0, d1, zero, M, l1, b, l2sq):
+                anytime[ANY_K_ON] = 0.0
+                return FOLLOW_FAILED
+            prog[2] = 1.0
+        status = follow_on(x, q0, d1, zero, 0.0, M, l1, b, l2sq, max_tests, deadline, prog)
+        if status != FOLLOW_DONE:
+            if status == FOLLOW_FAILED:
+                anytime[ANY_K_ON] = 0.0
+            return status
+        k = int(anytime[ANY_K_N_PATH])
+        for j in range(3 * (k - 1)):
+            anytime[ANY_K_PATH + j] = anytime[ANY_K_PATH + 3 + j]
+        anytime[ANY_K_N_PATH] = k - 1
+        prog[0], prog[1], prog[2] = 0.0, 1.0, 0.0
+    out[:] = x
+    anytime[ANY_K_ON] = 0.0
+    return FOLLOW_DONE

@@ -12,9 +12,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .anytime import ANY_DEADLINE, ANY_N, WALK_CLOSED, walk_append, walk_begin, walk_on
+from .anytime import (ANY_DEADLINE, ANY_K_INTACT, ANY_K_ON, ANY_N, WALK_CLOSED, cont_append, cont_begin, cont_on,
+                      walk_append, walk_begin, walk_on)
 from .candidates import certify
-from .certify import CERT_NONE, CERT_REACQUIRED, CERT_TUBE
+from .certify import CERT_CONTINUATION, CERT_NONE, CERT_REACQUIRED, CERT_TUBE, FOLLOW_CUT, FOLLOW_DONE, same_pose
 from .choice import nearest
 from .clock import cycles, expired
 from .certify import elbow_bits
@@ -85,8 +86,9 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
     tol = params[PARAM_JOINT_TOL]
     sol = -1
     deadline = anytime[ANY_DEADLINE]
-    if untrusted:
-        anytime[ANY_N] = 0.0                   # a glitch may break the path the walk assumes
+    if untrusted or deadline <= 0.0:           # a glitch may break the path the walk assumes; a step
+        anytime[ANY_N] = 0.0                   # without a budget carries no unfinished proof on
+        anytime[ANY_K_ON] = 0.0
     if deadline > 0.0:
         sol, n_tubes, n_new, cert, intact, linked = budgeted(untrusted, state, work, poses, real, params, model_pack,
                                                              new_cands, keep, tubes, anytime)
@@ -144,7 +146,8 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
     if not certain and tol > 0.0 and not untrusted:
         region_step(state, qu, params, model_pack, out_real[OUT_REGION:OUT_REGION + 6], deadline)
     if certain or n_tubes > 0:
-        anytime[ANY_N] = 0.0                   # certain (or re-acquired): no walk left to continue
+        anytime[ANY_N] = 0.0                   # certain (or re-acquired): no walk or continuation left
+        anytime[ANY_K_ON] = 0.0
     out_int[I_CERTAIN] = 1 if certain else 0
     out_int[I_CERTIFICATE] = cert
     out_int[I_N_CAND] = n_new
@@ -171,12 +174,52 @@ def budgeted(untrusted, state, work, poses, real, params, model_pack, new_cands,
                                  share(deadline, WALK_SHARE))
         if sol >= 0:
             return sol, n_tubes, n_new, cert, intact, linked
-    n_new, cert, intact, linked = chains(state, work, poses, real, params, model_pack, new_cands, keep,
-                                         share(deadline, CHAIN_SHARE))
+    n_new, cert, intact, linked = anytime_chains(untrusted, state, work, poses, real, params, model_pack, new_cands,
+                                                 keep, anytime, share(deadline, CHAIN_SHARE))
     if not untrusted and (anytime[ANY_N] > 0.0 or not fresh):
         sol, n_tubes = walk_step(state, work, poses, real, tol_of(params), model_pack, tubes, anytime, not fresh,
                                  deadline)
     return sol, n_tubes, n_new, cert, intact, linked
+
+
+@njit(cache=True, inline="always")
+def anytime_chains(untrusted, state, work, poses, real, params, model_pack, new_cands, keep, anytime, deadline):
+    """The chains of boxes of a step with a budget: the continuation from a single candidate is resumable
+    (:func:`.anytime.cont_on`: one the deadline cuts goes on at the next steps, along their readings);
+    while it is under way the step keeps every real solution as a candidate; when it ends on one
+    solution, that is the step's (as :func:`.candidates.certify`'s continuation, intact if the
+    state's chain was where it began).  Otherwise, and when it fails, :func:`chains`."""
+    if untrusted:
+        anytime[ANY_K_ON] = 0.0
+    elif anytime[ANY_K_ON] <= 0.0 and int(state[STATE_N_CAND]) == 1:
+        cont_begin(anytime, state[STATE_CANDS:STATE_CANDS + 3], state[STATE_VERIFIED] > 0.0,
+                   state[STATE_INTACT] > 0.0, state[STATE_Q:STATE_Q + 3])
+    if anytime[ANY_K_ON] > 0.0 and cont_append(anytime, work[STEP_QU:STEP_QU + 3]):
+        M, l1, l2sq, b = geometry(model_pack)
+        end, Xr = np.empty(3), np.empty(3)
+        status = cont_on(anytime, int(params[PARAM_MAX_TESTS]), deadline, M, l1, b, l2sq, end)
+        if status == FOLLOW_CUT:
+            n = 0
+            for k in range(6):
+                keep[k] = real[k]
+                if real[k]:
+                    new_cands[n, :] = poses[k].real
+                    n += 1
+            return n, CERT_NONE, False, False
+        if status == FOLLOW_DONE:
+            hit = -1
+            for k in range(6):
+                if real[k]:
+                    for i in range(3):
+                        Xr[i] = poses[k, i].real
+                    if same_pose(Xr, end):
+                        hit = k if hit < 0 else 6          # 6: two solutions match (cannot tell)
+            if 0 <= hit < 6:
+                for k in range(6):
+                    keep[k] = k == hit
+                new_cands[0, :] = end
+                return 1, CERT_CONTINUATION, anytime[ANY_K_INTACT] > 0.0, True
+    return chains(state, work, poses, real, params, model_pack, new_cands, keep, deadline)
 
 
 @njit(cache=True, inline="always")

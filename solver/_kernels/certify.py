@@ -149,28 +149,57 @@ def follow_branch(X0, verified, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, out,
     Returns ``-tests`` when the chain could not be closed within ``max_tests`` or before the
     ``deadline`` (:mod:`.clock`).
     """
+    x = X0.copy()
+    if not verified and not tiny_box(x, q0, d1, d2, M, l1, b, l2sq):
+        return -1
+    prog = np.array([0.0, 1.0, 0.0 if verified else 1.0])
+    if follow_on(x, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, deadline, prog) <= 0:
+        return -max(int(prog[2]), 1)
+    out[:] = x
+    return int(prog[2])
+
+
+@njit(cache=True, inline="always")
+def tiny_box(x, q0, d1, d2, M, l1, b, l2sq):
+    """The tiny box about ``x`` (3,) at ``q(0)`` holds exactly one solution (the first test of a chain)."""
+    w = np.empty(W_SIZE)
+    return krawczyk(x, np.full(3, TINY), q0, d1, d2, 0.0, 0.0, np.zeros(3), M, l1, b, l2sq, w)
+
+
+#: What :func:`follow_on` ends with.
+FOLLOW_FAILED, FOLLOW_CUT, FOLLOW_DONE = -1, 0, 1
+
+
+@njit(cache=True)
+def follow_on(x, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, deadline, prog):
+    """The chain of :func:`follow_branch` from ``x`` (3,, a proved solution at ``q(s)``) on to ``s = 1``,
+    resumable: ``prog`` (3,) holds ``s``, the next piece's length and the tests used, and ``x`` the
+    branch at ``s``; both are updated in place.  Returns FOLLOW_DONE (``x`` is the branch at
+    ``q(1)``), FOLLOW_CUT (the ``deadline`` passed: call again with the same ``prog``) or
+    FOLLOW_FAILED (``max_tests`` used, a singular Jacobian, or a piece shorter than the tube)."""
     w = np.empty(W_SIZE)
     bx = LinkBoxes(np.full(3, TINY), np.zeros(3), np.full(3, eps), np.empty(3), np.empty(3))
-    x = X0.copy()
-    tests = 0
     dq_max = 0.0
     for i in range(3):
         dq_max = max(dq_max, abs(d1[i]))
-    if not verified:
-        tests = 1
-        if not krawczyk(x, bx.tiny, q0, d1, d2, 0.0, 0.0, bx.none, M, l1, b, l2sq, w):
-            return -1
-    s, h = 0.0, 1.0
+    s, h, tests = prog[0], prog[1], int(prog[2])
     xb = np.empty(3)
+    status = FOLLOW_DONE
     while s < 1.0:
-        if tests >= max_tests or expired(deadline):
-            return -max(tests, 1)
+        if tests >= max_tests:
+            status = FOLLOW_FAILED
+            break
+        if expired(deadline):
+            status = FOLLOW_CUT
+            break
         sb = min(1.0, s + h)
         if eps > 0.0 and s > 0.0 and sb < 1.0 and (sb - s) * dq_max <= 2.0 * eps * (1.0 + 1e-9):
-            return -max(tests, 1)                     # an inner piece shorter than the tube's width
+            status = FOLLOW_FAILED                    # an inner piece shorter than the tube's width
+            break
         got = predict_piece(x, q0, d1, d2, s, sb, M, l1, b, l2sq, w, xb)
         if got < 0:
-            return -max(tests, 1)
+            status = FOLLOW_FAILED
+            break
         tests += 1
         ok = got == 1
         if ok:
@@ -182,8 +211,8 @@ def follow_branch(X0, verified, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, out,
             h = min(2.0 * h, 1.0)
         else:
             h *= 0.5
-    out[:] = x
-    return tests
+    prog[0], prog[1], prog[2] = s, h, tests
+    return status
 
 
 @njit(cache=True, inline="always")

@@ -10,6 +10,7 @@ A *deadline* is a cycle count as a float (0.0: none); :func:`expired` says wheth
 """
 from __future__ import annotations
 
+import platform
 import time
 
 from llvmlite import ir
@@ -47,6 +48,9 @@ def expired(deadline):
 def cycles_per_second() -> float:
     """The cycle counter's rate (counts per second), measured once per process."""
     if not _RATE:
+        if platform.machine().lower() not in ("x86_64", "amd64", "i386", "i686"):
+            raise RuntimeError(f"a step budget reads the x86-64 cycle counter; this CPU is {platform.machine()!r} "
+                               "(use step_budget=None here)")
         cycles()                                      # compiled or loaded before the measurement
         t0, c0 = time.perf_counter(), cycles()
         time.sleep(CALIBRATION)

@@ -46,7 +46,8 @@ def cover_box(pieces, n, guess, qc, t, parts, M, l1, l2sq, b, deadline=0.0, k0=0
     (:func:`tested_takeover`); ``guess`` (TUBE_SIZE,): a tube whose predictor starts Newton.
     Returns the new number of tubes, or -1 when a part fails or ``pieces`` is full.  With a
     ``deadline`` (:mod:`.clock`): ``-2 - k`` when it passed before part ``k`` (the parts before it are
-    ``pieces[n:n + k]``); a cover cut there goes on from part ``k0`` (its first part always runs)."""
+    ``pieces[n:n + k]``, also when its hand-offs were cut); a cover cut there goes on from part ``k0``
+    (that part runs to its end, whatever the deadline: each call makes progress)."""
     q, h, xg = np.empty(3), np.empty(3), np.empty(3)
     new = np.empty(TUBE_SIZE)
     eye = np.eye(3)
@@ -62,7 +63,9 @@ def cover_box(pieces, n, guess, qc, t, parts, M, l1, l2sq, b, deadline=0.0, k0=0
             q[i] = qc[i] - t[i] + (2 * idx + 1) * h[i]
         predictor(guess, q, xg)
         new[TUBE_S] = np.nan
-        if not tested_takeover(pieces, m, xg, q, eye, h, h, M, l1, l2sq, b, new, deadline):
+        if not tested_takeover(pieces, m, xg, q, eye, h, h, M, l1, l2sq, b, new, deadline if k > k0 else 0.0):
+            if k > k0 and expired(deadline):           # cut in its hand-offs: this part again next time
+                return -2 - k
             pieces[m, :] = new                         # scratch past the count: S for a slab cover
             return -1
         pieces[m, :] = new
@@ -124,8 +127,8 @@ def slab_cover(pieces, n, guess, qc, t, slabs, V, M, l1, l2sq, b, deadline=0.0, 
             hi = min(qc[i] + t[i], q[i] + hull)
             tq[i] = max(q[i] - lo, hi - q[i]) * (1.0 + 1e-12) + PAD
         predictor(guess, q, xg)
-        if not tested_takeover(pieces, m, xg, q, V, tw, tq, M, l1, l2sq, b, new, deadline):
-            return -1
+        if not tested_takeover(pieces, m, xg, q, V, tw, tq, M, l1, l2sq, b, new, deadline if k > k0 else 0.0):
+            return -2 - k if k > k0 and expired(deadline) else -1
         pieces[m, :] = new
         m += 1
     return m
