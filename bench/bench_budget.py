@@ -197,7 +197,7 @@ def fmu_table(args, suite, grades, speed, dt) -> str:
     path = next((p for p in suite if p.name == args.fmu_path), suite[-1])
     q = sensor.measure(path.q, seed=1000 + suite.index(path)).q.copy()
     q[0] = path.q[0]
-    shares = [0.0] + [b / dt for b in args.budgets]
+    shares = [0.0] + [b / dt for b in args.budgets if b <= dt]          # a share of the step: at most 1
     lines = []
     for share, wall, cpu, certain in fmu_rows(args.build_dir, path, q, sensor.tolerance(3.0), speed,
                                               sensor.stuck_after(), shares, dt):
