@@ -108,5 +108,6 @@ def reading_fields(before: TrackerState, q: np.ndarray, repeats: np.ndarray) -> 
         # A run that started earlier while another one ended keeps the older clean (a rollback then
         # goes a sample or two further back than needed)
         # (without the walk of an unfinished proof: a saved state's clean has none either)
-        return {"reading": q.copy(), "repeats": repeats, "clean": replace(before, clean=None, walk=None), "clean_lag": 1}
+        return {"reading": q.copy(), "repeats": repeats, "clean": replace(before, clean=None, walk=None),
+                "clean_lag": 1}
     return {"reading": q.copy(), "repeats": repeats, "clean": before.clean, "clean_lag": before.clean_lag + 1}
