@@ -175,26 +175,31 @@ def budgeted(untrusted, state, work, poses, real, params, model_pack, new_cands,
         if sol >= 0:
             return sol, n_tubes, n_new, cert, intact, linked
     n_new, cert, intact, linked = anytime_chains(untrusted, state, work, poses, real, params, model_pack, new_cands,
-                                                 keep, anytime, share(deadline, CHAIN_SHARE))
+                                                 keep, anytime, True, share(deadline, CHAIN_SHARE))
     if not untrusted and (anytime[ANY_N] > 0.0 or not fresh):
         sol, n_tubes = walk_step(state, work, poses, real, tol_of(params), model_pack, tubes, anytime, not fresh,
                                  deadline)
+    if sol < 0 and anytime[ANY_K_ON] > 0.0 and not expired(deadline):     # the continuation on, with the rest
+        n_new, cert, intact, linked = anytime_chains(untrusted, state, work, poses, real, params, model_pack,
+                                                     new_cands, keep, anytime, False, deadline)
     return sol, n_tubes, n_new, cert, intact, linked
 
 
 @njit(cache=True, inline="always")
-def anytime_chains(untrusted, state, work, poses, real, params, model_pack, new_cands, keep, anytime, deadline):
+def anytime_chains(untrusted, state, work, poses, real, params, model_pack, new_cands, keep, anytime, append,
+                   deadline):
     """The chains of boxes of a step with a budget: the continuation from a single candidate is resumable
     (:func:`.anytime.cont_on`: one the deadline cuts goes on at the next steps, along their readings);
     while it is under way the step keeps every real solution as a candidate; when it ends on one
     solution, that is the step's (as :func:`.candidates.certify`'s continuation, intact if the
-    state's chain was where it began).  Otherwise, and when it fails, :func:`chains`."""
+    state's chain was where it began).  Otherwise, and when it fails, :func:`chains`.  ``append``:
+    this step's reading is not on the continuation's path yet (the first call of a step)."""
     if untrusted:
         anytime[ANY_K_ON] = 0.0
-    elif anytime[ANY_K_ON] <= 0.0 and int(state[STATE_N_CAND]) == 1:
+    elif append and anytime[ANY_K_ON] <= 0.0 and int(state[STATE_N_CAND]) == 1:
         cont_begin(anytime, state[STATE_CANDS:STATE_CANDS + 3], state[STATE_VERIFIED] > 0.0,
                    state[STATE_INTACT] > 0.0, state[STATE_Q:STATE_Q + 3])
-    if anytime[ANY_K_ON] > 0.0 and cont_append(anytime, work[STEP_QU:STEP_QU + 3]):
+    if anytime[ANY_K_ON] > 0.0 and (not append or cont_append(anytime, work[STEP_QU:STEP_QU + 3])):
         M, l1, l2sq, b = geometry(model_pack)
         end, Xr = np.empty(3), np.empty(3)
         status = cont_on(anytime, int(params[PARAM_MAX_TESTS]), deadline, M, l1, b, l2sq, end)

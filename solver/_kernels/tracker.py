@@ -26,7 +26,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .anytime import ANY_CUT, ANY_DEADLINE
+from .anytime import ANY_CUT, ANY_DEADLINE, ANY_K_ON, ANY_N
 from .certified import certify_phase
 from .certify import CERT_NONE, comes_from
 from .clock import expired
@@ -95,7 +95,9 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
         ambiguous = True
     taken = speed_gate_phase(mode, chosen, linked, untrusted, state, work, poses, real, params, model_pack,
                              out_real, out_int, anytime[ANY_DEADLINE])
-    anytime[ANY_CUT] = 1.0 if expired(anytime[ANY_DEADLINE]) else 0.0
+    # the budget ran out before the step's proofs ended: the deadline passed, or an unfinished proof goes on
+    anytime[ANY_CUT] = 1.0 if expired(anytime[ANY_DEADLINE]) or anytime[ANY_N] > 0.0 or anytime[ANY_K_ON] > 0.0 \
+        else 0.0
     if taken < 0:
         return
     publish(taken, ambiguous or taken != chosen, poses, work, params, model_pack, out_real, out_int)
