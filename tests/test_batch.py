@@ -135,11 +135,9 @@ def cluster(tmp_path_factory):
     from distributed import Client
 
     tmp = tmp_path_factory.mktemp("dask_cluster")
-    # the workers' own cache root (their FMU copies under fmus/); their kernels stay in this process's cache
-    from fmu_src import kernel_cache
-
-    env = dict(os.environ, RRR_DK_CACHE=str(tmp / "cache"), NUMBA_CACHE_DIR=str(kernel_cache.cache_root()),
-               PYTHONUNBUFFERED="1")
+    # the workers' own cache root (their FMU copies under fmus/); their compiled kernels are where this
+    # process keeps its own (numba's places, stamped with the kernels' content), so they compile nothing
+    env = dict(os.environ, RRR_DK_CACHE=str(tmp / "cache"), PYTHONUNBUFFERED="1")
     cache = tmp / "cache" / "fmus"
     procs = _Procs()
     client = None
