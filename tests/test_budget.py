@@ -49,15 +49,6 @@ def _track(tracker, q, X0, n=None):
     return X, infos
 
 
-def _cut_short(model, map1, circle, q, steps):
-    """A tracker with a budget too small for any proof, reset at the circle's start and stepped to ``q[steps]``."""
-    tr = _tracker(model, map1, 1e-9)
-    tr.reset(circle.X[0], q[0])
-    for k in range(1, steps + 1):
-        tr.step(q[k], 1e-3)
-    return tr
-
-
 def test_the_clock_counts_and_a_deadline_passes(model):
     rate = cycles_per_second()
     assert 1e8 < rate < 1e11                               # counts per second of a CPU's cycle counter
@@ -112,7 +103,10 @@ def test_certainty_returns_when_the_walk_closes_and_is_never_back_dated(model, c
 
 def test_a_walk_longer_than_its_path_ends(model, coarse_map1, circle):
     q = _measured(circle)
-    tr = _cut_short(model, coarse_map1, circle, q, MAX_PATH + 1)
+    tr = _tracker(model, coarse_map1, 1e-9)
+    tr.reset(circle.X[0], q[0])
+    for k in range(1, MAX_PATH + 2):
+        tr.step(q[k], 1e-3)
     assert tr.state.walk is None                         # past MAX_PATH readings the walk is given up
     tr.step_budget = 10.0
     _, info = tr.step(q[MAX_PATH + 2], 1e-3)
@@ -121,7 +115,10 @@ def test_a_walk_longer_than_its_path_ends(model, coarse_map1, circle):
 
 def test_a_saved_state_keeps_the_unfinished_proof(model, coarse_map1, circle):
     q = _measured(circle)
-    tr = _cut_short(model, coarse_map1, circle, q, 3)
+    tr = _tracker(model, coarse_map1, 1e-9)
+    tr.reset(circle.X[0], q[0])
+    for k in range(1, 4):
+        tr.step(q[k], 1e-3)
     saved = tr.state.as_array()
     restored = TrackerState.from_array(saved)
     np.testing.assert_array_equal(restored.walk, tr.state.walk)
@@ -140,7 +137,9 @@ def test_a_saved_state_keeps_the_unfinished_proof(model, coarse_map1, circle):
 
 def test_a_rejected_input_keeps_the_walk(model, coarse_map1, circle):
     q = _measured(circle)
-    tr = _cut_short(model, coarse_map1, circle, q, 1)
+    tr = _tracker(model, coarse_map1, 1e-9)
+    tr.reset(circle.X[0], q[0])
+    tr.step(q[1], 1e-3)
     before = tr.state
     with pytest.raises(SolverInputError):
         tr.step([np.nan, 0.0, 0.0], 1e-3)
@@ -157,7 +156,10 @@ def test_a_step_without_budget_drops_the_unfinished_proof(model, coarse_map1, ci
     """The walk holds the readings up to the last budgeted step: a step without a budget (which does not
     extend it) must not leave it for a later budgeted step to skip a reading."""
     q = _measured(circle)
-    tr = _cut_short(model, coarse_map1, circle, q, 3)
+    tr = _tracker(model, coarse_map1, 1e-9)
+    tr.reset(circle.X[0], q[0])
+    for k in range(1, 4):
+        tr.step(q[k], 1e-3)
     assert tr.state.walk is not None
     tr.step_budget = None
     tr.step(q[4], 1e-3)
@@ -171,7 +173,10 @@ def test_a_saved_walk_that_does_not_fit_its_state_is_refused(model, coarse_map1,
     from solver.tracker_state import _WALK
 
     q = _measured(circle)
-    tr = _cut_short(model, coarse_map1, circle, q, 3)
+    tr = _tracker(model, coarse_map1, 1e-9)
+    tr.reset(circle.X[0], q[0])
+    for k in range(1, 4):
+        tr.step(q[k], 1e-3)
     saved = tr.state.as_array()
     TrackerState.from_array(saved)                                     # as saved: fine
     m = int(saved[_WALK + ANY_N_PATH])

@@ -88,20 +88,13 @@ def walk_begin(anytime, old, n_old, qp):
 @njit(cache=True)
 def walk_append(anytime, q):
     """Add the reading ``q`` (3,) at the path's end (unwrapped next to the last); False when full."""
-    return path_append(anytime, ANY_N_PATH, ANY_PATH, MAX_PATH, q)
-
-
-@njit(cache=True)
-def path_append(anytime, at_n, at_path, most, q):
-    """Add the reading ``q`` (3,) at the end of the path whose count is ``anytime[at_n]`` and points start
-    at ``anytime[at_path]`` (unwrapped next to the last point); False when it holds ``most`` already."""
-    k = int(anytime[at_n])
-    if k >= most:
+    k = int(anytime[ANY_N_PATH])
+    if k >= MAX_PATH:
         return False
     for i in range(3):
-        prev = anytime[at_path + 3 * (k - 1) + i]
-        anytime[at_path + 3 * k + i] = prev + wrap(q[i] - prev)
-    anytime[at_n] = k + 1
+        prev = anytime[ANY_PATH + 3 * (k - 1) + i]
+        anytime[ANY_PATH + 3 * k + i] = prev + wrap(q[i] - prev)
+    anytime[ANY_N_PATH] = k + 1
     return True
 
 
@@ -240,10 +233,15 @@ def cont_begin(anytime, X0, verified, intact, qp):
 @njit(cache=True)
 def cont_append(anytime, q):
     """Add the reading ``q`` (3,) at the continuation's path end; False (and the continuation ended) when full."""
-    if path_append(anytime, ANY_K_N_PATH, ANY_K_PATH, MAX_KPATH, q):
-        return True
-    anytime[ANY_K_ON] = 0.0
-    return False
+    k = int(anytime[ANY_K_N_PATH])
+    if k >= MAX_KPATH:
+        anytime[ANY_K_ON] = 0.0
+        return False
+    for i in range(3):
+        prev = anytime[ANY_K_PATH + 3 * (k - 1) + i]
+        anytime[ANY_K_PATH + 3 * k + i] = prev + wrap(q[i] - prev)
+    anytime[ANY_K_N_PATH] = k + 1
+    return True
 
 
 @njit(cache=True)

@@ -85,32 +85,24 @@ def continue_single(X0, verified, tube_first, qp, dq, d1_par, d2_par, n_paths, e
     """
     zero = np.zeros(3)
     end = np.empty(3)
+    Xr = np.empty(3)
     for p in range(0 if tube_first else 1, n_paths + 1):
         d1 = dq if p <= 1 else d1_par
         d2 = zero if p <= 1 else d2_par
         if follow_branch(X0, verified, qp, d1, d2, eps if p == 0 else 0.0, M, l1, b, l2sq, max_tests, end,
                          deadline) > 0:
-            hit = matching_solution(end, poses, real)
-            if hit >= 0:
+            hit = -1
+            for k in range(6):
+                if real[k]:
+                    for i in range(3):
+                        Xr[i] = poses[k, i].real
+                    if same_pose(Xr, end):
+                        hit = k if hit < 0 else 6          # 6: two solutions match (cannot tell)
+            if 0 <= hit < 6:
                 keep[hit] = True
                 new_cands[0, :] = end
                 return p
     return -1
-
-
-@njit(cache=True, inline="always")
-def matching_solution(end, poses, real):
-    """The index of the one real solution of ``poses`` (6, 3) complex / ``real`` (6,) that a chain's end
-    ``end`` (3,) names (:func:`.certify.same_pose`), or -1 when none or two match (cannot tell)."""
-    Xr = np.empty(3)
-    hit = -1
-    for k in range(6):
-        if real[k]:
-            for i in range(3):
-                Xr[i] = poses[k, i].real
-            if same_pose(Xr, end):
-                hit = k if hit < 0 else 6
-    return hit if hit < 6 else -1
 
 
 @njit(cache=True, inline="always")

@@ -14,8 +14,8 @@ from numba import njit
 
 from .anytime import (ANY_DEADLINE, ANY_K_INTACT, ANY_K_ON, ANY_N, WALK_CLOSED, cont_append, cont_begin, cont_on,
                       walk_append, walk_begin, walk_on)
-from .candidates import certify, matching_solution
-from .certify import CERT_CONTINUATION, CERT_NONE, CERT_REACQUIRED, CERT_TUBE, FOLLOW_CUT, FOLLOW_DONE
+from .candidates import certify
+from .certify import CERT_CONTINUATION, CERT_NONE, CERT_REACQUIRED, CERT_TUBE, FOLLOW_CUT, FOLLOW_DONE, same_pose
 from .choice import nearest
 from .clock import cycles, expired
 from .certify import elbow_bits
@@ -201,7 +201,7 @@ def anytime_chains(untrusted, state, work, poses, real, params, model_pack, new_
                    state[STATE_INTACT] > 0.0, state[STATE_Q:STATE_Q + 3])
     if anytime[ANY_K_ON] > 0.0 and (not append or cont_append(anytime, work[STEP_QU:STEP_QU + 3])):
         M, l1, l2sq, b = geometry(model_pack)
-        end = np.empty(3)
+        end, Xr = np.empty(3), np.empty(3)
         status = cont_on(anytime, int(params[PARAM_MAX_TESTS]), deadline, M, l1, b, l2sq, end)
         if status == FOLLOW_CUT:
             n = 0
@@ -212,8 +212,14 @@ def anytime_chains(untrusted, state, work, poses, real, params, model_pack, new_
                     n += 1
             return n, CERT_NONE, False, False
         if status == FOLLOW_DONE:
-            hit = matching_solution(end, poses, real)
-            if hit >= 0:
+            hit = -1
+            for k in range(6):
+                if real[k]:
+                    for i in range(3):
+                        Xr[i] = poses[k, i].real
+                    if same_pose(Xr, end):
+                        hit = k if hit < 0 else 6          # 6: two solutions match (cannot tell)
+            if 0 <= hit < 6:
                 for k in range(6):
                     keep[k] = k == hit
                 new_cands[0, :] = end
