@@ -168,7 +168,7 @@ from dataclasses import replace
 import numpy as np
 
 from ._kernels import layout as _lay
-from ._kernels.anytime import ANY_CUT, ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_SIZE, walk_floats
+from ._kernels.anytime import ANY_CUT, ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON, ANY_SIZE, walk_floats
 from ._kernels.clock import cycles_per_second
 from ._kernels.tracker import tracker_step
 from .checks import as_array
@@ -389,7 +389,7 @@ class Tracker(_TrackerBase):
     def _kernel(self, q, state_pack, deadline):
         anytime, walk = self._anytime, self.state.walk
         if walk is None:
-            anytime[ANY_N] = anytime[ANY_K_ON] = 0.0
+            anytime[ANY_N] = anytime[ANY_K_ON] = anytime[ANY_R_ON] = 0.0
         else:
             anytime[:len(walk)] = walk
         anytime[ANY_DEADLINE] = deadline

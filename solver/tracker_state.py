@@ -19,7 +19,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ._kernels.anytime import (ANY_C_K, ANY_C_STAGE, ANY_K_N_PATH, ANY_K_ON, ANY_K_PATH, ANY_LAST, ANY_N, ANY_N_PATH,
-                               ANY_PATH, ANY_PIECES, ANY_SIZE, MAX_KPATH, MAX_PATH, N_STAGES, walk_floats)
+                               ANY_PATH, ANY_PIECES, ANY_R_F, ANY_R_K, ANY_R_N, ANY_R_N_PATH, ANY_R_ON, ANY_R_PATH,
+                               ANY_R_PROG, ANY_SIZE, MAX_KPATH, MAX_PATH, N_STAGES, walk_floats)
+from ._kernels.exclusion import HULL_FACTORS, PREIMAGE_STACK
+from ._kernels.reacquisition import REACQUIRE_COVERS
 from ._kernels.certify import CERT_CONTINUATION, CERT_REACQUIRED
 from ._kernels.layout import (F_DQ, F_INNOV, I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_STATUS, MAX_REFUSED,
                               OUT_BOUND, OUT_CANDS, OUT_INFO, OUT_N_TUBES, OUT_REGION, OUT_TUBE, OUT_X, STATE_A_SCALE,
@@ -77,7 +80,8 @@ def _saved_walk(a: np.ndarray, state) -> np.ndarray | None:
     head = a[:ANY_PIECES]
     n, k, stage = head[ANY_N], head[ANY_C_K], head[ANY_C_STAGE]
     ok = (np.all(np.isfinite(head)) and n == int(n) and 0 <= n <= MAX_PIECES and k == int(k) and stage == int(stage)
-          and 0 <= stage < N_STAGES and 0 <= k and n + k <= MAX_PIECES and (n > 0 or head[ANY_K_ON] > 0))
+          and 0 <= stage < N_STAGES and 0 <= k and n + k <= MAX_PIECES
+          and (n > 0 or head[ANY_K_ON] > 0 or head[ANY_R_ON] > 0))
     if ok and n > 0:
         m = int(head[ANY_N_PATH])
         ok = head[ANY_N_PATH] == m and 2 <= m <= MAX_PATH and 0 <= head[ANY_LAST] < n and \
@@ -86,12 +90,25 @@ def _saved_walk(a: np.ndarray, state) -> np.ndarray | None:
         m = int(head[ANY_K_N_PATH])
         ok = head[ANY_K_N_PATH] == m and 1 <= m <= MAX_KPATH and \
             _same_angles(head[ANY_K_PATH + 3 * (m - 1):ANY_K_PATH + 3 * m], state.q)
+    if ok and head[ANY_R_ON] > 0:
+        ok = _saved_reacquisition(head, state.q)
     walk = a[:walk_floats(head)].copy() if ok else None
     if walk is None or not np.all(np.isfinite(walk)) or state.tube is not None:
         raise TrackerError(f"state: the walk of an unfinished proof expected after the clean state, at the "
                            f"joints {state.q.tolist()} of an uncertain state, got "
                            f"{np.array2string(a[:12], threshold=12)}...")
     return walk
+
+
+def _saved_reacquisition(head: np.ndarray, q) -> bool:
+    """The re-acquisition under way in a saved anytime pack ``head`` is one the tracker can have left at ``q``."""
+    def whole(v, lo, hi):
+        return v == int(v) and lo <= v <= hi
+    m = head[ANY_R_N_PATH]
+    return (whole(head[ANY_R_ON], 1, REACQUIRE_COVERS + 1) and whole(head[ANY_R_N], 0, MAX_COVER)
+            and whole(head[ANY_R_K], 0, max(head[ANY_R_N] - 1, 0)) and whole(head[ANY_R_F], 0, len(HULL_FACTORS) - 1)
+            and whole(head[ANY_R_PROG], 0, PREIMAGE_STACK) and whole(head[ANY_R_PROG + 1], 0, np.inf)
+            and whole(m, 1, MAX_PATH) and _same_angles(head[ANY_R_PATH + 3 * (int(m) - 1):ANY_R_PATH + 3 * int(m)], q))
 
 
 def _same_angles(a, b) -> bool:

@@ -2,8 +2,9 @@
 
 Times are not asserted (``bench/bench_budget.py`` measures them); what is asserted is what a budget
 may and may not change: nothing without one or with a generous one, certainty (never the choice
-where the unbudgeted tracker is right) with a budget too small for any proof, and a walk cut short
-that closes at a later step, never back-dated, also through a saved and restored state.
+where the unbudgeted tracker is right) with a budget too small for any proof, and a walk or a
+re-acquisition cut short that closes at a later step, never back-dated, also through a saved and
+restored state.
 """
 import numpy as np
 import pytest
@@ -12,8 +13,8 @@ from conftest import pose_distance
 from experiments.sensors import Sensor
 from experiments.suite import default_suite
 from solver import SolverInputError, Tracker, TrackerError
-from solver._kernels.anytime import ANY_N_PATH, MAX_PATH
-from solver._kernels.certify import CERT_TUBE
+from solver._kernels.anytime import ANY_N, ANY_N_PATH, ANY_R_N_PATH, ANY_R_ON, ANY_SIZE, MAX_PATH
+from solver._kernels.certify import CERT_REACQUIRED, CERT_TUBE
 from solver._kernels.clock import cycles, cycles_per_second, deadline_after, expired
 from solver.tracker_state import TrackerState
 
@@ -107,10 +108,42 @@ def test_a_walk_longer_than_its_path_ends(model, coarse_map1, circle):
     tr.reset(circle.X[0], q[0])
     for k in range(1, MAX_PATH + 2):
         tr.step(q[k], 1e-3)
-    assert tr.state.walk is None                         # past MAX_PATH readings the walk is given up
+    walk = tr.state.walk
+    assert walk[ANY_N] == 0                              # past MAX_PATH readings the walk is given up,
+    assert walk[ANY_R_ON] > 0 and walk[ANY_R_N_PATH] == 1    # a re-acquisition from the last reading begun
     tr.step_budget = 10.0
-    _, info = tr.step(q[MAX_PATH + 2], 1e-3)
-    assert info.certificate != CERT_TUBE                 # no walk to close (re-acquisition may vouch)
+    X, info = tr.step(q[MAX_PATH + 2], 1e-3)
+    assert info.certain and info.certificate == CERT_REACQUIRED  # closed, and its walk caught up
+    assert tr.state.walk is None
+    assert np.all(np.abs(X - circle.X[MAX_PATH + 2]) <= info.pose_bound + 1e-12)
+
+
+def test_a_reacquisition_cut_into_parts_is_the_whole_proof(model, coarse_map1, circle):
+    """Re-acquisition resumed across many deadlines ends as the uncut one, with the same cover."""
+    from solver._kernels import layout as lay
+    from solver._kernels.anytime import ANY_R_TUBES
+    from solver._kernels.reacquisition import R_DONE, R_PENDING, reacquire_begin, reacquire_on
+
+    q = _measured(circle)
+    tr = _tracker(model, coarse_map1, None)
+    _track(tr, q, circle.X[0], 41)
+    X, qu = tr.state.X.copy(), q[40]
+    region = np.ravel(np.column_stack([X - (0.03, 0.03, 0.2), X + (0.03, 0.03, 0.2)]))
+    tol, posture = SENSOR.tolerance(3.0), int(tr._params[lay.PARAM_POSTURE_BITS])
+    ends = []
+    for deadline in (lambda: 0.0, lambda: deadline_after(3e-6)):
+        pack = np.zeros(ANY_SIZE)
+        reacquire_begin(pack, X, qu, region)
+        calls, status = 0, R_PENDING
+        while status == R_PENDING and calls < 100_000:
+            status, n = reacquire_on(pack, tol, posture, 20_000, deadline(), tr._model_pack)
+            calls += 1
+        ends.append((status, n, calls, pack[ANY_R_TUBES:ANY_R_TUBES + n * 36].copy()))
+    (s0, n0, c0, t0), (s1, n1, c1, t1) = ends
+    assert s0 == R_DONE and c0 == 1
+    assert c1 > 5                                        # cut many times
+    assert (s1, n1) == (s0, n0)
+    np.testing.assert_array_equal(t1, t0)
 
 
 def test_a_saved_state_keeps_the_unfinished_proof(model, coarse_map1, circle):
@@ -183,6 +216,37 @@ def test_a_saved_walk_that_does_not_fit_its_state_is_refused(model, coarse_map1,
     end = _WALK + ANY_PATH + 3 * (m - 1)
     for at, value in ((end, saved[end] + 0.1), (_WALK + ANY_N, 1e6), (_WALK + ANY_N_PATH, 1e6),
                       (_WALK + ANY_N, np.inf)):
+        bad = saved.copy()
+        bad[at] = value
+        with pytest.raises(TrackerError, match="walk"):
+            TrackerState.from_array(bad)
+
+
+def test_a_saved_reacquisition_goes_on_and_a_corrupt_one_is_refused(model, coarse_map1, circle):
+    from solver._kernels.anytime import ANY_R_F, ANY_R_K, ANY_R_PATH, ANY_R_PROG
+    from solver.tracker_state import _WALK
+
+    q = _measured(circle)
+    tr = _tracker(model, coarse_map1, 1e-9)
+    tr.reset(circle.X[0], q[0])
+    for k in range(1, MAX_PATH + 4):
+        tr.step(q[k], 1e-3)
+    saved = tr.state.as_array()
+    assert saved[_WALK + ANY_R_ON] > 0 and saved[_WALK + ANY_R_N_PATH] == 3
+    restored = TrackerState.from_array(saved)
+    np.testing.assert_array_equal(restored.walk, tr.state.walk)
+    other = _tracker(model, coarse_map1, 10.0)
+    other.reset(circle.X[0], q[0])
+    other.state = restored
+    tr.step_budget = 10.0
+    Xa, ia = tr.step(q[MAX_PATH + 4], 1e-3)
+    Xb, ib = other.step(q[MAX_PATH + 4], 1e-3)
+    assert ia.certain and ib.certain and ib.certificate == CERT_REACQUIRED
+    np.testing.assert_array_equal(Xa, Xb)
+    end = _WALK + ANY_R_PATH + 3 * 2
+    for at, value in ((end, saved[end] + 0.1), (_WALK + ANY_R_ON, 9.0), (_WALK + ANY_R_ON, 1.5),
+                      (_WALK + ANY_R_K, 40.0), (_WALK + ANY_R_F, 2.0), (_WALK + ANY_R_PROG, 65.0),
+                      (_WALK + ANY_R_N_PATH, 1e6)):
         bad = saved.copy()
         bad[at] = value
         with pytest.raises(TrackerError, match="walk"):

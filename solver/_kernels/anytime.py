@@ -16,8 +16,13 @@ keeps only that reading's cover, as a certain step does.  A segment that needs m
 ``max_tests`` tube tests, or a path longer than :data:`MAX_PATH` readings, ends the walk
 (certainty then comes back by re-acquisition, as without a budget).
 
+Re-acquisition (:mod:`.reacquisition`) does not throw its work away either: it goes on from the
+reading it began at, with its place in the covers and in the branch and bound, and a walk from
+its cover then catches up with the readings since.
+
 The *anytime pack* (:data:`ANY_SIZE` floats) carries the step's deadline in, whether the deadline
-cut the step out, and the walk in and out (read and rewritten in place by :func:`walk_on`).
+cut the step out, and the walk, the continuation and the re-acquisition in and out (read and
+rewritten in place by :func:`walk_on`, :func:`cont_on` and :func:`.reacquisition.reacquire_on`).
 """
 from __future__ import annotations
 
@@ -26,6 +31,7 @@ from numba import njit
 
 from .certify import FOLLOW_DONE, FOLLOW_FAILED, follow_on, tiny_box
 from .clock import expired
+from .exclusion import PREIMAGE_STACK
 from .linalg import wrap
 from .tube import TUBE_Q, TUBE_SIZE
 from .tube import TUBE_S
@@ -55,7 +61,21 @@ ANY_K_PROG = 24           # (3,) ... s on its first segment, the next piece's le
 ANY_K_N_PATH = 27         # ... its readings (the first: the segment's start)
 ANY_K_PATH = 28           # (MAX_KPATH, 3) ... its path, rad, unwrapped along it
 ANY_PATH = ANY_K_PATH + 3 * 64  # (MAX_PATH, 3) the walk's path, rad, unwrapped along it
-ANY_PIECES = ANY_PATH + 3 * MAX_PATH   # (MAX_PIECES, TUBE_SIZE) the walk's tubes
+ANY_R = ANY_PATH + 3 * MAX_PATH  # a re-acquisition under way (:mod:`.reacquisition`):
+ANY_R_ON = ANY_R          # > 0: its attempt (1.. the covers of REACQUIRE_COVERS, then the Krawczyk box); 0: none
+ANY_R_N = ANY_R + 1       # ... the attempt's cover's tubes (0: not made yet)
+ANY_R_K = ANY_R + 2       # ... the tube whose exclusion is under way
+ANY_R_F = ANY_R + 3       # ... its hull factor (an index into .exclusion.HULL_FACTORS)
+ANY_R_PROG = ANY_R + 4    # (2,) ... the branch and bound's stack top (0: not begun) and boxes examined
+ANY_R_RETRY = ANY_R + 6   # ... how often the deadline cut this attempt's cover
+ANY_R_X = ANY_R + 7       # (3,) ... the solution it re-acquires, at the path's first reading
+ANY_R_REGION = ANY_R + 10  # (6,) ... the pose box known to hold the robot at that reading
+ANY_R_N_PATH = ANY_R + 16  # ... its readings (the first: the one re-acquired from)
+ANY_R_HULL = ANY_R + 17   # (3,) ... the fat box's half-widths about the tube under way (m, m, rad)
+ANY_R_PATH = ANY_R + 20   # (MAX_PATH, 3) ... its path, rad, unwrapped along it
+ANY_R_STACK = ANY_R_PATH + 3 * MAX_PATH  # (PREIMAGE_STACK, 6) ... the branch and bound's pose boxes
+ANY_R_TUBES = ANY_R_STACK + 6 * PREIMAGE_STACK  # (MAX_COVER, TUBE_SIZE) ... the attempt's cover
+ANY_PIECES = ANY_R_TUBES + MAX_COVER * TUBE_SIZE   # (MAX_PIECES, TUBE_SIZE) the walk's tubes
 ANY_SIZE = ANY_PIECES + MAX_PIECES * TUBE_SIZE
 
 #: What :func:`walk_on` ends with.
@@ -63,10 +83,10 @@ WALK_FAILED, WALK_CLOSED, WALK_PENDING = 0, 1, 2
 
 
 def walk_floats(anytime: np.ndarray) -> int:
-    """How many leading floats of the anytime pack ``anytime`` hold its walk and continuation (0 when it
-    has neither)."""
+    """How many leading floats of the anytime pack ``anytime`` hold its walk, continuation and
+    re-acquisition (0 when it has none)."""
     n = int(anytime[ANY_N])
-    if n <= 0 and not anytime[ANY_K_ON] > 0.0:
+    if n <= 0 and not anytime[ANY_K_ON] > 0.0 and not anytime[ANY_R_ON] > 0.0:
         return 0
     return ANY_PIECES + (n + int(anytime[ANY_C_K])) * TUBE_SIZE if n > 0 else ANY_PIECES
 

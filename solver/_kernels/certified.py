@@ -12,30 +12,26 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .anytime import (ANY_DEADLINE, ANY_K_INTACT, ANY_K_ON, ANY_N, WALK_CLOSED, cont_append, cont_begin, cont_on,
+from .anytime import (ANY_DEADLINE, ANY_K_INTACT, ANY_K_ON, ANY_N, ANY_R_ON, WALK_CLOSED, cont_append, cont_begin, cont_on,
                       walk_append, walk_begin, walk_on)
 from .candidates import certify
 from .certify import CERT_CONTINUATION, CERT_NONE, CERT_REACQUIRED, CERT_TUBE, FOLLOW_CUT, FOLLOW_DONE, same_pose
 from .choice import nearest
 from .clock import cycles, expired
-from .certify import elbow_bits
-from .exclusion import in_region, preimage_hull, reacquire, tube_exclusion
+from .exclusion import preimage_hull
 from .gates import reacquire_region
 from .kinematics import geometry
-from .krawczyk import PAD
 from .layout import (I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_TRUST, MAP_WEIGHTS, MODE_PAPER, OUT_BOUND,
                      OUT_CANDS, OUT_N_TUBES, OUT_REGION, OUT_TUBE, OUT_X_PRED, PARAM_JOINT_TOL, PARAM_MAX_TESTS,
                      PARAM_POSTURE_BITS, PARAM_REACQUIRE, PARAM_SPEED, STATE_ANCHOR_AGE, STATE_CANDS, STATE_EXT_SCALE,
                      STATE_HAVE_Q2, STATE_INTACT, STATE_N_CAND, STATE_N_TUBES, STATE_Q, STATE_Q2, STATE_TUBE,
                      STATE_VERIFIED, TRUST_CERTAIN, TRUST_LOST, TRUST_POSSIBLE)
 from .linalg import wrap
+from .reacquisition import cover_solution, reacquired, reacquired_anytime
 from .tracker_packs import STEP_DQ, STEP_QU
-from .tube import TUBE_K, TUBE_SIZE, TUBE_X, spread, tube_test
+from .tube import TUBE_SIZE, tube_test
 from .tube_chain import MAX_COVER, pose_bound, tube_chain
 
-#: Re-acquisition by tubes tries the first covers of :data:`.exclusion.EXCLUSION_COVERS`: the reading's
-#: joint box whole, in 3 and 8 slabs across the needle, in 2**3 parts.
-REACQUIRE_COVERS = 4
 #: Tube tests one step's tube chain may use (a step far from singularities uses two).
 TUBE_TESTS = 1200
 #: With a step budget: the share of the time left that a walk from a certain step's cover may use first
@@ -89,6 +85,7 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
     if untrusted or deadline <= 0.0:           # a glitch may break the path the walk assumes; a step
         anytime[ANY_N] = 0.0                   # without a budget carries no unfinished proof on
         anytime[ANY_K_ON] = 0.0
+        anytime[ANY_R_ON] = 0.0
     if deadline > 0.0:
         sol, n_tubes, n_new, cert, intact, linked = budgeted(untrusted, state, work, poses, real, params, model_pack,
                                                              new_cands, keep, tubes, anytime)
@@ -105,8 +102,12 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
         if tol > 0.0:                          # along the measured joints: a choice, not a proof
             intact = False
             if params[PARAM_REACQUIRE] > 0.0 and int(params[PARAM_POSTURE_BITS]) >= 0 and not untrusted:
-                n_tubes = reacquired(chosen, cert != CERT_NONE, state, work, poses, params, model_pack, new_cands,
-                                     keep, tubes, deadline)
+                if deadline > 0.0:             # resumable: a proof the deadline cuts goes on next step
+                    n_tubes = reacquired_anytime(chosen, cert != CERT_NONE, state, work, poses, real, params,
+                                                 model_pack, new_cands, keep, tubes, anytime, TUBE_TESTS)
+                else:
+                    n_tubes = reacquired(chosen, cert != CERT_NONE, state, work, poses, params, model_pack,
+                                         new_cands, keep, tubes)
                 if n_tubes > 0:
                     n_new, cert, intact, linked = 1, CERT_REACQUIRED, True, True
     certain = False
@@ -146,8 +147,9 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
     if not certain and tol > 0.0 and not untrusted:
         region_step(state, qu, params, model_pack, out_real[OUT_REGION:OUT_REGION + 6], deadline)
     if certain or n_tubes > 0:
-        anytime[ANY_N] = 0.0                   # certain (or re-acquired): no walk or continuation left
-        anytime[ANY_K_ON] = 0.0
+        anytime[ANY_N] = 0.0                   # certain (or re-acquired): no walk, continuation or
+        anytime[ANY_K_ON] = 0.0                # re-acquisition left
+        anytime[ANY_R_ON] = 0.0
     out_int[I_CERTAIN] = 1 if certain else 0
     out_int[I_CERTIFICATE] = cert
     out_int[I_N_CAND] = n_new
@@ -299,20 +301,6 @@ def walk_step(state, work, poses, real, tol, model_pack, tubes, anytime, append,
 
 
 @njit(cache=True, inline="always")
-def cover_solution(tubes, n, qu, tol, poses, real):
-    """The index of the real DK solution (``poses`` (6, 3) complex, ``real`` (6,)) that is the solution
-    of the cover ``tubes[:n]`` at the reading ``qu`` (3,), or -1."""
-    Xr, h = np.empty(3), np.empty(3)
-    for k in range(6):
-        if real[k]:
-            for i in range(3):
-                Xr[i] = poses[k, i].real
-            if pose_bound(tubes, n, qu, tol, Xr, h):
-                return k
-    return -1
-
-
-@njit(cache=True, inline="always")
 def chains(state, work, poses, real, params, model_pack, new_cands, keep, deadline=0.0):
     """:func:`.candidates.certify` on the previous candidates (state pack) over the joint step and,
     with three samples, the parabola through them (time-scaled).  Writes ``new_cands`` (6, 3) and
@@ -332,70 +320,3 @@ def chains(state, work, poses, real, params, model_pack, new_cands, keep, deadli
                                           int(params[PARAM_POSTURE_BITS]), int(params[PARAM_MAX_TESTS]), model_pack,
                                           new_cands, keep, deadline)
     return n_new, cert, intact and intact_before, linked
-
-
-@njit(cache=True, inline="always")
-def reacquired(chosen, certified, state, work, poses, params, model_pack, new_cands, keep, tubes, deadline=0.0):
-    """Re-acquire the branch from this sample alone (measured joints, :mod:`.exclusion`): the
-    solution the certificates kept (``certified``) or else ``chosen``, over the region the robot
-    can be in (:func:`.gates.reacquire_region`), by a cover of the reading's joint box
-    (:func:`.exclusion.tube_exclusion`, the box whole, then in slabs or parts) or else an
-    axis-aligned Krawczyk box whose tube's hull it holds (:func:`box_reacquire`).  On success
-    ``keep`` (6,) marks the solution alone, ``new_cands[0]`` holds it and ``tubes`` (MAX_COVER,
-    TUBE_SIZE) its cover; returns the number of the cover's tubes (0: not re-acquired)."""
-    region = np.empty(6)
-    reacquire_region(params, state, region)
-    target = chosen
-    if certified:                                  # the branch along the measured joints
-        for k in range(6):
-            if keep[k]:
-                target = k
-    Xc = np.empty(3)
-    for i in range(3):
-        Xc[i] = poses[target, i].real
-    qu, tol = work[STEP_QU:STEP_QU + 3], params[PARAM_JOINT_TOL]
-    if not (region[0] <= region[1] and region[2] <= region[3]):
-        return 0
-    M, l1, l2sq, b = geometry(model_pack)
-    posture = int(params[PARAM_POSTURE_BITS])
-    if elbow_bits(Xc, qu, M, l1, b) != posture or not in_region(Xc, region):
-        return 0                 # the region and the joints disagree: a sensor off by more than its tolerance
-    n = 0
-    for attempt in range(1, REACQUIRE_COVERS + 1):
-        n = tube_exclusion(Xc, qu, tol, posture, posture + 1, region, int(params[PARAM_REACQUIRE]), attempt, M, l1,
-                           l2sq, b, tubes, deadline)
-        if n > 0 or expired(deadline):
-            break
-    if n == 0:
-        if expired(deadline):
-            return 0
-        if not (tube_test(Xc, qu, np.full(3, tol), np.zeros(3), M, l1, l2sq, b, tubes[0]) and
-                box_reacquire(Xc, qu, tol, posture, region, int(params[PARAM_REACQUIRE]), model_pack, tubes[0],
-                              deadline)):
-            return 0
-        n = 1
-    for k in range(6):
-        keep[k] = k == target
-    new_cands[0, :] = Xc
-    return n
-
-
-@njit(cache=True, inline="always")
-def box_reacquire(Xc, qu, tol, posture, region, max_boxes, model_pack, tube, deadline=0.0):
-    """Re-acquisition by an axis-aligned Krawczyk box (:func:`.exclusion.reacquire`) about ``Xc``; the
-    ``tube`` takes over when its hull lies inside that box."""
-    box = np.empty(6)
-    return reacquire(Xc, qu, tol, posture, region, max_boxes, model_pack, box, deadline) and hull_inside(tube, tol, box)
-
-
-@njit(cache=True, inline="always")
-def hull_inside(tube, tol, box):
-    """The tube's solutions over its centre joints ``+- tol`` lie in the box ``box`` (centre, half-widths)."""
-    for r in range(3):
-        hull = tube[TUBE_K + r] + PAD + spread(tube, r, tol)
-        d = tube[TUBE_X + r] - box[r]
-        if r == 2:
-            d = wrap(d)
-        if not abs(d) + hull * (1.0 + 1e-9) < box[3 + r]:
-            return False
-    return True

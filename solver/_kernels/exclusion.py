@@ -157,29 +157,54 @@ def posture_preimage_in(c, rho, q, eps, posture_bits, root, M, l1, l2sq, b, max_
     number of boxes examined when proved (> 0), minus it when not (a box that can neither be
     dropped nor split further, or out of boxes or time).
     """
-    stack = np.empty((64, 6))
+    if expired(deadline):
+        return -1
+    stack = np.empty((PREIMAGE_STACK, 6))
     stack[0, :] = root
-    top = 1
-    seen = 0
+    prog = np.array([1.0, 0.0])
+    r = preimage_on(c, rho, q, eps, posture_bits, M, l1, l2sq, b, max_boxes, deadline, stack, prog)
+    return int(prog[1]) if r > 0 else -max(int(prog[1]), 1)
+
+
+#: The depth of :func:`preimage_on`'s stack of pose boxes.
+PREIMAGE_STACK = 64
+
+
+@njit(cache=True)
+def preimage_on(c, rho, q, eps, posture_bits, M, l1, l2sq, b, max_boxes, deadline, stack, prog):
+    """The branch and bound of :func:`posture_preimage_in`, resumable: the boxes still to examine are
+    ``stack[:prog[0]]`` (PREIMAGE_STACK, 6), ``prog[1]`` counts those examined so far (both read and
+    rewritten).  Examines at least one box, then goes on until the ``deadline``.  Returns 1 when
+    proved, -1 when not (a box that can neither be dropped nor split further, or ``max_boxes``
+    examined), 0 when the deadline passed first (the stack and ``prog`` hold where it stands)."""
+    top, seen = int(prog[0]), int(prog[1])
     scale_phi = 0.0
     for i in range(3):
         scale_phi = max(scale_phi, math.hypot(b[i, 0], b[i, 1]))
+    first = True
     while top > 0:
+        if not first and expired(deadline):
+            prog[0], prog[1] = top, seen
+            return 0
+        first = False
         top -= 1
         box = stack[top].copy()
         seen += 1
-        if seen > max_boxes or expired(deadline):
-            return -seen
+        if seen > max_boxes:
+            prog[0], prog[1] = 0.0, seen
+            return -1
         if _inside(box, c, rho):
             continue
         if posture_misses(box, q, eps, posture_bits, M, l1, l2sq, b):
             continue
         wx, wy, wp = box[1] - box[0], box[3] - box[2], (box[5] - box[4]) * scale_phi
-        if max(wx, max(wy, wp)) < 1e-7 or top + 2 > 64:
-            return -seen
+        if max(wx, max(wy, wp)) < 1e-7 or top + 2 > PREIMAGE_STACK:
+            prog[0], prog[1] = 0.0, seen
+            return -1
         k = 0 if wx >= wy and wx >= wp else (2 if wy >= wp else 4)
         top = bisect(stack, top, box, k)
-    return seen
+    prog[0], prog[1] = 0.0, seen
+    return 1
 
 
 @njit(cache=True)
@@ -226,10 +251,22 @@ def reacquire(X, q, eps, posture_bits, region, max_boxes, model_pack, box, deadl
     ``region`` (6,): a pose box known to hold the robot (x, y, phi lo/hi); ``box`` (6,)
     receives the Krawczyk box's centre and half-widths (it holds the robot's pose).  True when
     ``X`` is in the posture and in the region, a Krawczyk box about it holds one solution
-    for every joint vector in ``q +- eps``, and no other pose of the region in the posture
-    reaches them.  (``X`` outside the region would make the last clause true of a region
-    that no pose reaching ``q +- eps`` is in: joints off by more than ``eps``.)
+    for every joint vector in ``q +- eps`` (:func:`reacquire_box`), and no other pose of the region
+    in the posture reaches them.
     """
+    if not reacquire_box(X, q, eps, posture_bits, region, model_pack, box):
+        return False
+    M, l1, l2sq, b = geometry(model_pack)
+    return posture_preimage_in(box[:3].copy(), box[3:].copy(), q, eps, posture_bits, region, M, l1, l2sq, b,
+                               max_boxes, deadline) > 0
+
+
+@njit(cache=True)
+def reacquire_box(X, q, eps, posture_bits, region, model_pack, box):
+    """Step 1 of :func:`reacquire`: ``X`` (3,) is in the posture and in the ``region`` (6,), and a
+    Krawczyk box about it, written to ``box`` (6,: centre, half-widths), holds one solution for
+    every joint vector in ``q +- eps``.  (``X`` outside the region would make step 2 true of a
+    region that no pose reaching ``q +- eps`` is in: joints off by more than ``eps``.)"""
     M, l1, l2sq, b = geometry(model_pack)
     if elbow_bits(X, q, M, l1, b) != posture_bits or not in_region(X, region):
         return False
@@ -240,7 +277,7 @@ def reacquire(X, q, eps, posture_bits, region, max_boxes, model_pack, box, deadl
     if not same_pose(xc, X) or not krawczyk(xc, np.full(3, TINY), q, none, none, 0.0, 0.0, none, M, l1, b, l2sq, w):
         return False
     box[:3], box[3:] = xc, rho
-    return posture_preimage_in(xc, rho, q, eps, posture_bits, region, M, l1, l2sq, b, max_boxes, deadline) > 0
+    return True
 
 
 #: The covers :func:`tube_exclusion` tries, by attempt: one tube, slabs across the needle (3, then 8:
@@ -294,26 +331,14 @@ def tube_exclusion(Xc, qc, tol, posture_lo, posture_hi, region, max_boxes, attem
 def hull_excludes(sub, posture_lo, posture_hi, region, max_boxes, M, l1, l2sq, b, deadline=0.0):
     """Steps (2) and (3) of :func:`tube_exclusion` for the tube ``sub`` (its joint set: a box or a slab):
     a box about its centre, :data:`HULL_FACTORS` times the needle's hull, holds one solution per
-    joint vector of that set (a fat tube), and every pose of the region in the postures reaching
-    the set's joint box lies in it.  (A box far wider than the needle lets the branch and bound
-    drop the poses about the needle quickly; the fat tube's test decides how wide it may be.)"""
-    fat = np.empty(TUBE_SIZE)
-    hull, rho = np.empty(3), np.empty(3)
-    xc, q = sub[TUBE_X:TUBE_X + 3].copy(), sub[TUBE_Q:TUBE_Q + 3].copy()
-    V = sub[TUBE_V:TUBE_V + 9].reshape((3, 3)).copy()
-    tw, t = sub[TUBE_W:TUBE_W + 3].copy(), sub[TUBE_T:TUBE_T + 3].copy()
+    joint vector of that set (a fat tube: :func:`fat_hull`), and every pose of the region in the
+    postures reaching the set's joint box lies in it.  (A box far wider than the needle lets the
+    branch and bound drop the poses about the needle quickly; the fat tube's test decides how wide
+    it may be.)"""
+    hull = np.empty(3)
+    xc, q, t = sub[TUBE_X:TUBE_X + 3].copy(), sub[TUBE_Q:TUBE_Q + 3].copy(), sub[TUBE_T:TUBE_T + 3]
     for factor in HULL_FACTORS:
-        for r in range(3):
-            s = set_spread(sub, r)
-            hull[r] = factor * max((s + sub[TUBE_K + r]) * (1.0 + 1e-9), HULL_MIN)
-            rho[r] = (hull[r] + s) * (1.0 + 1e-4) + 1e-12
-        if not slab_test(xc, q, V, tw, t, rho, M, l1, l2sq, b, fat):
-            continue
-        holds = True                     # the box xc +- hull inside the fat tube at every q: its own centre, S
-        for r in range(3):
-            reach = abs(xc[r] - fat[TUBE_X + r]) + hull[r] + set_spread(fat, r)
-            holds = holds and reach * (1.0 + 1e-9) + 1e-15 < fat[TUBE_R + r]
-        if not holds:
+        if not fat_hull(sub, factor, M, l1, l2sq, b, hull):
             continue
         for p in range(posture_lo, posture_hi):
             if posture_preimage_in(xc, hull, q, max(t[0], max(t[1], t[2])), p, region, M, l1, l2sq, b,
@@ -321,3 +346,26 @@ def hull_excludes(sub, posture_lo, posture_hi, region, max_boxes, M, l1, l2sq, b
                 return False
         return True
     return False
+
+
+@njit(cache=True)
+def fat_hull(sub, factor, M, l1, l2sq, b, hull):
+    """The box about the tube ``sub``'s centre pose, ``factor`` times its needle's hull (half-widths into
+    ``hull`` (3,): m, m, rad), holds one solution per joint vector of the tube's joint set, and the
+    tube's solutions lie inside it: True when a fat tube (:func:`.tube.slab_test`) proves both."""
+    fat = np.empty(TUBE_SIZE)
+    rho = np.empty(3)
+    xc, q = sub[TUBE_X:TUBE_X + 3].copy(), sub[TUBE_Q:TUBE_Q + 3].copy()
+    V = sub[TUBE_V:TUBE_V + 9].reshape((3, 3)).copy()
+    tw, t = sub[TUBE_W:TUBE_W + 3].copy(), sub[TUBE_T:TUBE_T + 3].copy()
+    for r in range(3):
+        s = set_spread(sub, r)
+        hull[r] = factor * max((s + sub[TUBE_K + r]) * (1.0 + 1e-9), HULL_MIN)
+        rho[r] = (hull[r] + s) * (1.0 + 1e-4) + 1e-12
+    if not slab_test(xc, q, V, tw, t, rho, M, l1, l2sq, b, fat):
+        return False
+    for r in range(3):                   # the box xc +- hull inside the fat tube at every q: its own centre, S
+        reach = abs(xc[r] - fat[TUBE_X + r]) + hull[r] + set_spread(fat, r)
+        if not reach * (1.0 + 1e-9) + 1e-15 < fat[TUBE_R + r]:
+            return False
+    return True

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .certified import hull_inside
+from .reacquisition import hull_inside
 from .exclusion import EXCLUSION_COVERS, posture_preimage_in, tube_exclusion
 from .kinematics import geometry
 from .krawczyk import W_SIZE, krawczyk

@@ -26,7 +26,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .anytime import ANY_CUT, ANY_DEADLINE, ANY_K_ON, ANY_N
+from .anytime import ANY_CUT, ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON
 from .certified import certify_phase
 from .certify import CERT_NONE, comes_from
 from .clock import expired
@@ -97,7 +97,7 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
                              out_real, out_int, anytime[ANY_DEADLINE])
     # the budget ran out before the step's proofs ended: the deadline passed, or an unfinished proof goes on
     anytime[ANY_CUT] = 1.0 if expired(anytime[ANY_DEADLINE]) or anytime[ANY_N] > 0.0 or anytime[ANY_K_ON] > 0.0 \
-        else 0.0
+        or anytime[ANY_R_ON] > 0.0 else 0.0
     if taken < 0:
         return
     publish(taken, ambiguous or taken != chosen, poses, work, params, model_pack, out_real, out_int)

@@ -1,0 +1,301 @@
+"""Re-acquisition: certainty back from one reading of measured joints, at once or anytime.
+
+With measured joints (``joint_tolerance > 0``) a tracker that lost its chain of certificates
+regains certainty from one reading ``q`` alone: the solution it re-acquires is the robot's when,
+for the pose box known to hold the robot (the region: :func:`.gates.reacquire_region`), a cover
+of the joint box ``q +- tol`` by tubes holds one solution per joint vector and every pose of the
+region in the tracker's posture reaching a tube's joints lies in that tube's fat box
+(:func:`.exclusion.tube_exclusion`, the covers of :data:`REACQUIRE_COVERS`), or else an
+axis-aligned Krawczyk box does (:func:`.exclusion.reacquire`).
+
+:func:`reacquired` runs that proof within one step.  With a step budget it is resumable
+(:func:`reacquired_anytime`): the proof for the reading it began at keeps its place (attempt,
+tube, hull factor, the branch and bound's stack) in the anytime pack (:mod:`.anytime`) and goes on
+at the next steps, which append their readings.  Given the time it is the same proof, box for
+box.  When it closes on an earlier reading, a walk from that reading's cover (:func:`.anytime.walk_on`)
+catches up with the readings since; the step whose walk reaches its own reading is certain, never
+an earlier one.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .anytime import (ANY_DEADLINE, ANY_R_F, ANY_R_HULL, ANY_R_K, ANY_R_N, ANY_R_N_PATH, ANY_R_ON, ANY_R_PATH,
+                      ANY_R_PROG, ANY_R_REGION, ANY_R_RETRY, ANY_R_STACK, ANY_R_TUBES, ANY_R_X, MAX_PATH,
+                      WALK_CLOSED, walk_append, walk_begin, walk_on)
+from .certify import elbow_bits
+from .clock import expired
+from .exclusion import (HULL_FACTORS, PREIMAGE_STACK, exclusion_cover, fat_hull, in_region, preimage_on,
+                        reacquire, reacquire_box, tube_exclusion)
+from .gates import reacquire_region
+from .kinematics import geometry
+from .krawczyk import PAD
+from .layout import PARAM_JOINT_TOL, PARAM_POSTURE_BITS, PARAM_REACQUIRE
+from .linalg import wrap
+from .tracker_packs import STEP_QU
+from .tube import TUBE_K, TUBE_Q, TUBE_SIZE, TUBE_T, TUBE_X, spread, tube_test
+from .tube_chain import MAX_COVER, pose_bound
+
+#: Re-acquisition by tubes tries the first covers of :data:`.exclusion.EXCLUSION_COVERS`: the reading's
+#: joint box whole, in 3 and 8 slabs across the needle, in 2**3 parts.
+REACQUIRE_COVERS = 4
+#: Anytime: a cover the deadline cuts is made again at the next step, at most this many times.
+MAX_RETRIES = 3
+#: What :func:`reacquire_on` ends with.
+R_FAILED, R_DONE, R_PENDING = 0, 1, 2
+
+
+@njit(cache=True, inline="always")
+def reacquire_target(chosen, certified, keep, poses, params, state, qu, model_pack, Xc, region):
+    """The solution to re-acquire: the one the certificates kept (``certified``, ``keep`` (6,)) or else
+    ``chosen``; its pose into ``Xc`` (3,) and the region (6,) that holds the robot into ``region``.
+    Returns its index, or -1 when the region is empty or the solution is outside it or in another
+    posture (the joints and the region disagree: a sensor off by more than its tolerance)."""
+    reacquire_region(params, state, region)
+    target = chosen
+    if certified:                                  # the branch along the measured joints
+        for k in range(6):
+            if keep[k]:
+                target = k
+    for i in range(3):
+        Xc[i] = poses[target, i].real
+    if not (region[0] <= region[1] and region[2] <= region[3]):
+        return -1
+    M, l1, l2sq, b = geometry(model_pack)
+    if elbow_bits(Xc, qu, M, l1, b) != int(params[PARAM_POSTURE_BITS]) or not in_region(Xc, region):
+        return -1
+    return target
+
+
+@njit(cache=True, inline="always")
+def reacquired(chosen, certified, state, work, poses, params, model_pack, new_cands, keep, tubes, deadline=0.0):
+    """Re-acquire the branch from this sample alone (the module docstring): the solution of
+    :func:`reacquire_target`, over the region the robot can be in, by a cover of the reading's joint
+    box (:func:`.exclusion.tube_exclusion`, the box whole, then in slabs or parts) or else an
+    axis-aligned Krawczyk box whose tube's hull it holds (:func:`box_reacquire`).  On success
+    ``keep`` (6,) marks the solution alone, ``new_cands[0]`` holds it and ``tubes`` (MAX_COVER,
+    TUBE_SIZE) its cover; returns the number of the cover's tubes (0: not re-acquired)."""
+    region, Xc = np.empty(6), np.empty(3)
+    qu, tol = work[STEP_QU:STEP_QU + 3], params[PARAM_JOINT_TOL]
+    target = reacquire_target(chosen, certified, keep, poses, params, state, qu, model_pack, Xc, region)
+    if target < 0:
+        return 0
+    M, l1, l2sq, b = geometry(model_pack)
+    posture = int(params[PARAM_POSTURE_BITS])
+    n = 0
+    for attempt in range(1, REACQUIRE_COVERS + 1):
+        n = tube_exclusion(Xc, qu, tol, posture, posture + 1, region, int(params[PARAM_REACQUIRE]), attempt, M, l1,
+                           l2sq, b, tubes, deadline)
+        if n > 0 or expired(deadline):
+            break
+    if n == 0:
+        if expired(deadline):
+            return 0
+        if not (tube_test(Xc, qu, np.full(3, tol), np.zeros(3), M, l1, l2sq, b, tubes[0]) and
+                box_reacquire(Xc, qu, tol, posture, region, int(params[PARAM_REACQUIRE]), model_pack, tubes[0],
+                              deadline)):
+            return 0
+        n = 1
+    for k in range(6):
+        keep[k] = k == target
+    new_cands[0, :] = Xc
+    return n
+
+
+@njit(cache=True, inline="always")
+def box_reacquire(Xc, qu, tol, posture, region, max_boxes, model_pack, tube, deadline=0.0):
+    """Re-acquisition by an axis-aligned Krawczyk box (:func:`.exclusion.reacquire`) about ``Xc``; the
+    ``tube`` takes over when its hull lies inside that box."""
+    box = np.empty(6)
+    return reacquire(Xc, qu, tol, posture, region, max_boxes, model_pack, box, deadline) and hull_inside(tube, tol, box)
+
+
+@njit(cache=True, inline="always")
+def hull_inside(tube, tol, box):
+    """The tube's solutions over its centre joints ``+- tol`` lie in the box ``box`` (centre, half-widths)."""
+    for r in range(3):
+        hull = tube[TUBE_K + r] + PAD + spread(tube, r, tol)
+        d = tube[TUBE_X + r] - box[r]
+        if r == 2:
+            d = wrap(d)
+        if not abs(d) + hull * (1.0 + 1e-9) < box[3 + r]:
+            return False
+    return True
+
+
+@njit(cache=True)
+def reacquired_anytime(chosen, certified, state, work, poses, real, params, model_pack, new_cands, keep, tubes,
+                       anytime, max_tests):
+    """:func:`reacquired` with a step budget (the anytime pack's deadline): the re-acquisition under way
+    goes on with this step's reading appended, or one begins at this reading; when it closes on an
+    earlier reading, a walk from that reading's cover (at most ``max_tests`` tube tests a segment)
+    catches up with this one.  Returns as :func:`reacquired` (0 also while the proof or its walk is
+    under way: the pack holds them)."""
+    deadline = anytime[ANY_DEADLINE]
+    qu, tol = work[STEP_QU:STEP_QU + 3], params[PARAM_JOINT_TOL]
+    if anytime[ANY_R_ON] > 0.0 and not r_append(anytime, qu):
+        anytime[ANY_R_ON] = 0.0
+    target = -1
+    if anytime[ANY_R_ON] <= 0.0:
+        Xc, region = np.empty(3), np.empty(6)
+        target = reacquire_target(chosen, certified, keep, poses, params, state, qu, model_pack, Xc, region)
+        if target < 0:
+            return 0
+        reacquire_begin(anytime, Xc, qu, region)
+    status, n = reacquire_on(anytime, tol, int(params[PARAM_POSTURE_BITS]), int(params[PARAM_REACQUIRE]), deadline,
+                             model_pack)
+    if status != R_DONE:
+        return 0
+    cover = anytime[ANY_R_TUBES:ANY_R_TUBES + MAX_COVER * TUBE_SIZE].reshape((MAX_COVER, TUBE_SIZE))
+    if target < 0:                                 # closed on an earlier reading: the walk from there
+        walk_begin(anytime, cover, n, anytime[ANY_R_PATH:ANY_R_PATH + 3].copy())
+        for j in range(1, int(anytime[ANY_R_N_PATH])):
+            walk_append(anytime, anytime[ANY_R_PATH + 3 * j:ANY_R_PATH + 3 * j + 3].copy())
+        M, l1, l2sq, b = geometry(model_pack)
+        status, n = walk_on(anytime, tol, max_tests, deadline, M, l1, l2sq, b, tubes)
+        if status != WALK_CLOSED:
+            return 0
+        target = cover_solution(tubes, n, qu, tol, poses, real)
+        if target < 0:
+            return 0
+    else:
+        for j in range(n):
+            tubes[j, :] = cover[j]
+    for k in range(6):
+        keep[k] = k == target
+    for i in range(3):
+        new_cands[0, i] = poses[target, i].real
+    return n
+
+
+@njit(cache=True, inline="always")
+def cover_solution(tubes, n, qu, tol, poses, real):
+    """The index of the real DK solution (``poses`` (6, 3) complex, ``real`` (6,)) that is the solution
+    of the cover ``tubes[:n]`` at the reading ``qu`` (3,), or -1."""
+    Xr, h = np.empty(3), np.empty(3)
+    for k in range(6):
+        if real[k]:
+            for i in range(3):
+                Xr[i] = poses[k, i].real
+            if pose_bound(tubes, n, qu, tol, Xr, h):
+                return k
+    return -1
+
+
+@njit(cache=True)
+def reacquire_begin(anytime, Xc, qu, region):
+    """A re-acquisition of the solution ``Xc`` (3,) of the reading ``qu`` (3,, rad) over the pose box
+    ``region`` (6,) into the anytime pack."""
+    anytime[ANY_R_ON], anytime[ANY_R_N], anytime[ANY_R_K], anytime[ANY_R_F] = 1.0, 0.0, 0.0, 0.0
+    anytime[ANY_R_PROG], anytime[ANY_R_PROG + 1], anytime[ANY_R_RETRY] = 0.0, 0.0, 0.0
+    anytime[ANY_R_X:ANY_R_X + 3] = Xc
+    anytime[ANY_R_REGION:ANY_R_REGION + 6] = region
+    anytime[ANY_R_N_PATH] = 1.0
+    anytime[ANY_R_PATH:ANY_R_PATH + 3] = qu
+
+
+@njit(cache=True)
+def r_append(anytime, q):
+    """Add the reading ``q`` (3,) at the re-acquisition's path end (unwrapped next to the last); False when full."""
+    k = int(anytime[ANY_R_N_PATH])
+    if k >= MAX_PATH:
+        return False
+    for i in range(3):
+        prev = anytime[ANY_R_PATH + 3 * (k - 1) + i]
+        anytime[ANY_R_PATH + 3 * k + i] = prev + wrap(q[i] - prev)
+    anytime[ANY_R_N_PATH] = k + 1
+    return True
+
+
+@njit(cache=True)
+def reacquire_on(anytime, tol, posture, max_boxes, deadline, model_pack):
+    """Go on with the re-acquisition in the anytime pack until it ends or the ``deadline`` passes:
+    :func:`reacquired`'s attempts, in its order, on the reading it began at.  Returns (R_DONE, n:
+    the pack's cover ``ANY_R_TUBES[:n]`` proves the solution ``ANY_R_X`` the robot's at that reading;
+    the re-acquisition is over), (R_PENDING, 0: the pack holds where it stands) or (R_FAILED, 0:
+    over)."""
+    if expired(deadline):
+        return R_PENDING, 0
+    M, l1, l2sq, b = geometry(model_pack)
+    Xc = anytime[ANY_R_X:ANY_R_X + 3].copy()
+    qu = anytime[ANY_R_PATH:ANY_R_PATH + 3].copy()
+    region = anytime[ANY_R_REGION:ANY_R_REGION + 6].copy()
+    tubes = anytime[ANY_R_TUBES:ANY_R_TUBES + MAX_COVER * TUBE_SIZE].reshape((MAX_COVER, TUBE_SIZE))
+    stack = anytime[ANY_R_STACK:ANY_R_STACK + 6 * PREIMAGE_STACK].reshape((PREIMAGE_STACK, 6))
+    prog = anytime[ANY_R_PROG:ANY_R_PROG + 2]
+    zero, tq = np.zeros(3), np.full(3, tol)
+    while int(anytime[ANY_R_ON]) <= REACQUIRE_COVERS:
+        attempt = int(anytime[ANY_R_ON])
+        n = int(anytime[ANY_R_N])
+        if n == 0:
+            point = np.empty(TUBE_SIZE)
+            if not tube_test(Xc, qu, zero, zero, M, l1, l2sq, b, point):
+                next_attempt(anytime, REACQUIRE_COVERS + 1)     # no cover about Xc: the Krawczyk box
+                continue
+            n = exclusion_cover(tubes, point, qu, tq, attempt, M, l1, l2sq, b, deadline)
+            if n <= 0:
+                if expired(deadline) and anytime[ANY_R_RETRY] < MAX_RETRIES:
+                    anytime[ANY_R_RETRY] += 1.0
+                    return R_PENDING, 0
+                next_attempt(anytime, attempt + 1)
+                continue
+            anytime[ANY_R_N] = n
+        failed = False
+        while int(anytime[ANY_R_K]) < n:
+            r = tube_excluded(tubes[int(anytime[ANY_R_K])], posture, region, max_boxes, deadline, anytime, stack, prog,
+                              M, l1, l2sq, b)
+            if r == 0:
+                return R_PENDING, 0
+            if r < 0:
+                failed = True
+                break
+            anytime[ANY_R_K] += 1.0
+        if not failed:
+            anytime[ANY_R_ON] = 0.0
+            return R_DONE, n
+        next_attempt(anytime, attempt + 1)
+    box = np.empty(6)                                   # the Krawczyk box, its tube's hull inside it
+    if not (tube_test(Xc, qu, tq, zero, M, l1, l2sq, b, tubes[0])
+            and reacquire_box(Xc, qu, tol, posture, region, model_pack, box) and hull_inside(tubes[0], tol, box)):
+        anytime[ANY_R_ON] = 0.0
+        return R_FAILED, 0
+    if prog[0] == 0.0 and prog[1] == 0.0:
+        stack[0, :] = region
+        prog[0] = 1.0
+    r = preimage_on(box[:3].copy(), box[3:].copy(), qu, tol, posture, M, l1, l2sq, b, max_boxes, deadline, stack, prog)
+    if r == 0:
+        return R_PENDING, 0
+    anytime[ANY_R_ON] = 0.0
+    return (R_DONE, 1) if r > 0 else (R_FAILED, 0)
+
+
+@njit(cache=True, inline="always")
+def next_attempt(anytime, attempt):
+    """The re-acquisition goes on with ``attempt``, from its start."""
+    anytime[ANY_R_ON], anytime[ANY_R_N], anytime[ANY_R_K], anytime[ANY_R_F] = attempt, 0.0, 0.0, 0.0
+    anytime[ANY_R_PROG], anytime[ANY_R_PROG + 1], anytime[ANY_R_RETRY] = 0.0, 0.0, 0.0
+
+
+@njit(cache=True)
+def tube_excluded(sub, posture, region, max_boxes, deadline, anytime, stack, prog, M, l1, l2sq, b):
+    """:func:`.exclusion.hull_excludes` for the tube ``sub`` in the tracker's posture, resumable: the hull
+    factor under way and the branch and bound's place are in the anytime pack.  Returns 1 (proved),
+    -1 (not) or 0 (cut by the ``deadline``)."""
+    q, xc = sub[TUBE_Q:TUBE_Q + 3].copy(), sub[TUBE_X:TUBE_X + 3].copy()
+    eps = max(sub[TUBE_T], max(sub[TUBE_T + 1], sub[TUBE_T + 2]))
+    hull = anytime[ANY_R_HULL:ANY_R_HULL + 3]
+    while int(anytime[ANY_R_F]) < len(HULL_FACTORS):
+        if prog[0] == 0.0 and prog[1] == 0.0:           # not begun at this factor: its fat tube first
+            if not fat_hull(sub, HULL_FACTORS[int(anytime[ANY_R_F])], M, l1, l2sq, b, hull):
+                anytime[ANY_R_F] += 1.0
+                continue
+            stack[0, :] = region
+            prog[0] = 1.0
+        r = preimage_on(xc, hull.copy(), q, eps, posture, M, l1, l2sq, b, max_boxes, deadline, stack, prog)
+        if r == 0:
+            return 0
+        prog[0], prog[1], anytime[ANY_R_F] = 0.0, 0.0, 0.0
+        return r
+    anytime[ANY_R_F] = 0.0
+    return -1
