@@ -38,6 +38,10 @@ TUBE_TESTS = 1200
 #: (it usually ends in a few tests), then the share of the rest that the chains of boxes (the choice) may
 #: use before the walk goes on (:func:`budgeted`).
 WALK_SHARE, CHAIN_SHARE = 0.3, 0.6
+#: With measured joints, while a walk is under way: the chains of boxes only steer the choice and the
+#: walk is what brings certainty back, so the chains get this share; and the share of the step's time
+#: kept for the set-membership step (:func:`region_step`) after the walk and re-acquisition.
+PENDING_CHAIN_SHARE, REGION_SHARE = 0.25, 0.15
 
 
 @njit(cache=True)
@@ -102,9 +106,12 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
         if tol > 0.0:                          # along the measured joints: a choice, not a proof
             intact = False
             if params[PARAM_REACQUIRE] > 0.0 and int(params[PARAM_POSTURE_BITS]) >= 0 and not untrusted:
-                if deadline > 0.0:             # resumable: a proof the deadline cuts goes on next step
-                    n_tubes = reacquired_anytime(chosen, cert != CERT_NONE, state, work, poses, real, params,
-                                                 model_pack, new_cands, keep, tubes, anytime, TUBE_TESTS)
+                if deadline > 0.0:             # resumable (a proof the deadline cuts goes on next step),
+                    n_tubes = 0                # and not while a walk from the last certain step is under way
+                    if anytime[ANY_N] <= 0.0:
+                        n_tubes = reacquired_anytime(chosen, cert != CERT_NONE, state, work, poses, real, params,
+                                                     model_pack, new_cands, keep, tubes, anytime, TUBE_TESTS,
+                                                     share(deadline, 1.0 - REGION_SHARE))
                 else:
                     n_tubes = reacquired(chosen, cert != CERT_NONE, state, work, poses, params, model_pack,
                                          new_cands, keep, tubes)
@@ -176,11 +183,13 @@ def budgeted(untrusted, state, work, poses, real, params, model_pack, new_cands,
                                  share(deadline, WALK_SHARE))
         if sol >= 0:
             return sol, n_tubes, n_new, cert, intact, linked
+    measured = tol_of(params) > 0.0
+    chain_share = PENDING_CHAIN_SHARE if measured and anytime[ANY_N] > 0.0 else CHAIN_SHARE
     n_new, cert, intact, linked = anytime_chains(untrusted, state, work, poses, real, params, model_pack, new_cands,
-                                                 keep, anytime, True, share(deadline, CHAIN_SHARE))
+                                                 keep, anytime, True, share(deadline, chain_share))
     if not untrusted and (anytime[ANY_N] > 0.0 or not fresh):
         sol, n_tubes = walk_step(state, work, poses, real, tol_of(params), model_pack, tubes, anytime, not fresh,
-                                 deadline)
+                                 share(deadline, 1.0 - REGION_SHARE) if measured else deadline)
     if sol < 0 and anytime[ANY_K_ON] > 0.0 and not expired(deadline):     # the continuation on, with the rest
         n_new, cert, intact, linked = anytime_chains(untrusted, state, work, poses, real, params, model_pack,
                                                      new_cands, keep, anytime, False, deadline)

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .anytime import (ANY_DEADLINE, ANY_R_F, ANY_R_HULL, ANY_R_K, ANY_R_N, ANY_R_N_PATH, ANY_R_ON, ANY_R_PATH,
+from .anytime import (ANY_R_F, ANY_R_HULL, ANY_R_K, ANY_R_N, ANY_R_N_PATH, ANY_R_ON, ANY_R_PATH,
                       ANY_R_PROG, ANY_R_REGION, ANY_R_RETRY, ANY_R_STACK, ANY_R_TUBES, ANY_R_X, MAX_PATH,
                       WALK_CLOSED, walk_append, walk_begin, walk_on)
 from .certify import elbow_bits
@@ -126,13 +126,12 @@ def hull_inside(tube, tol, box):
 
 @njit(cache=True)
 def reacquired_anytime(chosen, certified, state, work, poses, real, params, model_pack, new_cands, keep, tubes,
-                       anytime, max_tests):
+                       anytime, max_tests, deadline):
     """:func:`reacquired` with a step budget (the anytime pack's deadline): the re-acquisition under way
     goes on with this step's reading appended, or one begins at this reading; when it closes on an
     earlier reading, a walk from that reading's cover (at most ``max_tests`` tube tests a segment)
-    catches up with this one.  Returns as :func:`reacquired` (0 also while the proof or its walk is
-    under way: the pack holds them)."""
-    deadline = anytime[ANY_DEADLINE]
+    catches up with this one; all until the ``deadline``.  Returns as :func:`reacquired` (0 also while
+    the proof or its walk is under way: the pack holds them)."""
     qu, tol = work[STEP_QU:STEP_QU + 3], params[PARAM_JOINT_TOL]
     if anytime[ANY_R_ON] > 0.0 and not r_append(anytime, qu):
         anytime[ANY_R_ON] = 0.0
