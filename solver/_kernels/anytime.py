@@ -35,7 +35,8 @@ from .exclusion import PREIMAGE_STACK
 from .linalg import wrap
 from .tube import TUBE_Q, TUBE_SIZE
 from .tube import TUBE_S
-from .tube_chain import COVER_PARTS, MAX_COVER, MAX_PIECES, SLABS, cover_box, needle_frame, refine, slab_cover
+from .tube_chain import (COVER_ALL, COVER_ONE, COVER_PARTS, COVER_SLABS, MAX_COVER, MAX_PIECES, SLABS, cover_box,
+                         cover_stages, needle_frame, refine, slab_cover)
 
 #: Most readings a walk's path may hold (its start and the readings it has not reached).
 MAX_PATH = 256
@@ -135,7 +136,7 @@ def walk_on(anytime, tol, max_tests, deadline, M, l1, l2sq, b, out):
     pieces = anytime[ANY_PIECES:].reshape((MAX_PIECES, TUBE_SIZE))
     n, last = int(anytime[ANY_N]), int(anytime[ANY_LAST])
     s, step, tests = anytime[ANY_S], anytime[ANY_STEP], int(anytime[ANY_TESTS])
-    qc, t, dq = np.empty(3), np.empty(3), np.empty(3)
+    qc, t, dq, half = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
     while int(anytime[ANY_N_PATH]) >= 2:
         qp = anytime[ANY_PATH:ANY_PATH + 3]
         for i in range(3):
@@ -149,8 +150,10 @@ def walk_on(anytime, tol, max_tests, deadline, M, l1, l2sq, b, out):
             sb = min(1.0, s + step)
             for i in range(3):
                 qc[i] = qp[i] + 0.5 * (s + sb) * dq[i]
-                t[i] = 0.5 * abs(dq[i]) * (sb - s) + tol
-            m, used = walk_cover(pieces, n, pieces[n - 1], qc, t, M, l1, l2sq, b, deadline, anytime)
+                half[i] = 0.5 * abs(dq[i]) * (sb - s)
+                t[i] = half[i] + tol
+            m, used = walk_cover(pieces, n, pieces[n - 1], qc, t, M, l1, l2sq, b, deadline, anytime,
+                                 cover_stages(half, tol))
             tests += used
             if m > 0:
                 last, n = n, m
@@ -167,7 +170,8 @@ def walk_on(anytime, tol, max_tests, deadline, M, l1, l2sq, b, out):
         for i in range(3):                             # the reading's own box (else the last piece's cover)
             qc[i] = qp[i] + dq[i]
             t[i] = tol
-        m, used = walk_cover(pieces, n, pieces[n - 1], qc, t, M, l1, l2sq, b, deadline, anytime)
+        m, used = walk_cover(pieces, n, pieces[n - 1], qc, t, M, l1, l2sq, b, deadline, anytime,
+                             COVER_ALL if tol <= 0.0 else COVER_SLABS)
         tests += used
         if m < -1:                                     # cut: the reading's cover goes on next time
             anytime[ANY_N], anytime[ANY_LAST], anytime[ANY_S], anytime[ANY_STEP] = n, last, s, step
@@ -199,10 +203,10 @@ N_STAGES = 1 + len(SLABS) + COVER_PARTS - 1
 
 
 @njit(cache=True)
-def walk_cover(pieces, n, guess, qc, t, M, l1, l2sq, b, deadline, anytime):
-    """:func:`.tube_chain.cover` of the joint box ``qc +- t`` (3,), resumable: a cover the ``deadline``
-    cuts keeps its stage, next tube and frame in the anytime pack (its tubes so far after
-    ``pieces[:n]``) and goes on from there at the next call.  Returns (new count, -1 when every
+def walk_cover(pieces, n, guess, qc, t, M, l1, l2sq, b, deadline, anytime, stages=COVER_ALL):
+    """:func:`.tube_chain.cover` of the joint box ``qc +- t`` (3,) (its ``stages``), resumable: a cover
+    the ``deadline`` cuts keeps its stage, next tube and frame in the anytime pack (its tubes so far
+    after ``pieces[:n]``) and goes on from there at the next call.  Returns (new count, -1 when every
     stage failed, -2 when cut; tube tests, counted per stage as :func:`.tube_chain.cover` does)."""
     stage, k0 = int(anytime[ANY_C_STAGE]), int(anytime[ANY_C_K])
     V = anytime[ANY_C_V:ANY_C_V + 9].reshape((3, 3))
@@ -233,6 +237,8 @@ def walk_cover(pieces, n, guess, qc, t, M, l1, l2sq, b, deadline, anytime):
         if r < -1:                                     # cut before tube -2 - r of this stage
             anytime[ANY_C_STAGE], anytime[ANY_C_K] = stage, -2 - r
             return -2, tests
+        if (stages == COVER_ONE and stage == 0) or (stages == COVER_SLABS and stage == len(SLABS)):
+            break
         stage, k0 = stage + 1, 0
     anytime[ANY_C_STAGE], anytime[ANY_C_K] = 0.0, 0.0
     return -1, tests

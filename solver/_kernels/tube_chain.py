@@ -134,13 +134,18 @@ def slab_cover(pieces, n, guess, qc, t, slabs, V, M, l1, l2sq, b, deadline=0.0, 
     return m
 
 
+#: What :func:`cover` tries: every stage; one tube only; no axis-aligned parts after the slabs.
+COVER_ALL, COVER_ONE, COVER_SLABS = 0, 1, 2
+
+
 @njit(cache=True)
-def cover(pieces, n, guess, qc, t, M, l1, l2sq, b, deadline=0.0):
+def cover(pieces, n, guess, qc, t, M, l1, l2sq, b, deadline=0.0, stages=COVER_ALL):
     """:func:`cover_box` with one tube, else slabs across the needle (:data:`SLABS`), else 2**3 and
-    3**3 parts, until the ``deadline``.  Returns (new count, -1 when none closed; tube tests used)."""
+    3**3 parts, until the ``deadline``; ``stages`` (:func:`cover_stages`) may stop after the one tube
+    or after the slabs.  Returns (new count, -1 when none closed; tube tests used)."""
     tests = 1
     m = cover_box(pieces, n, guess, qc, t, 1, M, l1, l2sq, b, deadline)
-    if m > 0 or expired(deadline):
+    if m > 0 or expired(deadline) or stages == COVER_ONE:
         return m, tests
     if n < pieces.shape[0] and pieces[n, TUBE_S] == pieces[n, TUBE_S]:   # the failed test left S
         V = np.empty((3, 3))
@@ -151,12 +156,28 @@ def cover(pieces, n, guess, qc, t, M, l1, l2sq, b, deadline=0.0):
             m = slab_cover(pieces, n, guess, qc, t, slabs, V, M, l1, l2sq, b, deadline)
             if m > 0 or expired(deadline):
                 return m, tests
+        if stages == COVER_SLABS:
+            return -1, tests
     for parts in range(2, COVER_PARTS + 1):
         tests += parts ** 3
         m = cover_box(pieces, n, guess, qc, t, parts, M, l1, l2sq, b, deadline)
         if m > 0 or expired(deadline):
             return m, tests
     return -1, tests
+
+
+@njit(cache=True, inline="always")
+def cover_stages(half, tol):
+    """The stages worth trying for a piece of a joint step with half-extent ``half`` (3,, rad) along the
+    step, widened by ``tol``.  With measured joints (``tol > 0``): a piece longer than its tolerance box
+    gets one tube, and when that fails is halved rather than cut in slabs (a shorter piece is cheaper
+    than 20 or 50 slabs, measured on the suite's near-singular stretches); slabs that fail are not
+    followed by axis-aligned parts (which never closed there).  Exact joints: every stage."""
+    if tol <= 0.0:
+        return COVER_ALL
+    if max(half[0], max(half[1], half[2])) > tol:
+        return COVER_ONE
+    return COVER_SLABS
 
 
 @njit(cache=True)
@@ -182,7 +203,7 @@ def tube_chain(old, n_old, qp, dq, tol, max_tests, M, l1, l2sq, b, out):
         for i in range(3):                             # the old tubes' joints next to qp
             pieces[j, TUBE_Q + i] = qp[i] + wrap(old[j, TUBE_Q + i] - qp[i])
     n = n_old
-    qc, t = np.empty(3), np.empty(3)
+    qc, t, half = np.empty(3), np.empty(3), np.empty(3)
     s, step = 0.0, 1.0
     tests = 0
     last = 0                                           # where the last piece's cover starts
@@ -192,8 +213,9 @@ def tube_chain(old, n_old, qp, dq, tol, max_tests, M, l1, l2sq, b, out):
         sb = min(1.0, s + step)
         for i in range(3):
             qc[i] = qp[i] + 0.5 * (s + sb) * dq[i]
-            t[i] = 0.5 * abs(dq[i]) * (sb - s) + tol
-        m, used = cover(pieces, n, pieces[n - 1], qc, t, M, l1, l2sq, b)
+            half[i] = 0.5 * abs(dq[i]) * (sb - s)
+            t[i] = half[i] + tol
+        m, used = cover(pieces, n, pieces[n - 1], qc, t, M, l1, l2sq, b, 0.0, cover_stages(half, tol))
         tests += used
         if m > 0:
             last, n = n, m
@@ -205,7 +227,7 @@ def tube_chain(old, n_old, qp, dq, tol, max_tests, M, l1, l2sq, b, out):
     for i in range(3):
         qc[i] = qp[i] + dq[i]
         t[i] = tol
-    m, used = cover(pieces, n, pieces[n - 1], qc, t, M, l1, l2sq, b)
+    m, used = cover(pieces, n, pieces[n - 1], qc, t, M, l1, l2sq, b, 0.0, COVER_ALL if tol <= 0.0 else COVER_SLABS)
     tests += used
     if m > 0:
         last, n = n, m
