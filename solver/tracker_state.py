@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ._kernels.anytime import (ANY_C_K, ANY_C_STAGE, ANY_K_N_PATH, ANY_K_ON, ANY_K_PATH, ANY_LAST, ANY_N, ANY_N_PATH,
+from ._kernels.anytime import (ANY_C_K, ANY_C_STAGE, ANY_K_KIND, ANY_K_N_PATH, ANY_K_ON, ANY_K_PATH, ANY_LAST, ANY_N, ANY_N_PATH,
                                ANY_PATH, ANY_PIECES, ANY_R_F, ANY_R_K, ANY_R_N, ANY_R_N_PATH, ANY_R_ON, ANY_R_PATH,
                                ANY_R_PROG, ANY_SIZE, MAX_KPATH, MAX_PATH, N_STAGES, walk_floats)
 from ._kernels.exclusion import HULL_FACTORS, PREIMAGE_STACK
@@ -88,7 +88,7 @@ def _saved_walk(a: np.ndarray, state) -> np.ndarray | None:
             _same_angles(head[ANY_PATH + 3 * (m - 1):ANY_PATH + 3 * m], state.q)
     if ok and head[ANY_K_ON] > 0:
         m = int(head[ANY_K_N_PATH])
-        ok = head[ANY_K_N_PATH] == m and 1 <= m <= MAX_KPATH and \
+        ok = head[ANY_K_N_PATH] == m and 1 <= m <= MAX_KPATH and head[ANY_K_KIND] in (1.0, 2.0) and \
             _same_angles(head[ANY_K_PATH + 3 * (m - 1):ANY_K_PATH + 3 * m], state.q)
     if ok and head[ANY_R_ON] > 0:
         ok = _saved_reacquisition(head, state.q)

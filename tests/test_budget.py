@@ -251,3 +251,37 @@ def test_a_saved_reacquisition_goes_on_and_a_corrupt_one_is_refused(model, coars
         bad[at] = value
         with pytest.raises(TrackerError, match="walk"):
             TrackerState.from_array(bad)
+
+
+def test_the_anytime_continuation_takes_the_parabola_where_the_segment_fails(model):
+    """Exact joints 0.5 mm from a type-2 singularity (suite path p2-circle-0.5mm/1000, samples 110-113):
+    the straight segment 112 -> 113 loses the branch, the parabola through 111, 112, 113 keeps it, as the
+    unbudgeted continuation (:func:`solver._kernels.candidates.continue_single`) does; so must the
+    continuation a budget cuts."""
+    from solver._kernels.anytime import ANY_K_KIND, cont_append, cont_begin, cont_on
+    from solver._kernels.certify import FOLLOW_CUT, FOLLOW_DONE, FOLLOW_FAILED
+    from solver._kernels.kinematics import geometry
+    from solver._kernels.linalg import wrap
+    from solver.direct_kinematics import kernel_constants
+
+    q = np.array([[1.3828677493409418, 0.5528529158843907, -2.2672574295797947],
+                  [1.3856930444698743, 0.5562380108649414, -2.2694314444370063],
+                  [1.3885234883428654, 0.5596281693345313, -2.2716420813401985],
+                  [1.391359049952626, 0.5630232727954088, -2.273889808285359]])
+    X112 = np.array([0.7429660005409897, 0.4259319073475557, 0.34176469232328666])
+    M, l1, l2sq, b = geometry(kernel_constants(model)["pack"])
+    d2 = np.array([(wrap(q[1, i] - q[2, i]) + (q[3, i] - q[2, i])) / 2.0 for i in range(3)])  # r = 1
+    ends = {}
+    for have_par in (False, True):
+        for deadline in (lambda: 0.0, lambda: deadline_after(5e-6)):
+            pack = np.zeros(ANY_SIZE)
+            cont_begin(pack, X112, False, True, q[2])
+            cont_append(pack, q[3], d2, have_par)
+            out, status, calls = np.empty(3), FOLLOW_CUT, 0
+            while status == FOLLOW_CUT and calls < 100_000:
+                status, calls = cont_on(pack, 2000, deadline(), M, l1, b, l2sq, out), calls + 1
+            ends[have_par, calls > 1] = (status, out.copy() if status == FOLLOW_DONE else None)
+    assert ends[False, False][0] == ends[False, True][0] == FOLLOW_FAILED     # straight: lost
+    assert ends[True, False][0] == ends[True, True][0] == FOLLOW_DONE         # the parabola: kept
+    np.testing.assert_array_equal(ends[True, True][1], ends[True, False][1])  # cut or not, the same end
+    assert pose_distance(ends[True, False][1][None], X112[None])[0] < 0.01

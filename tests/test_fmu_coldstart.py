@@ -138,7 +138,8 @@ def test_kernels_the_fmu_cannot_serve_are_announced_in_the_hosts_log(fmus, tmp_p
 
 def test_what_the_fmu_carries(fmus):
     """The kernels of its own code (its key), for the generic CPU, with their compile seconds; and the
-    size (with kernels: the DK FMU 5.3 MB, the others 1.1-1.5 MB; without, 0.43-0.54 MB)."""
+    size (with kernels: the DK FMU 9.9 MB with the budget's resumable proofs, the others about 1 MB;
+    without, 0.43-0.54 MB): a bound that catches kernels shipped twice or for every CPU."""
     for name in NAMES:
         with zipfile.ZipFile(fmus[name]) as z:
             names = z.namelist()
@@ -146,7 +147,7 @@ def test_what_the_fmu_carries(fmus):
         assert manifest["cpu"] == kernel_cache.GENERIC_CPU and manifest["key"] == fmu_key(fmus[name])
         assert manifest["python"] == "%d.%d" % sys.version_info[:2] and manifest["total_seconds"] > 0
         assert any(n.endswith(".nbi") for n in names) and any(n.endswith(".nbc") for n in names)
-        assert fmus[name].stat().st_size < (8 if name == "RRRDirectKinematics" else 3) * 2**20
+        assert fmus[name].stat().st_size < (12 if name == "RRRDirectKinematics" else 3) * 2**20
 
 
 # ---------------------------------------------------------------------- the runtime's lookup, on a tiny bundle

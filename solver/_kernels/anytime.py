@@ -61,7 +61,11 @@ ANY_K_X = 21              # (3,) ... the branch where it stands
 ANY_K_PROG = 24           # (3,) ... s on its first segment, the next piece's length, the tests (-1: first the tiny box)
 ANY_K_N_PATH = 27         # ... its readings (the first: the segment's start)
 ANY_K_PATH = 28           # (MAX_KPATH, 3) ... its path, rad, unwrapped along it
-ANY_PATH = ANY_K_PATH + 3 * 64  # (MAX_PATH, 3) the walk's path, rad, unwrapped along it
+ANY_K_D2 = ANY_K_PATH + 3 * MAX_KPATH  # (MAX_KPATH, 3) ... the parabola's quadratic term to each reading (rad)
+ANY_K_PAR = ANY_K_D2 + 3 * MAX_KPATH   # (MAX_KPATH,) ... 1 where that parabola exists (three readings)
+ANY_K_X0 = ANY_K_PAR + MAX_KPATH       # (3,) ... the branch at its first segment's start
+ANY_K_KIND = ANY_K_X0 + 3              # ... the first segment followed straight (1) or along the parabola (2)
+ANY_PATH = ANY_K_KIND + 1  # (MAX_PATH, 3) the walk's path, rad, unwrapped along it
 ANY_R = ANY_PATH + 3 * MAX_PATH  # a re-acquisition under way (:mod:`.reacquisition`):
 ANY_R_ON = ANY_R          # > 0: its attempt (1.. the covers of REACQUIRE_COVERS, then the Krawczyk box); 0: none
 ANY_R_N = ANY_R + 1       # ... the attempt's cover's tubes (0: not made yet)
@@ -254,11 +258,15 @@ def cont_begin(anytime, X0, verified, intact, qp):
     anytime[ANY_K_PROG], anytime[ANY_K_PROG + 1], anytime[ANY_K_PROG + 2] = 0.0, 1.0, 0.0 if verified else -1.0
     anytime[ANY_K_N_PATH] = 1.0
     anytime[ANY_K_PATH:ANY_K_PATH + 3] = qp
+    anytime[ANY_K_X0:ANY_K_X0 + 3] = X0
+    anytime[ANY_K_KIND] = 1.0
 
 
 @njit(cache=True)
-def cont_append(anytime, q):
-    """Add the reading ``q`` (3,) at the continuation's path end; False (and the continuation ended) when full."""
+def cont_append(anytime, q, d2, have_par):
+    """Add the reading ``q`` (3,) at the continuation's path end, with the quadratic term ``d2`` (3,) of the
+    parabola through the two readings before it and it (``have_par``: there is one; the step's
+    :func:`.certified.parabola`); False (and the continuation ended) when full."""
     k = int(anytime[ANY_K_N_PATH])
     if k >= MAX_KPATH:
         anytime[ANY_K_ON] = 0.0
@@ -266,30 +274,41 @@ def cont_append(anytime, q):
     for i in range(3):
         prev = anytime[ANY_K_PATH + 3 * (k - 1) + i]
         anytime[ANY_K_PATH + 3 * k + i] = prev + wrap(q[i] - prev)
+        anytime[ANY_K_D2 + 3 * k + i] = d2[i] if have_par else 0.0
+    anytime[ANY_K_PAR + k] = 1.0 if have_par else 0.0
     anytime[ANY_K_N_PATH] = k + 1
     return True
 
 
 @njit(cache=True)
 def cont_on(anytime, max_tests, deadline, M, l1, b, l2sq, out):
-    """Go on with the continuation along its path (straight segments between the readings, exact joints
-    on them), each segment with at most ``max_tests`` Krawczyk tests, until the ``deadline``.
-    Returns FOLLOW_DONE (``out`` (3,): the branch at the last reading, within TINY of the only
-    solution there; the continuation is over), FOLLOW_CUT (it goes on at the next call) or
-    FOLLOW_FAILED (over)."""
+    """Go on with the continuation along its path, each segment between two readings as
+    :func:`.candidates.continue_single` follows a step's (straight, then, when that fails and there
+    are three readings, along the parabola through them; exact joints on them), with at most
+    ``max_tests`` Krawczyk tests each, until the ``deadline``.  Returns FOLLOW_DONE (``out`` (3,):
+    the branch at the last reading, within TINY of the only solution there; the continuation is
+    over), FOLLOW_CUT (it goes on at the next call) or FOLLOW_FAILED (over)."""
     x = anytime[ANY_K_X:ANY_K_X + 3]
     prog = anytime[ANY_K_PROG:ANY_K_PROG + 3]
-    zero, d1 = np.zeros(3), np.empty(3)
+    zero, d1, d2 = np.zeros(3), np.empty(3), np.zeros(3)
     while int(anytime[ANY_K_N_PATH]) >= 2:
         q0 = anytime[ANY_K_PATH:ANY_K_PATH + 3]
+        parabola = anytime[ANY_K_KIND] > 1.0
         for i in range(3):
             d1[i] = anytime[ANY_K_PATH + 3 + i] - q0[i]
+            d2[i] = anytime[ANY_K_D2 + 3 + i] if parabola else 0.0
+            d1[i] -= d2[i]                             # q(s) = q0 + s d1 + s^2 d2 ends at the reading
         if prog[2] < 0.0:                              # the start's tiny box first
             if not tiny_box(x, q0, d1, zero, M, l1, b, l2sq):
                 anytime[ANY_K_ON] = 0.0
                 return FOLLOW_FAILED
             prog[2] = 1.0
-        status = follow_on(x, q0, d1, zero, 0.0, M, l1, b, l2sq, max_tests, deadline, prog)
+        status = follow_on(x, q0, d1, d2, 0.0, M, l1, b, l2sq, max_tests, deadline, prog)
+        if status == FOLLOW_FAILED and not parabola and anytime[ANY_K_PAR + 1] > 0.0:
+            x[:] = anytime[ANY_K_X0:ANY_K_X0 + 3]      # the segment failed: its parabola from the start
+            prog[0], prog[1], prog[2] = 0.0, 1.0, 0.0
+            anytime[ANY_K_KIND] = 2.0
+            continue
         if status != FOLLOW_DONE:
             if status == FOLLOW_FAILED:
                 anytime[ANY_K_ON] = 0.0
@@ -297,7 +316,12 @@ def cont_on(anytime, max_tests, deadline, M, l1, b, l2sq, out):
         k = int(anytime[ANY_K_N_PATH])
         for j in range(3 * (k - 1)):
             anytime[ANY_K_PATH + j] = anytime[ANY_K_PATH + 3 + j]
+            anytime[ANY_K_D2 + j] = anytime[ANY_K_D2 + 3 + j]
+        for j in range(k - 1):
+            anytime[ANY_K_PAR + j] = anytime[ANY_K_PAR + 1 + j]
         anytime[ANY_K_N_PATH] = k - 1
+        anytime[ANY_K_X0:ANY_K_X0 + 3] = x
+        anytime[ANY_K_KIND] = 1.0
         prog[0], prog[1], prog[2] = 0.0, 1.0, 0.0
     out[:] = x
     anytime[ANY_K_ON] = 0.0

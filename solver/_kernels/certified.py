@@ -210,7 +210,9 @@ def anytime_chains(untrusted, state, work, poses, real, params, model_pack, new_
     elif append and anytime[ANY_K_ON] <= 0.0 and int(state[STATE_N_CAND]) == 1:
         cont_begin(anytime, state[STATE_CANDS:STATE_CANDS + 3], state[STATE_VERIFIED] > 0.0,
                    state[STATE_INTACT] > 0.0, state[STATE_Q:STATE_Q + 3])
-    if anytime[ANY_K_ON] > 0.0 and (not append or cont_append(anytime, work[STEP_QU:STEP_QU + 3])):
+    d2 = np.zeros(3)
+    if anytime[ANY_K_ON] > 0.0 and (not append or cont_append(anytime, work[STEP_QU:STEP_QU + 3], d2,
+                                                                parabola(state, work, d2))):
         M, l1, l2sq, b = geometry(model_pack)
         end, Xr = np.empty(3), np.empty(3)
         status = cont_on(anytime, int(params[PARAM_MAX_TESTS]), deadline, M, l1, b, l2sq, end)
@@ -310,18 +312,29 @@ def walk_step(state, work, poses, real, tol, model_pack, tubes, anytime, append,
 
 
 @njit(cache=True, inline="always")
+def parabola(state, work, d2):
+    """The quadratic term ``d2`` (3,, rad) of the parabola ``qp + s (dq - d2) + s^2 d2`` through the
+    reading before the last (at ``s = -r``, r = previous / this time step), the last (``s = 0``) and
+    this one (``s = 1``); False (``d2`` zero) before there are three."""
+    if not state[STATE_HAVE_Q2] > 0.0:
+        for i in range(3):
+            d2[i] = 0.0
+        return False
+    qp, dq = state[STATE_Q:STATE_Q + 3], work[STEP_DQ:STEP_DQ + 3]
+    r = 1.0 / state[STATE_EXT_SCALE]
+    for i in range(3):
+        d2[i] = (wrap(state[STATE_Q2 + i] - qp[i]) + r * dq[i]) / (r * (1.0 + r))
+    return True
+
+
+@njit(cache=True, inline="always")
 def chains(state, work, poses, real, params, model_pack, new_cands, keep, deadline=0.0):
     """:func:`.candidates.certify` on the previous candidates (state pack) over the joint step and,
     with three samples, the parabola through them (time-scaled).  Writes ``new_cands`` (6, 3) and
     ``keep`` (6,); returns (candidates, certificate code, chain intact since the reset, linked)."""
     qp, dq = state[STATE_Q:STATE_Q + 3], work[STEP_DQ:STEP_DQ + 3]
     d2 = np.zeros(3)
-    have_par = state[STATE_HAVE_Q2] > 0.0
-    if have_par:
-        # the parabola through q2 (at s = -r), qp (s = 0) and q (s = 1), r = previous / this time step
-        r = 1.0 / state[STATE_EXT_SCALE]
-        for i in range(3):
-            d2[i] = (wrap(state[STATE_Q2 + i] - qp[i]) + r * dq[i]) / (r * (1.0 + r))
+    have_par = parabola(state, work, d2)
     intact_before = state[STATE_INTACT] > 0.0
     n_new, cert, intact, linked = certify(state[STATE_CANDS:STATE_CANDS + 18].reshape((6, 3)),
                                           int(state[STATE_N_CAND]), state[STATE_VERIFIED] > 0.0, intact_before, qp,
