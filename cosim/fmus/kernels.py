@@ -189,6 +189,26 @@ def shipped_kernels(fmu: Path, scenario: Scenario, root: Path | None = None) -> 
     root = (Path(root) if root is not None else generic_root()) / Path(fmu).stem     # one FMU's kernels only
     key, done = fmu_key(Path(fmu)), _warmed(scenario)
     folder = root / key
+    folder.mkdir(parents=True, exist_ok=True)
+    with _locked(folder / ".lock"):             # builds in parallel (batch workers): one warms up, the others wait
+        return _warmed_entries(fmu, scenario, root, folder, key, done)
+
+
+@contextlib.contextmanager
+def _locked(path: Path):
+    """An exclusive lock on the file ``path`` (created), held for the ``with`` block."""
+    import fcntl
+
+    with open(path, "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+def _warmed_entries(fmu, scenario, root, folder, key, done) -> dict[str, bytes]:
+    """:func:`shipped_kernels` for the kernel folder ``folder`` (held locked)."""
     kept = folder / _KEPT
     record = json.loads(kept.read_text()) if kept.is_file() else {"seconds": {}, "warmed": []}
     if done not in record["warmed"]:
@@ -200,7 +220,6 @@ def shipped_kernels(fmu: Path, scenario: Scenario, root: Path | None = None) -> 
             raise KernelBuildError(f"{Path(fmu).name}: the warm-up ran key {found['key']}, the FMU's is {key}")
         record["seconds"].update({k: round(v, 1) for k, v in found["seconds"].items()})
         record["warmed"] = sorted({*record["warmed"], done})
-        folder.mkdir(parents=True, exist_ok=True)
         kept.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
     entries = {f"resources/{SHIPPED}/{p.relative_to(folder).as_posix()}": p.read_bytes()
                for p in sorted(folder.rglob("*")) if p.suffix in (".nbi", ".nbc")}
