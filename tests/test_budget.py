@@ -38,6 +38,32 @@ def _tracker(model, map1, budget, tol=SENSOR.tolerance(3.0)):
                    step_budget=budget)
 
 
+def _cut_short(model, map1, circle, steps):
+    """A tracker whose first ``steps`` steps had no time for any proof (a 1 ns budget), and the readings."""
+    q = _measured(circle)
+    tr = _tracker(model, map1, 1e-9)
+    tr.reset(circle.X[0], q[0])
+    for k in range(1, steps + 1):
+        tr.step(q[k], 1e-3)
+    return tr, q
+
+
+def _goes_on_elsewhere(model, map1, circle, tr, q, k):
+    """``tr``'s state saved and restored into another tracker; both given time for the reading ``q[k]``,
+    where their poses must agree.  Returns (the saved array, ``tr``'s info, the other's)."""
+    saved = tr.state.as_array()
+    restored = TrackerState.from_array(saved)
+    np.testing.assert_array_equal(restored.walk, tr.state.walk)
+    other = _tracker(model, map1, 10.0)
+    other.reset(circle.X[0], q[0])
+    other.state = restored
+    tr.step_budget = 10.0
+    Xa, ia = tr.step(q[k], 1e-3)
+    Xb, ib = other.step(q[k], 1e-3)
+    np.testing.assert_array_equal(Xa, Xb)
+    return saved, ia, ib
+
+
 def _track(tracker, q, X0, n=None):
     """Poses (n, 3), infos of a stream stepped at 1 kHz."""
     tracker.reset(X0, q[0])
@@ -103,11 +129,7 @@ def test_certainty_returns_when_the_walk_closes_and_is_never_back_dated(model, c
 
 
 def test_a_walk_longer_than_its_path_ends(model, coarse_map1, circle):
-    q = _measured(circle)
-    tr = _tracker(model, coarse_map1, 1e-9)
-    tr.reset(circle.X[0], q[0])
-    for k in range(1, MAX_PATH + 2):
-        tr.step(q[k], 1e-3)
+    tr, q = _cut_short(model, coarse_map1, circle, MAX_PATH + 1)
     walk = tr.state.walk
     assert walk[ANY_N] == 0                              # past MAX_PATH readings the walk is given up,
     assert walk[ANY_R_ON] > 0 and 1 <= walk[ANY_R_N_PATH] <= 2   # a re-acquisition since begun
@@ -147,22 +169,9 @@ def test_a_reacquisition_cut_into_parts_is_the_whole_proof(model, coarse_map1, c
 
 
 def test_a_saved_state_keeps_the_unfinished_proof(model, coarse_map1, circle):
-    q = _measured(circle)
-    tr = _tracker(model, coarse_map1, 1e-9)
-    tr.reset(circle.X[0], q[0])
-    for k in range(1, 4):
-        tr.step(q[k], 1e-3)
-    saved = tr.state.as_array()
-    restored = TrackerState.from_array(saved)
-    np.testing.assert_array_equal(restored.walk, tr.state.walk)
-    other = _tracker(model, coarse_map1, 10.0)
-    other.reset(circle.X[0], q[0])
-    other.state = restored
-    tr.step_budget = 10.0
-    Xa, ia = tr.step(q[4], 1e-3)
-    Xb, ib = other.step(q[4], 1e-3)
+    tr, q = _cut_short(model, coarse_map1, circle, 3)
+    saved, ia, ib = _goes_on_elsewhere(model, coarse_map1, circle, tr, q, 4)
     assert ia.certain and ib.certain and ib.certificate == CERT_TUBE
-    np.testing.assert_array_equal(Xa, Xb)
     np.testing.assert_array_equal(ia.pose_bound, ib.pose_bound)
     with pytest.raises(TrackerError):
         TrackerState.from_array(np.concatenate([saved, [0.0]]))
@@ -188,11 +197,7 @@ def test_the_budget_is_checked(model, coarse_map1, bad):
 def test_a_step_without_budget_drops_the_unfinished_proof(model, coarse_map1, circle):
     """The walk holds the readings up to the last budgeted step: a step without a budget (which does not
     extend it) must not leave it for a later budgeted step to skip a reading."""
-    q = _measured(circle)
-    tr = _tracker(model, coarse_map1, 1e-9)
-    tr.reset(circle.X[0], q[0])
-    for k in range(1, 4):
-        tr.step(q[k], 1e-3)
+    tr, q = _cut_short(model, coarse_map1, circle, 3)
     assert tr.state.walk is not None
     tr.step_budget = None
     tr.step(q[4], 1e-3)
@@ -205,11 +210,7 @@ def test_a_saved_walk_that_does_not_fit_its_state_is_refused(model, coarse_map1,
     from solver._kernels.anytime import ANY_N, ANY_N_PATH, ANY_PATH
     from solver.tracker_state import _WALK
 
-    q = _measured(circle)
-    tr = _tracker(model, coarse_map1, 1e-9)
-    tr.reset(circle.X[0], q[0])
-    for k in range(1, 4):
-        tr.step(q[k], 1e-3)
+    tr, q = _cut_short(model, coarse_map1, circle, 3)
     saved = tr.state.as_array()
     TrackerState.from_array(saved)                                     # as saved: fine
     m = int(saved[_WALK + ANY_N_PATH])
@@ -226,23 +227,10 @@ def test_a_saved_reacquisition_goes_on_and_a_corrupt_one_is_refused(model, coars
     from solver._kernels.anytime import ANY_R_F, ANY_R_K, ANY_R_PATH, ANY_R_PROG
     from solver.tracker_state import _WALK
 
-    q = _measured(circle)
-    tr = _tracker(model, coarse_map1, 1e-9)
-    tr.reset(circle.X[0], q[0])
-    for k in range(1, MAX_PATH + 4):
-        tr.step(q[k], 1e-3)
-    saved = tr.state.as_array()
+    tr, q = _cut_short(model, coarse_map1, circle, MAX_PATH + 3)
+    saved, ia, ib = _goes_on_elsewhere(model, coarse_map1, circle, tr, q, MAX_PATH + 4)
     assert saved[_WALK + ANY_R_ON] > 0 and saved[_WALK + ANY_R_N_PATH] == 4
-    restored = TrackerState.from_array(saved)
-    np.testing.assert_array_equal(restored.walk, tr.state.walk)
-    other = _tracker(model, coarse_map1, 10.0)
-    other.reset(circle.X[0], q[0])
-    other.state = restored
-    tr.step_budget = 10.0
-    Xa, ia = tr.step(q[MAX_PATH + 4], 1e-3)
-    Xb, ib = other.step(q[MAX_PATH + 4], 1e-3)
     assert ia.certain and ib.certain and ib.certificate == CERT_REACQUIRED
-    np.testing.assert_array_equal(Xa, Xb)
     end = _WALK + ANY_R_PATH + 3 * 3
     for at, value in ((end, saved[end] + 0.1), (_WALK + ANY_R_ON, 9.0), (_WALK + ANY_R_ON, 1.5),
                       (_WALK + ANY_R_K, 40.0), (_WALK + ANY_R_F, 2.0), (_WALK + ANY_R_PROG, 65.0),
@@ -258,7 +246,7 @@ def test_the_anytime_continuation_takes_the_parabola_where_the_segment_fails(mod
     the straight segment 112 -> 113 loses the branch, the parabola through 111, 112, 113 keeps it, as the
     unbudgeted continuation (:func:`solver._kernels.candidates.continue_single`) does; so must the
     continuation a budget cuts."""
-    from solver._kernels.anytime import ANY_K_KIND, cont_append, cont_begin, cont_on
+    from solver._kernels.anytime import cont_append, cont_begin, cont_on
     from solver._kernels.certify import FOLLOW_CUT, FOLLOW_DONE, FOLLOW_FAILED
     from solver._kernels.kinematics import geometry
     from solver._kernels.linalg import wrap

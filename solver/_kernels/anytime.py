@@ -113,13 +113,20 @@ def walk_begin(anytime, old, n_old, qp):
 @njit(cache=True)
 def walk_append(anytime, q):
     """Add the reading ``q`` (3,) at the path's end (unwrapped next to the last); False when full."""
-    k = int(anytime[ANY_N_PATH])
-    if k >= MAX_PATH:
+    return path_append(anytime, ANY_N_PATH, ANY_PATH, MAX_PATH, q)
+
+
+@njit(cache=True, inline="always")
+def path_append(anytime, n_at, path_at, most, q):
+    """Add the reading ``q`` (3,) at the end of the path of the anytime pack whose count is at ``n_at``
+    and readings (most, 3) at ``path_at``, unwrapped next to the last; False when it holds ``most``."""
+    k = int(anytime[n_at])
+    if k >= most:
         return False
     for i in range(3):
-        prev = anytime[ANY_PATH + 3 * (k - 1) + i]
-        anytime[ANY_PATH + 3 * k + i] = prev + wrap(q[i] - prev)
-    anytime[ANY_N_PATH] = k + 1
+        prev = anytime[path_at + 3 * (k - 1) + i]
+        anytime[path_at + 3 * k + i] = prev + wrap(q[i] - prev)
+    anytime[n_at] = k + 1
     return True
 
 
@@ -268,15 +275,12 @@ def cont_append(anytime, q, d2, have_par):
     parabola through the two readings before it and it (``have_par``: there is one; the step's
     :func:`.certified.parabola`); False (and the continuation ended) when full."""
     k = int(anytime[ANY_K_N_PATH])
-    if k >= MAX_KPATH:
+    if not path_append(anytime, ANY_K_N_PATH, ANY_K_PATH, MAX_KPATH, q):
         anytime[ANY_K_ON] = 0.0
         return False
     for i in range(3):
-        prev = anytime[ANY_K_PATH + 3 * (k - 1) + i]
-        anytime[ANY_K_PATH + 3 * k + i] = prev + wrap(q[i] - prev)
         anytime[ANY_K_D2 + 3 * k + i] = d2[i] if have_par else 0.0
     anytime[ANY_K_PAR + k] = 1.0 if have_par else 0.0
-    anytime[ANY_K_N_PATH] = k + 1
     return True
 
 

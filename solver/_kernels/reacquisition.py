@@ -23,7 +23,7 @@ from numba import njit
 
 from .anytime import (ANY_R_F, ANY_R_HULL, ANY_R_K, ANY_R_N, ANY_R_N_PATH, ANY_R_ON, ANY_R_PATH,
                       ANY_R_PROG, ANY_R_REGION, ANY_R_RETRY, ANY_R_STACK, ANY_R_TUBES, ANY_R_X, MAX_PATH,
-                      WALK_CLOSED, walk_append, walk_begin, walk_on)
+                      WALK_CLOSED, path_append, walk_append, walk_begin, walk_on)
 from .certify import elbow_bits
 from .clock import expired
 from .exclusion import (HULL_FACTORS, PREIMAGE_STACK, exclusion_cover, fat_hull, in_region, preimage_on,
@@ -197,14 +197,7 @@ def reacquire_begin(anytime, Xc, qu, region):
 @njit(cache=True)
 def r_append(anytime, q):
     """Add the reading ``q`` (3,) at the re-acquisition's path end (unwrapped next to the last); False when full."""
-    k = int(anytime[ANY_R_N_PATH])
-    if k >= MAX_PATH:
-        return False
-    for i in range(3):
-        prev = anytime[ANY_R_PATH + 3 * (k - 1) + i]
-        anytime[ANY_R_PATH + 3 * k + i] = prev + wrap(q[i] - prev)
-    anytime[ANY_R_N_PATH] = k + 1
-    return True
+    return path_append(anytime, ANY_R_N_PATH, ANY_R_PATH, MAX_PATH, q)
 
 
 @njit(cache=True)
