@@ -147,9 +147,7 @@ def _extraction_folder(fmu: Path):
     one keeps builds byte-identical), held with a lock against a concurrent build."""
     base = Path(tempfile.gettempdir()) / f"rrr-dk-warm-up-{getattr(os, 'getuid', lambda: 0)()}"
     base.mkdir(exist_ok=True)
-    with open(base / f"{fmu.stem}.lock", "w") as lock:
-        if fcntl is not None:
-            fcntl.flock(lock, fcntl.LOCK_EX)
+    with _locked(base / f"{fmu.stem}.lock"):
         folder = base / fmu.stem
         shutil.rmtree(folder, ignore_errors=True)
         try:
@@ -203,15 +201,11 @@ def shipped_kernels(fmu: Path, scenario: Scenario, root: Path | None = None) -> 
 
 @contextlib.contextmanager
 def _locked(path: Path):
-    """An exclusive lock on the file ``path`` (created), held for the ``with`` block."""
-    import fcntl
-
+    """An exclusive lock on the file ``path`` (created), held for the ``with`` block (none without fcntl)."""
     with open(path, "a") as f:
-        fcntl.flock(f, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
+        if fcntl is not None:
+            fcntl.flock(f, fcntl.LOCK_EX)   # released when the file closes
+        yield
 
 
 def _warmed_entries(fmu, scenario, root, folder, key, done) -> dict[str, bytes]:
