@@ -125,7 +125,9 @@ samples:
   a glitch: it is vouched for by nothing and ends the chain of certificates (a
   joint accelerating as it did in recent samples is not such a sample).  After ``MAX_REFUSED`` refusals in a
   row the next sample is taken (the joints really moved) and vouching ends until
-  a re-acquisition, which then searches the whole tool space;
+  a re-acquisition, which searches the poses the platform can have reached since
+  the last certain step (the speed bound is about the robot, whatever the sensor
+  did);
 * with ``speed_bound``, a *speed gate*: when the chosen solution is farther
   than the platform can have moved since the last sample (plus 0.1 m / 0.1 rad),
   the measured joints crossed a fold that the robot did not.  If exactly one

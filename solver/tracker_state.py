@@ -311,10 +311,9 @@ class TrackerState:
         scale = dqn if self.steps == 0 else 0.8 * self.dq_scale + 0.2 * dqn
         cands = out_real[OUT_CANDS:OUT_CANDS + 3 * n_cand].reshape(n_cand, 3).copy()
         X = out_real[OUT_X:OUT_X + 3].copy()
-        # a sample taken after refusals (the joints jumped and stayed): the sensor broke its
-        # tolerance, so the last certain pose no longer bounds where the robot is
-        anchor = None if self.refused >= MAX_REFUSED else self.anchor
-        age, anchor_bound = self._anchor_age(dt), self.anchor_bound
+        # the last certain pose bounds where the robot is (its proven bound plus the speed bound times
+        # the time since), whatever the sensor did since: also after refusals (the joints jumped and stayed)
+        anchor, age, anchor_bound = self.anchor, self._anchor_age(dt), self.anchor_bound
         region = out_real[OUT_REGION:OUT_REGION + 6]
         if not certain and np.all(np.isfinite(region)):    # the set-membership step's box holds the robot now
             anchor, anchor_bound, age = 0.5 * (region[0::2] + region[1::2]), 0.5 * (region[1::2] - region[0::2]), 0.0
