@@ -113,7 +113,11 @@ samples:
   are within the tolerance lies in that hull (else, the same with an axis-aligned
   Krawczyk box about the chosen solution); the search covers the poses the
   platform can have reached since the last certain step when ``speed_bound``
-  (m/s, rad/s) is given, else the tool space;
+  (m/s, rad/s) is given, else the tool space.  That region also steers the
+  choice: a solution outside it (or in another posture) cannot be the robot's, so
+  when the chosen one is, the one real solution inside it in the posture is
+  taken (a choice, not a proof; the speed gate leaves it alone) and is the one
+  re-acquisition tries;
 * an *outlier gate* (:mod:`._kernels.gates`) looks at a sample whose joint step
   differs from the expected one (constant joint velocity) by more than the
   tolerance allows plus ``gate`` times the recent differences (an envelope that

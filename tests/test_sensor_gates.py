@@ -149,3 +149,27 @@ def test_certainty_returns_right_after_a_swing_the_gate_refused(model, hard):
     taken = refused[-1] + 1
     assert infos[taken + 1].certificate == 4 and certain[taken + 1:].all()     # re-acquired, then chained
     assert np.sum((pose_distance(X, truth) > 1e-6) & counted & certain) == 0
+
+
+def test_the_region_steers_the_choice_back_and_reacquires_its_solution(model, hard):
+    """On p1-circle-0.5mm (20-bit encoder, 2e-5 rad) the measured joints pass a fold at step ~246
+    and the nearest-to-prediction choice can follow the other branch.  The pose box that holds the
+    robot (the last certain pose plus the speed bound, cut to the poses reaching each reading)
+    soon leaves that branch out: the tracker takes the one solution inside it, and re-acquires it
+    when the proof closes.  Errors no more than Newton's, none vouched for, certain again well
+    before the end."""
+    from solver.baselines import NewtonTracker
+    p = hard["p1-circle-0.5mm/1000"]
+    sensor = Sensor("20-bit-2e-5", bits=20, noise=2e-5)
+    q = sensor.measure(p.q, seed=1010).q.copy()         # before the region steered, 737 errors here (Newton 7)
+    q[0] = p.q[0]
+    truth, counted = sensor_truth(model, q, p.X)
+    tr = Tracker(model, coarse_map(model, 1), joint_tolerance=sensor.tolerance(3.0), speed_bound=(3.76, 1.10),
+                 stuck_after=sensor.stuck_after())
+    X, infos = track_stream(tr, q, p.X[0])
+    certain = np.array([True] + [i.certain for i in infos[1:]])
+    wrong = (pose_distance(X, truth) > 1e-6) & counted
+    Xn, _ = track_stream(NewtonTracker(model), q, p.X[0])
+    assert wrong.sum() <= ((pose_distance(Xn, truth) > 1e-6) & counted).sum()
+    assert not (wrong & certain).any()
+    assert any(i.certificate == 4 for i in infos[1:]) and certain[-200:].all()

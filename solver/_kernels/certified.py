@@ -27,7 +27,7 @@ from .layout import (I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_TRUST, MAP_
                      STATE_HAVE_Q2, STATE_INTACT, STATE_N_CAND, STATE_N_TUBES, STATE_Q, STATE_Q2, STATE_TUBE,
                      STATE_VERIFIED, TRUST_CERTAIN, TRUST_LOST, TRUST_POSSIBLE)
 from .linalg import wrap
-from .reacquisition import cover_solution, reacquired, reacquired_anytime
+from .reacquisition import cover_solution, reacquired, reacquired_anytime, region_choice
 from .tracker_packs import STEP_DQ, STEP_QU
 from .tube import TUBE_SIZE, tube_test
 from .tube_chain import MAX_COVER, pose_bound, tube_chain
@@ -113,7 +113,7 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
                                                      model_pack, new_cands, keep, tubes, anytime, TUBE_TESTS,
                                                      share(deadline, 1.0 - REGION_SHARE))
                 else:
-                    n_tubes = reacquired(chosen, cert != CERT_NONE, state, work, poses, params, model_pack,
+                    n_tubes = reacquired(chosen, cert != CERT_NONE, state, work, poses, real, params, model_pack,
                                          new_cands, keep, tubes)
                 if n_tubes > 0:
                     n_new, cert, intact, linked = 1, CERT_REACQUIRED, True, True
@@ -133,6 +133,13 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
             mask[k + 1] = keep[k]
         chosen, _ = nearest(poses, real, out_real[OUT_X_PRED:OUT_X_PRED + 3], map_pack[MAP_WEIGHTS:MAP_WEIGHTS + 3],
                             mask, mask, mask, True)
+    if not certain and tol > 0.0 and mode != MODE_PAPER and not untrusted and \
+            int(params[PARAM_POSTURE_BITS]) >= 0:    # not a pose the robot cannot be at
+        taken = region_choice(chosen, poses, real, params, state, work[STEP_QU:STEP_QU + 3], model_pack)
+        if taken != chosen:
+            chosen, n_new, cert, intact, linked = taken, 1, CERT_NONE, False, True
+            for i in range(3):
+                new_cands[0, i] = poses[taken, i].real
     if untrusted:
         certain, intact, linked = False, False, False
     Xc = np.empty(3)

@@ -47,29 +47,58 @@ R_FAILED, R_DONE, R_PENDING = 0, 1, 2
 
 
 @njit(cache=True, inline="always")
-def reacquire_target(chosen, certified, keep, poses, params, state, qu, model_pack, Xc, region):
+def reacquire_target(chosen, certified, keep, poses, real, params, state, qu, model_pack, Xc, region):
     """The solution to re-acquire: the one the certificates kept (``certified``, ``keep`` (6,)) or else
-    ``chosen``; its pose into ``Xc`` (3,) and the region (6,) that holds the robot into ``region``.
-    Returns its index, or -1 when the region is empty or the solution is outside it or in another
-    posture (the joints and the region disagree: a sensor off by more than its tolerance)."""
+    ``chosen``; when that one is outside the region or in another posture (the choice went onto
+    another branch, or the joints and the region disagree), the one real solution (``poses`` (6, 3)
+    complex, ``real`` (6,)) inside the region in the tracker's posture, if there is exactly one.  Its
+    pose into ``Xc`` (3,) and the region (6,) that holds the robot into ``region``.  Returns its
+    index, or -1 (the region is empty, or no solution qualifies)."""
     reacquire_region(params, state, region)
     target = chosen
     if certified:                                  # the branch along the measured joints
         for k in range(6):
             if keep[k]:
                 target = k
-    for i in range(3):
-        Xc[i] = poses[target, i].real
     if not (region[0] <= region[1] and region[2] <= region[3]):
         return -1
     M, l1, l2sq, b = geometry(model_pack)
-    if elbow_bits(Xc, qu, M, l1, b) != int(params[PARAM_POSTURE_BITS]) or not in_region(Xc, region):
-        return -1
+    posture = int(params[PARAM_POSTURE_BITS])
+    for i in range(3):
+        Xc[i] = poses[target, i].real
+    if elbow_bits(Xc, qu, M, l1, b) == posture and in_region(Xc, region):
+        return target
+    target = -1                                    # the one solution the region leaves, if one
+    for k in range(6):
+        if not real[k]:
+            continue
+        for i in range(3):
+            Xc[i] = poses[k, i].real
+        if elbow_bits(Xc, qu, M, l1, b) == posture and in_region(Xc, region):
+            if target >= 0:
+                return -1
+            target = k
+    if target >= 0:
+        for i in range(3):
+            Xc[i] = poses[target, i].real
     return target
 
 
 @njit(cache=True, inline="always")
-def reacquired(chosen, certified, state, work, poses, params, model_pack, new_cands, keep, tubes, deadline=0.0):
+def region_choice(chosen, poses, real, params, state, qu, model_pack):
+    """The solution to take when nothing vouches (a choice, not a proof): ``chosen``, unless it lies
+    outside the pose box that holds the robot (:func:`.gates.reacquire_region`) or in another
+    posture; then the one real solution (``poses`` (6, 3) complex, ``real`` (6,)) inside it in the
+    tracker's posture, if there is exactly one (:func:`reacquire_target`)."""
+    Xc, region = np.empty(3), np.empty(6)
+    keep = np.zeros(6, dtype=np.bool_)
+    target = reacquire_target(chosen, False, keep, poses, real, params, state, qu, model_pack, Xc, region)
+    return chosen if target < 0 else target
+
+
+@njit(cache=True, inline="always")
+def reacquired(chosen, certified, state, work, poses, real, params, model_pack, new_cands, keep, tubes,
+               deadline=0.0):
     """Re-acquire the branch from this sample alone (the module docstring): the solution of
     :func:`reacquire_target`, over the region the robot can be in, by a cover of the reading's joint
     box (:func:`.exclusion.tube_exclusion`, the box whole, then in slabs or parts) or else an
@@ -78,7 +107,7 @@ def reacquired(chosen, certified, state, work, poses, params, model_pack, new_ca
     TUBE_SIZE) its cover; returns the number of the cover's tubes (0: not re-acquired)."""
     region, Xc = np.empty(6), np.empty(3)
     qu, tol = work[STEP_QU:STEP_QU + 3], params[PARAM_JOINT_TOL]
-    target = reacquire_target(chosen, certified, keep, poses, params, state, qu, model_pack, Xc, region)
+    target = reacquire_target(chosen, certified, keep, poses, real, params, state, qu, model_pack, Xc, region)
     if target < 0:
         return 0
     M, l1, l2sq, b = geometry(model_pack)
@@ -138,7 +167,7 @@ def reacquired_anytime(chosen, certified, state, work, poses, real, params, mode
     target = -1
     if anytime[ANY_R_ON] <= 0.0:
         Xc, region = np.empty(3), np.empty(6)
-        target = reacquire_target(chosen, certified, keep, poses, params, state, qu, model_pack, Xc, region)
+        target = reacquire_target(chosen, certified, keep, poses, real, params, state, qu, model_pack, Xc, region)
         if target < 0:
             return 0
         reacquire_begin(anytime, Xc, qu, region)
