@@ -112,8 +112,11 @@ samples:
   :mod:`._kernels.exclusion`) shows that every pose of the posture whose joints
   are within the tolerance lies in that hull (else, the same with an axis-aligned
   Krawczyk box about the chosen solution); the search covers the poses the
-  platform can have reached since the last certain step when ``speed_bound``
-  (m/s, rad/s) is given, else the tool space.  That region also steers the
+  platform can have reached when ``speed_bound`` (m/s, rad/s) is given, else the
+  tool space: the hull of a set-membership paving (:mod:`._kernels.paving`), up to
+  32 pose boxes kept from the last certain pose's bound, each uncertain step
+  growing them by the speed bound and cutting them to the poses that reach its
+  reading's joint box (``TrackerState.paving``).  That region also steers the
   choice: a solution outside it (or in another posture) cannot be the robot's, so
   when the chosen one is, the one real solution inside it in the posture is
   taken (a choice, not a proof; the speed gate leaves it alone) and is the one

@@ -25,9 +25,11 @@ from ._kernels.exclusion import HULL_FACTORS, PREIMAGE_STACK
 from ._kernels.reacquisition import REACQUIRE_COVERS
 from ._kernels.certify import CERT_CONTINUATION, CERT_REACQUIRED
 from ._kernels.layout import (F_DQ, F_INNOV, I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_STATUS, MAX_REFUSED,
-                              OUT_BOUND, OUT_CANDS, OUT_INFO, OUT_N_TUBES, OUT_REGION, OUT_TUBE, OUT_X, STATE_A_SCALE,
+                              OUT_BOUND, OUT_CANDS, OUT_INFO, OUT_N_PAVE, OUT_N_TUBES, OUT_PAVE, OUT_REGION, OUT_TUBE,
+                              OUT_X, PAVE_BOXES, STATE_A_SCALE,
                               STATE_ANCHOR, STATE_ANCHOR_AGE, STATE_ANCHOR_BOUND, STATE_CANDS, STATE_DQ_SCALE,
                               STATE_EXT_SCALE, STATE_HAVE_Q2, STATE_HISTORY, STATE_INTACT, STATE_N_CAND,
+                              STATE_N_PAVE, STATE_PAVE,
                               STATE_N_TUBES, STATE_Q, STATE_Q2, STATE_REFUSED, STATE_STEP_DT, STATE_TUBE,
                               STATE_VERIFIED, STATE_X, STATE_X2, STATUS_REJECTED, STATUS_UNREACHABLE)
 from ._kernels.tube import TUBE_SIZE
@@ -69,6 +71,18 @@ def _saved_cover(a: np.ndarray) -> np.ndarray | None:
     if not np.all(np.isfinite(cover)):
         raise TrackerError(f"state: {n} tubes expected, got non-finite values")
     return cover
+
+
+def _saved_paving(a: np.ndarray) -> np.ndarray | None:
+    """The paving of a saved state (:meth:`TrackerState.as_array`), None when it has none."""
+    n = a[_N_PAVE]
+    if n == 0:
+        return None
+    paving = a[_PAVE:_PAVE + 6 * int(n)].reshape(-1, 6).copy() if n == int(n) and 1 <= n <= PAVE_BOXES else None
+    if paving is None or not np.all(np.isfinite(paving)) or np.any(paving[:, 0::2] > paving[:, 1::2]):
+        raise TrackerError(f"state: a paving of 1 to {PAVE_BOXES} pose boxes (lo <= hi) expected, got {n} boxes "
+                           f"{np.array2string(a[_PAVE:_PAVE + 12], threshold=12)}...")
+    return paving
 
 
 def _saved_walk(a: np.ndarray, state) -> np.ndarray | None:
@@ -161,7 +175,7 @@ class TrackerState:
     anchor : ndarray, shape (3,) or None
         The centre of a pose box known to hold the robot (m, m, rad): the pose of the last certain
         step or, with a speed bound and joint tolerance, the box of the last uncertain step's
-        set-membership update (:func:`solver._kernels.certified.region_step`); None before the first.
+        set-membership update (:func:`solver._kernels.paving.region_step`); None before the first.
     anchor_age : float
         Seconds since that step (NaN when the caller gives no time steps).
     skipped : int
@@ -183,6 +197,10 @@ class TrackerState:
         pose, ``S``, centre joints, kappa, rho, its joint set; 1 <= n <= 27) that holds the
         robot's pose for every joint vector within the tolerance of ``q``; the next step's tube
         chain starts from it.  None when not certain.
+    paving : ndarray, shape (n, 6) or None
+        With a speed bound, while not certain: the set-membership step's pose boxes (x, y, phi
+        lo/hi; 1 <= n <= PAVE_BOXES, :mod:`solver._kernels.paving`) whose hull is the box about
+        ``anchor``; they hold the robot ``anchor_age`` ago.  None: the box about ``anchor`` alone.
     walk : ndarray, shape (k,) or None
         With a step budget, while the tube chain is unfinished: the walk the next step goes on
         with (the leading floats of :mod:`solver._kernels.anytime`'s pack: its tubes, where it
@@ -212,6 +230,7 @@ class TrackerState:
     tube: np.ndarray | None = None
     anchor_bound: np.ndarray = field(default_factory=lambda: NO_BOUND)
     walk: np.ndarray | None = None
+    paving: np.ndarray | None = None
 
     @property
     def history(self) -> int:
@@ -269,6 +288,10 @@ class TrackerState:
         else:
             pk[STATE_ANCHOR:STATE_ANCHOR + 3], pk[STATE_ANCHOR_AGE] = self.anchor, self._anchor_age(dt)
         pk[STATE_ANCHOR_BOUND:STATE_ANCHOR_BOUND + 3] = self.anchor_bound
+        n = 0 if self.paving is None else len(self.paving)
+        pk[STATE_N_PAVE] = n
+        if n:
+            pk[STATE_PAVE:STATE_PAVE + 6 * n] = self.paving.ravel()
 
     def _anchor_age(self, dt: float | None) -> float:
         """Seconds from the last certain step to a sample ``dt`` after the last one read (NaN: unknown)."""
@@ -314,9 +337,11 @@ class TrackerState:
         # the last certain pose bounds where the robot is (its proven bound plus the speed bound times
         # the time since), whatever the sensor did since: also after refusals (the joints jumped and stayed)
         anchor, age, anchor_bound = self.anchor, self._anchor_age(dt), self.anchor_bound
-        region = out_real[OUT_REGION:OUT_REGION + 6]
-        if not certain and np.all(np.isfinite(region)):    # the set-membership step's box holds the robot now
+        region, paving = out_real[OUT_REGION:OUT_REGION + 6], self.paving
+        if not certain and np.all(np.isfinite(region)):    # the set-membership step's paving holds the robot now
             anchor, anchor_bound, age = 0.5 * (region[0::2] + region[1::2]), 0.5 * (region[1::2] - region[0::2]), 0.0
+            n = int(out_real[OUT_N_PAVE])
+            paving = out_real[OUT_PAVE:OUT_PAVE + 6 * n].reshape(n, 6).copy() if 1 <= n <= PAVE_BOXES else None
         return TrackerState(X, q.copy(), self.X, scale, self.steps + 1,
                             float("nan") if dt is None else float(dt) * (self.skipped + 1), self.q, cands,
                             i[I_CERTIFICATE] in (CERT_CONTINUATION, CERT_REACQUIRED), self.since(certain),
@@ -325,7 +350,8 @@ class TrackerState:
                             X if certain else anchor, 0.0 if certain else age, **extra,
                             tube=_cover(out_real) if certain else None,
                             anchor_bound=out_real[OUT_BOUND:OUT_BOUND + 3].copy() if certain else
-                            (NO_BOUND if anchor is None else anchor_bound), walk=None if certain else walk)
+                            (NO_BOUND if anchor is None else anchor_bound), walk=None if certain else walk,
+                            paving=None if certain else paving)
 
     def as_array(self) -> np.ndarray:
         """The state as :data:`STATE_FLOATS` floats (see :data:`_SAVED_FIELDS`): what an FMU serialises."""
@@ -350,6 +376,9 @@ class TrackerState:
         if self.tube is not None:
             a[_TUBE:_TUBE + self.tube.size] = self.tube.ravel()
         a[_ANCHOR_BOUND:_ANCHOR_BOUND + 3] = self.anchor_bound
+        a[_N_PAVE] = 0.0 if self.paving is None else len(self.paving)
+        if self.paving is not None:
+            a[_PAVE:_PAVE + self.paving.size] = self.paving.ravel()
         if self.clean is not None:
             a[_BASE:2 * _BASE] = self.clean.as_array()[:_BASE]
         if self.walk is not None:
@@ -386,7 +415,7 @@ class TrackerState:
                    int(a[_SKIPPED]), None if np.any(np.isnan(a[_READING:_READING + 3])) else a[_READING:_READING + 3].copy(),
                    a[_REPEATS:_REPEATS + 3].astype(np.int64), None, int(a[_CLEAN_LAG]),
                    _saved_cover(a),
-                   a[_ANCHOR_BOUND:_ANCHOR_BOUND + 3].copy())
+                   a[_ANCHOR_BOUND:_ANCHOR_BOUND + 3].copy(), paving=_saved_paving(a))
 
 
 #: Fields of TrackerState.as_array: X, q, X2 (NaN after a reset), dq_scale, steps, dt, q2 (NaN after a
@@ -401,8 +430,10 @@ _READING, _REPEATS, _CLEAN_LAG = _SKIPPED + 1, _SKIPPED + 4, _SKIPPED + 7
 _N_TUBES = _CLEAN_LAG + 1
 _TUBE = _N_TUBES + 1
 _ANCHOR_BOUND = _TUBE + MAX_COVER * TUBE_SIZE
-_BASE = _ANCHOR_BOUND + 3
+_N_PAVE = _ANCHOR_BOUND + 3
+_PAVE = _N_PAVE + 1
+_BASE = _PAVE + 6 * PAVE_BOXES
 _WALK = 2 * _BASE
 STATE_FLOATS = _WALK + ANY_SIZE
 _FINITE = [*range(_X, _X + 3), *range(_Q, _Q + 3), _DQ_SCALE, _STEPS, _N_CAND, _VERIFIED, _SINCE, _INTACT, _A_SCALE,
-           _REFUSED, _SKIPPED, *range(_REPEATS, _REPEATS + 3), _CLEAN_LAG]
+           _REFUSED, _SKIPPED, *range(_REPEATS, _REPEATS + 3), _CLEAN_LAG, _N_PAVE]

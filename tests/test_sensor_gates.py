@@ -173,3 +173,79 @@ def test_the_region_steers_the_choice_back_and_reacquires_its_solution(model, ha
     assert wrong.sum() <= ((pose_distance(Xn, truth) > 1e-6) & counted).sum()
     assert not (wrong & certain).any()
     assert any(i.certificate == 4 for i in infos[1:]) and certain[-200:].all()
+
+
+def _in_paving(X, paving):
+    """The pose ``X`` (3,) lies in one of the boxes (n, 6) (phi compared modulo 2 pi)."""
+    for box in paving:
+        phi = box[4] + np.mod(X[2] - box[4], 2 * np.pi)
+        if box[0] <= X[0] <= box[1] and box[2] <= X[1] <= box[3] and phi <= box[5]:
+            return True
+    return False
+
+
+def test_the_paving_holds_every_consistent_pose_and_is_thinner_than_its_hull(model, hard):
+    """Where p1-ellipse-20mm passes near a fold, the poses reaching a joint box form a thin curved
+    needle: the paving (solver._kernels.paving) holds the DK solutions of joints anywhere in the box
+    (and the pose itself), while its boxes fill a small part of their hull, the one box the tracker
+    kept before (why that set-membership step could not shrink along the needle)."""
+    from solver import dk_all, posture_of
+    from solver._kernels.layout import PAVE_BOXES
+    from solver._kernels.paving import preimage_paving
+    M, l1, l2sq, b = geometry(kernel_constants(model)["pack"])
+    p = hard["p1-ellipse-20mm/1000"]
+    X, q, eps = p.X[460], p.q[460], 3.5e-4
+    root = np.ravel(np.column_stack([X - (0.03, 0.03, 0.15), X + (0.03, 0.03, 0.15)]))[None, :]
+    pave = np.empty((PAVE_BOXES, 6))
+    n = preimage_paving(q, eps, 0, root, 1, np.array([5e-4, 1.4e-4]), 10 ** 6, M, l1, l2sq, b, pave)
+    assert 1 <= n <= PAVE_BOXES
+    paving = pave[:n]
+    assert _in_paving(X, paving)
+    inside = 0
+    for dq in np.random.default_rng(5).uniform(-eps, eps, (300, 3)):
+        for Y in dk_all(model, q + dq).real_poses():
+            if _in_paving(Y, root) and posture_of(model, Y, q + dq) == 1:
+                assert _in_paving(Y, paving)
+                inside += 1
+    assert inside >= 300
+    hull = np.ravel(np.column_stack([paving[:, 0::2].min(0), paving[:, 1::2].max(0)]))
+    assert hull[5] - hull[4] > 0.02                               # a long needle
+    volume = np.prod(paving[:, 1::2] - paving[:, 0::2], axis=1).sum()
+    assert volume < 0.2 * np.prod(hull[1::2] - hull[0::2])
+
+
+def test_the_tracker_s_paving_holds_the_robot_and_survives_a_save(model, hard):
+    """On a noisy stream across folds (p1-ellipse-20mm, noise spread over the whole tolerance) the
+    uncertain steps keep a paving of the poses the robot can be in: the robot's pose is in it at
+    every such step (the soundness the re-acquisition's region rests on; the sensor keeps its
+    tolerance and the robot its speed bound), and a saved state carries it; a corrupt one is
+    refused by name."""
+    from solver import TrackerState
+    from solver.tracker_state import TrackerError
+    p = hard["p1-ellipse-20mm/1000"]
+    tol = 3.5e-4
+    q = p.q + np.random.default_rng(11).uniform(-0.98 * tol, 0.98 * tol, p.q.shape)
+    q[0] = p.q[0]
+    upto = len(q)
+    tr = Tracker(model, coarse_map(model, 1), joint_tolerance=tol, speed_bound=(3.76, 1.10), stuck_after=0)
+    tr.reset(p.X[0], q[0])
+    checked, saved = 0, None
+    for k in range(1, upto):
+        _, info = tr.step(q[k], 1e-3)
+        paving = tr.state.paving
+        if paving is not None and tr.state.anchor_age == 0.0 and info.status == 0:   # this reading's paving
+            assert _in_paving(p.X[k], paving), k
+            checked += 1
+            saved = saved if saved is not None else tr.state.as_array()
+    assert checked >= 50
+    back = TrackerState.from_array(saved)
+    assert back.paving is not None and np.array_equal(back.as_array(), saved, equal_nan=True)
+    from solver.tracker_state import _N_PAVE, _PAVE
+    bad = saved.copy()
+    bad[_PAVE], bad[_PAVE + 1] = 1.0, 0.0                     # a box with lo > hi
+    with pytest.raises(TrackerError, match="paving"):
+        TrackerState.from_array(bad)
+    bad = saved.copy()
+    bad[_N_PAVE] = 99.0
+    with pytest.raises(TrackerError, match="paving"):
+        TrackerState.from_array(bad)

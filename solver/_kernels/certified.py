@@ -18,15 +18,14 @@ from .candidates import certify
 from .certify import CERT_CONTINUATION, CERT_NONE, CERT_REACQUIRED, CERT_TUBE, FOLLOW_CUT, FOLLOW_DONE, same_pose
 from .choice import nearest
 from .clock import cycles, expired
-from .exclusion import preimage_hull
-from .gates import reacquire_region
 from .kinematics import geometry
 from .layout import (I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_TRUST, MAP_WEIGHTS, MODE_PAPER, OUT_BOUND,
-                     OUT_CANDS, OUT_N_TUBES, OUT_REGION, OUT_TUBE, OUT_X_PRED, PARAM_JOINT_TOL, PARAM_MAX_TESTS,
-                     PARAM_POSTURE_BITS, PARAM_REACQUIRE, PARAM_SPEED, STATE_ANCHOR_AGE, STATE_CANDS, STATE_EXT_SCALE,
+                     OUT_CANDS, OUT_N_PAVE, OUT_N_TUBES, OUT_REGION, OUT_TUBE, OUT_X_PRED, PARAM_JOINT_TOL,
+                     PARAM_MAX_TESTS, PARAM_POSTURE_BITS, PARAM_REACQUIRE, PAVE_BOXES, STATE_CANDS, STATE_EXT_SCALE,
                      STATE_HAVE_Q2, STATE_INTACT, STATE_N_CAND, STATE_N_TUBES, STATE_Q, STATE_Q2, STATE_TUBE,
                      STATE_VERIFIED, TRUST_CERTAIN, TRUST_LOST, TRUST_POSSIBLE)
 from .linalg import wrap
+from .paving import region_step
 from .reacquisition import cover_solution, reacquired, reacquired_anytime, region_choice
 from .tracker_packs import STEP_DQ, STEP_QU
 from .tube import TUBE_SIZE, tube_test
@@ -157,9 +156,10 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
             for r in range(3):
                 bound[r] = np.inf
     out_real[OUT_N_TUBES] = n_tubes if certain else 0
-    out_real[OUT_REGION:OUT_REGION + 6] = np.nan
+    out_real[OUT_REGION:OUT_REGION + 6], out_real[OUT_N_PAVE] = np.nan, 0.0
     if not certain and tol > 0.0 and not untrusted:
-        region_step(state, qu, params, model_pack, out_real[OUT_REGION:OUT_REGION + 6], deadline)
+        region_step(state, qu, params, model_pack, out_real[OUT_REGION:OUT_REGION + 6],
+                    out_real[OUT_N_PAVE:OUT_N_PAVE + 1 + 6 * PAVE_BOXES], deadline)
     if certain or n_tubes > 0:
         anytime[ANY_N] = 0.0                   # certain (or re-acquired): no walk, continuation or
         anytime[ANY_K_ON] = 0.0                # re-acquisition left
@@ -250,33 +250,6 @@ def anytime_chains(untrusted, state, work, poses, real, params, model_pack, new_
 @njit(cache=True, inline="always")
 def tol_of(params):
     return params[PARAM_JOINT_TOL]
-
-
-#: The set-membership step keeps pose boxes this fraction of the speed bound's reach per step.
-REGION_RESOLUTION = 0.5
-
-
-@njit(cache=True)
-def region_step(state, qu, params, model_pack, out, deadline=0.0):
-    """An uncertain step with a speed bound: the pose box (6,) into ``out`` that holds the robot now,
-    from the box that held it (the last certain pose's bound, or the last uncertain step's box,
-    grown by the speed bound times the time since: :func:`.gates.reacquire_region`) and the
-    joints within the tolerance of the reading ``qu`` (:func:`.exclusion.preimage_hull`).  Left
-    NaN without a speed bound, or when the branch and bound ran out or kept nothing (a reading
-    off by more than its tolerance): the region then keeps growing from the last box."""
-    age = state[STATE_ANCHOR_AGE]
-    if not (params[PARAM_SPEED] > 0.0 and age > 0.0 and int(params[PARAM_POSTURE_BITS]) >= 0):
-        return
-    region, res, hull = np.empty(6), np.empty(2), np.empty(6)
-    reacquire_region(params, state, region)
-    if not (region[0] <= region[1] and region[2] <= region[3]):
-        return
-    res[0] = max(REGION_RESOLUTION * params[PARAM_SPEED] * age, 1e-7)
-    res[1] = max(REGION_RESOLUTION * params[PARAM_SPEED + 1] * age, 1e-7)
-    M, l1, l2sq, b = geometry(model_pack)
-    if preimage_hull(qu, params[PARAM_JOINT_TOL], int(params[PARAM_POSTURE_BITS]), region, res,
-                     int(params[PARAM_REACQUIRE]), M, l1, l2sq, b, hull, deadline) > 0:
-        out[:] = hull
 
 
 @njit(cache=True, inline="always")

@@ -208,43 +208,6 @@ def preimage_on(c, rho, q, eps, posture_bits, M, l1, l2sq, b, max_boxes, deadlin
 
 
 @njit(cache=True)
-def preimage_hull(q, eps, posture_bits, root, res, max_boxes, M, l1, l2sq, b, out, deadline=0.0):
-    """A pose box ``out`` (6,: x, y, phi lo/hi) holding every pose of the region ``root`` (6,) with
-    inverse kinematics (posture ``posture_bits + 1``) in ``q +- eps`` (a set-membership step).
-
-    A branch and bound that drops the boxes no joint vector of ``q +- eps`` reaches (a leg
-    misses) and keeps those narrower than ``res`` (2,: m, rad); ``out`` is the hull of the kept
-    boxes.  Returns the number of boxes examined, 0 when none is kept (no pose of the region
-    reaches the joints: a sensor off by more than ``eps``), minus it when ``max_boxes`` or the time
-    to the ``deadline`` ran out.
-    """
-    stack = np.empty((64, 6))
-    stack[0, :] = root
-    top = 1
-    seen, kept = 0, 0
-    for k in range(3):
-        out[2 * k], out[2 * k + 1] = np.inf, -np.inf
-    while top > 0:
-        top -= 1
-        box = stack[top].copy()
-        seen += 1
-        if seen > max_boxes or expired(deadline):
-            return -seen
-        if posture_misses(box, q, eps, posture_bits, M, l1, l2sq, b):
-            continue
-        wx, wy, wp = box[1] - box[0], box[3] - box[2], box[5] - box[4]
-        if (wx <= res[0] and wy <= res[0] and wp <= res[1]) or top + 2 > 64:
-            kept += 1
-            for k in range(3):
-                out[2 * k], out[2 * k + 1] = min(out[2 * k], box[2 * k]), max(out[2 * k + 1], box[2 * k + 1])
-            continue
-        nx, ny, nphi = wx / res[0], wy / res[0], wp / res[1]
-        k = 0 if nx >= ny and nx >= nphi else (2 if ny >= nphi else 4)
-        top = bisect(stack, top, box, k)
-    return seen if kept > 0 else 0
-
-
-@njit(cache=True)
 def reacquire(X, q, eps, posture_bits, region, max_boxes, model_pack, box, deadline=0.0):
     """The proof of the module docstring for the solution ``X`` (3,) of the measured joints ``q`` (3,).
 

@@ -50,7 +50,11 @@ STATE_STEP_DT = 43        # seconds from the last accepted sample to this one (N
 STATE_ANCHOR_BOUND = 44   # (3,) the pose bound at STATE_ANCHOR (m, m, rad; inf: none, e.g. an unproved start)
 STATE_N_TUBES = 47        # tubes in STATE_TUBE; > 0: the last step was certain and they hold the robot's pose
 STATE_TUBE = 48           # (27, 36) the last step's cover (:mod:`.tube`: MAX_COVER tubes of TUBE_SIZE)
-STATE_SIZE = 48 + 27 * 36
+#: Boxes of the set-membership paving (:mod:`.paving`): the pose set the robot is in, box by box.
+PAVE_BOXES = 32
+STATE_N_PAVE = 48 + 27 * 36  # boxes in STATE_PAVE (0: the box about STATE_ANCHOR alone)
+STATE_PAVE = STATE_N_PAVE + 1  # (PAVE_BOXES, 6) pose boxes (x, y, phi lo/hi) holding the robot at STATE_ANCHOR_AGE ago
+STATE_SIZE = STATE_PAVE + 6 * PAVE_BOXES
 
 # ----------------------------------------------------------------------------- map pack
 # The grid of a map tensor and the procedure-2 neighbourhood (eq. 18-19).
@@ -95,7 +99,9 @@ OUT_BOUND = 30            # (3,) the pose bound's half-widths (m, m, rad); inf w
 OUT_N_TUBES = 33          # tubes in OUT_TUBE (when certain)
 OUT_TUBE = 34             # (27, 36) the step's cover (:mod:`.tube`) when certain
 OUT_REGION = 34 + 27 * 36  # (6,) when not certain: a pose box holding the robot (x, y, phi lo/hi), NaN when none
-OUT_SIZE = OUT_REGION + 6
+OUT_N_PAVE = OUT_REGION + 6  # boxes in OUT_PAVE (0 when OUT_REGION is NaN)
+OUT_PAVE = OUT_N_PAVE + 1    # (PAVE_BOXES, 6) when not certain: the paving whose hull is OUT_REGION
+OUT_SIZE = OUT_PAVE + 6 * PAVE_BOXES
 # float info fields (offsets inside OUT_INFO)
 F_D_BEST, F_D_SECOND, F_COND_PREV, F_COND, F_DQ, F_INNOV = 0, 1, 2, 3, 4, 5
 INFO_F_SIZE = 6
