@@ -340,8 +340,8 @@ class TrackerState:
         region, paving = out_real[OUT_REGION:OUT_REGION + 6], self.paving
         if not certain and np.all(np.isfinite(region)):    # the set-membership step's paving holds the robot now
             anchor, anchor_bound, age = 0.5 * (region[0::2] + region[1::2]), 0.5 * (region[1::2] - region[0::2]), 0.0
-            n = int(out_real[OUT_N_PAVE])
-            paving = out_real[OUT_PAVE:OUT_PAVE + 6 * n].reshape(n, 6).copy() if 1 <= n <= PAVE_BOXES else None
+            n = out_real[OUT_N_PAVE]
+            paving = out_real[OUT_PAVE:OUT_PAVE + 6 * int(n)].reshape(-1, 6).copy() if 1 <= n <= PAVE_BOXES else None
         return TrackerState(X, q.copy(), self.X, scale, self.steps + 1,
                             float("nan") if dt is None else float(dt) * (self.skipped + 1), self.q, cands,
                             i[I_CERTIFICATE] in (CERT_CONTINUATION, CERT_REACQUIRED), self.since(certain),

@@ -13,8 +13,8 @@ import time
 
 import numpy as np
 
-from ._kernels.layout import (I_CERTAIN, INFO_I_SIZE, OUT_N_TUBES, OUT_SIZE, OUT_X, STATE_SIZE, STATUS_REJECTED,
-                              TRUST_CERTAIN, TRUST_LOST)
+from ._kernels.layout import (I_CERTAIN, INFO_I_SIZE, OUT_N_PAVE, OUT_N_TUBES, OUT_REGION, OUT_SIZE, OUT_X, STATE_SIZE,
+                              STATUS_REJECTED, TRUST_CERTAIN, TRUST_LOST)
 from ._kernels.clock import deadline_after
 from .checks import SolverInputError, as_array
 from .direct_kinematics import kernel_constants
@@ -53,7 +53,9 @@ class _TrackerBase:
         self.state: TrackerState | None = None
         self._state_pack = np.empty(STATE_SIZE)
         self._out_real = np.empty(OUT_SIZE)
-        self._out_real[OUT_N_TUBES] = 0.0                  # a baseline's step leaves no cover of tubes
+        self._out_real[OUT_N_TUBES] = 0.0                  # a baseline's step leaves no cover of tubes,
+        self._out_real[OUT_REGION:OUT_N_PAVE + 1] = np.nan  # no set-membership paving
+        self._out_real[OUT_N_PAVE] = 0.0
         self._out_int = np.empty(INFO_I_SIZE, dtype=np.int64)
         #: seconds one step may take (None: no budget); only the tracker has anytime proofs
         self.step_budget: float | None = None
