@@ -79,9 +79,11 @@ def _saved_paving(a: np.ndarray) -> np.ndarray | None:
     if n == 0:
         return None
     paving = a[_PAVE:_PAVE + 6 * int(n)].reshape(-1, 6).copy() if n == int(n) and 1 <= n <= PAVE_BOXES else None
-    if paving is None or not np.all(np.isfinite(paving)) or np.any(paving[:, 0::2] > paving[:, 1::2]):
-        raise TrackerError(f"state: a paving of 1 to {PAVE_BOXES} pose boxes (lo <= hi) expected, got {n} boxes "
-                           f"{np.array2string(a[_PAVE:_PAVE + 12], threshold=12)}...")
+    if paving is None or not np.all(np.isfinite(paving)) or np.any(paving[:, 0::2] > paving[:, 1::2]) \
+            or a[_SINCE] < 0 or np.any(np.isnan(a[_ANCHOR:_ANCHOR + 3])):
+        raise TrackerError(f"state: a paving of 1 to {PAVE_BOXES} pose boxes (lo <= hi) of an uncertain state with "
+                           f"an anchor expected, got {n:g} boxes "
+                           f"{np.array2string(a[_PAVE:_PAVE + 12], threshold=12)}... (uncertain_since {a[_SINCE]:g})")
     return paving
 
 
@@ -354,7 +356,12 @@ class TrackerState:
                             paving=None if certain else paving)
 
     def as_array(self) -> np.ndarray:
-        """The state as :data:`STATE_FLOATS` floats (see :data:`_SAVED_FIELDS`): what an FMU serialises."""
+        """The state as :data:`STATE_FLOATS` floats (the fields are listed above ``_X`` at the end of this
+        module): what an FMU serialises."""
+        if self.paving is not None and not (self.paving.ndim == 2 and 1 <= len(self.paving) <= PAVE_BOXES
+                                            and self.paving.shape[1] == 6):
+            raise TrackerError(f"paving: expected (n, 6) pose boxes with 1 <= n <= {PAVE_BOXES}, got shape "
+                               f"{self.paving.shape}")
         a = np.full(STATE_FLOATS, np.nan)
         a[_X:_X + 3], a[_Q:_Q + 3] = self.X, self.q
         if self.X2 is not None:
@@ -421,7 +428,8 @@ class TrackerState:
 #: Fields of TrackerState.as_array: X, q, X2 (NaN after a reset), dq_scale, steps, dt, q2 (NaN after a
 #: reset), number of candidates, verified, uncertain_since, candidates (6 x 3, NaN past the number), intact,
 #: a_scale, refused, anchor (NaN before the first certain step), anchor_age, skipped, reading (NaN before the
-#: first), repeats, clean_lag, the number of tubes and the cover (NaN past them), the anchor's bound; then the
+#: first), repeats, clean_lag, the number of tubes and the cover (NaN past them), the anchor's bound, the number
+#: of paving boxes and the boxes (NaN past them); then the
 #: clean state's first _BASE floats (NaN when there is none); then the walk (NaN when there is none).
 _X, _Q, _X2, _DQ_SCALE, _STEPS, _DT, _Q2, _N_CAND, _VERIFIED, _SINCE, _CANDS = 0, 3, 6, 9, 10, 11, 12, 15, 16, 17, 18
 _INTACT, _A_SCALE, _REFUSED, _ANCHOR, _AGE = _CANDS + 18, _CANDS + 19, _CANDS + 20, _CANDS + 21, _CANDS + 24

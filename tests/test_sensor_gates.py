@@ -212,6 +212,12 @@ def test_the_paving_holds_every_consistent_pose_and_is_thinner_than_its_hull(mod
     assert hull[5] - hull[4] > 0.02                               # a long needle
     volume = np.prod(paving[:, 1::2] - paving[:, 0::2], axis=1).sum()
     assert volume < 0.2 * np.prod(hull[1::2] - hull[0::2])
+    # two roots with a gap in phi: the poses of the gap are the robot's for no root, and no box is kept there
+    lo, hi = root[0].copy(), root[0].copy()
+    lo[5], hi[4] = X[2] - 0.015, X[2] + 0.015                  # wider than a slice of the paving
+    n = preimage_paving(q, eps, 0, np.array([lo, hi]), 2, np.array([5e-4, 1.4e-4]), 10 ** 6, M, l1, l2sq, b, pave)
+    assert n >= 2 and not _in_paving(X, pave[:n])
+    assert np.all((pave[:n, 5] <= lo[5] + 1.4e-4) | (pave[:n, 4] >= hi[4] - 1.4e-4))
 
 
 def test_the_tracker_s_paving_holds_the_robot_and_survives_a_save(model, hard):
@@ -240,12 +246,16 @@ def test_the_tracker_s_paving_holds_the_robot_and_survives_a_save(model, hard):
     assert checked >= 50
     back = TrackerState.from_array(saved)
     assert back.paving is not None and np.array_equal(back.as_array(), saved, equal_nan=True)
-    from solver.tracker_state import _N_PAVE, _PAVE
+    from solver.tracker_state import _N_PAVE, _PAVE, _SINCE
     bad = saved.copy()
     bad[_PAVE], bad[_PAVE + 1] = 1.0, 0.0                     # a box with lo > hi
     with pytest.raises(TrackerError, match="paving"):
         TrackerState.from_array(bad)
     bad = saved.copy()
     bad[_N_PAVE] = 99.0
+    with pytest.raises(TrackerError, match="paving"):
+        TrackerState.from_array(bad)
+    bad = saved.copy()
+    bad[_SINCE] = -1.0                                        # a paving beside a certain state
     with pytest.raises(TrackerError, match="paving"):
         TrackerState.from_array(bad)
