@@ -85,29 +85,41 @@ def repeat_counts(state: TrackerState, q: np.ndarray) -> np.ndarray:
     return np.where(same, state.repeats + 1, 0)
 
 
-def stuck_refusal(state: TrackerState, q: np.ndarray, repeats: np.ndarray, stuck_after: int) -> TrackerState | None:
-    """The state after refusing ``q`` as a stuck reading, or None when no joint is stuck.
+def _later(seconds: float, dt: float | None) -> float:
+    """``seconds`` plus a sample's ``dt`` (NaN when the sample came without one)."""
+    return seconds + dt if dt is not None else float("nan")
+
+
+def stuck_refusal(state: TrackerState, q: np.ndarray, repeats: np.ndarray, stuck_after: int,
+                  dt: float | None = None) -> TrackerState | None:
+    """The state after refusing ``q``, read ``dt`` seconds after the last reading (None: unknown), as
+    a stuck reading, or None when no joint is stuck.
 
     The state is the clean one (before the first repeated reading), with the samples since
-    counted as skipped, so that the next accepted sample is one step over the whole time.
+    counted as skipped (and their seconds), so that the next accepted sample is one step over the
+    whole time.
     """
     if stuck_after <= 0 or repeats is _NO_REPEATS or int(repeats.max()) < stuck_after - 1:
         return None
     base = state.clean if state.clean is not None else state
     lag = state.clean_lag + 1 if state.clean is not None else 1
-    return replace(base, skipped=base.skipped + lag, reading=q.copy(), repeats=repeats, clean=base, clean_lag=lag)
+    lag_s = _later(state.clean_time if state.clean is not None else 0.0, dt)
+    return replace(base, skipped=base.skipped + lag, skipped_time=base.skipped_time + lag_s, reading=q.copy(),
+                   repeats=repeats, clean=base, clean_lag=lag, clean_time=lag_s)
 
 
-def reading_fields(before: TrackerState, q: np.ndarray, repeats: np.ndarray) -> dict:
-    """The detector's fields of the state a step makes from ``before`` on reading ``q``
-    (``reading``, ``repeats``, ``clean``, ``clean_lag``: :class:`TrackerState`)."""
+def reading_fields(before: TrackerState, q: np.ndarray, repeats: np.ndarray, dt: float | None = None) -> dict:
+    """The detector's fields of the state a step makes from ``before`` on reading ``q``, ``dt`` seconds
+    after the last reading (``reading``, ``repeats``, ``clean``, ``clean_lag``, ``clean_time``:
+    :class:`TrackerState`)."""
     if repeats is _NO_REPEATS:
-        return {"reading": q.copy(), "repeats": repeats, "clean": None, "clean_lag": 0}
+        return {"reading": q.copy(), "repeats": repeats, "clean": None, "clean_lag": 0, "clean_time": 0.0}
     if before.clean is None or int(repeats.max()) == 1:
         # a run starts here (and every run still going started here): clean is the state before it.
         # A run that started earlier while another one ended keeps the older clean (a rollback then
         # goes a sample or two further back than needed)
         # (without the walk of an unfinished proof: a saved state's clean has none either)
         return {"reading": q.copy(), "repeats": repeats, "clean": replace(before, clean=None, walk=None),
-                "clean_lag": 1}
-    return {"reading": q.copy(), "repeats": repeats, "clean": before.clean, "clean_lag": before.clean_lag + 1}
+                "clean_lag": 1, "clean_time": _later(0.0, dt)}
+    return {"reading": q.copy(), "repeats": repeats, "clean": before.clean, "clean_lag": before.clean_lag + 1,
+            "clean_time": _later(before.clean_time, dt)}

@@ -87,6 +87,14 @@ def _saved_paving(a: np.ndarray) -> np.ndarray | None:
     return paving
 
 
+def _saved_seconds(a: np.ndarray, i: int, name: str) -> float:
+    """A saved span of time (s): >= 0, or NaN (unknown); :class:`TrackerError` otherwise."""
+    v = float(a[i])
+    if not (np.isnan(v) or (np.isfinite(v) and v >= 0.0)):
+        raise TrackerError(f"state: {name} expected seconds >= 0 or NaN (unknown), got {v!r}")
+    return v
+
+
 def _saved_walk(a: np.ndarray, state) -> np.ndarray | None:
     """The walk of a saved state (the floats after its clean state), checked: None when there is none;
     :class:`TrackerError` when it is not one the tracker can have left at ``state.q`` (a corrupt state
@@ -181,7 +189,10 @@ class TrackerState:
     anchor_age : float
         Seconds since that step (NaN when the caller gives no time steps).
     skipped : int
-        Samples since the last accepted one (refused or held), for the time between samples.
+        Samples since the last accepted one (refused or held).
+    skipped_time : float
+        Seconds those samples spanned (the sum of their ``dt``; NaN when one came without): the next
+        accepted sample is ``skipped_time + dt`` after the last accepted one, however uneven the steps.
     reading : ndarray, shape (3,) or None
         The last joints read (accepted or not), rad; for the stuck-joint detector.
     repeats : ndarray of int, shape (3,)
@@ -191,6 +202,8 @@ class TrackerState:
         detector rolls back to it; :mod:`solver.stuck`).
     clean_lag : int
         Samples read since ``clean`` was taken.
+    clean_time : float
+        Seconds those samples spanned (NaN when one came without ``dt``).
     anchor_bound : ndarray, shape (3,)
         The half-widths of that box about ``anchor`` (m, m, rad; inf when none): with the speed
         bound, where the robot can be since.
@@ -233,6 +246,8 @@ class TrackerState:
     anchor_bound: np.ndarray = field(default_factory=lambda: NO_BOUND)
     walk: np.ndarray | None = None
     paving: np.ndarray | None = None
+    skipped_time: float = 0.0
+    clean_time: float = 0.0
 
     @property
     def history(self) -> int:
@@ -258,16 +273,17 @@ class TrackerState:
             the speed gate on.
         """
         gap = self.skipped + 1                               # samples since the last accepted one
+        gap_s = self._gap(dt)                                # and the seconds they span (NaN: unknown)
         pk[STATE_X:STATE_X + 3], pk[STATE_Q:STATE_Q + 3] = self.X, self.q
         pk[STATE_X2:STATE_X2 + 3] = self.X if self.X2 is None else self.X2
         pk[STATE_HISTORY], pk[STATE_DQ_SCALE] = self.history, self.dq_scale
-        pk[STATE_EXT_SCALE] = (dt / self.dt if dt is not None and np.isfinite(self.dt) else 1.0) * gap
+        pk[STATE_EXT_SCALE] = gap_s / self.dt if np.isfinite(gap_s) and np.isfinite(self.dt) else float(gap)
         # the speed gate (measured joints): not after the sensor broke its tolerance (a forced sample)
         # nor after MAX_HELD samples held in a row (the robot moved on: follow the joints again)
         # (samples refused as a stuck joint's are known not to be the robot's: the gate stays on)
         stuck = stuck_after > 0 and self.clean is not None and int(self.repeats.max()) >= stuck_after - 1
         gate_on = dt is not None and self.refused < MAX_REFUSED and (self.skipped < MAX_HELD or stuck)
-        pk[STATE_STEP_DT] = dt * gap if gate_on else float("nan")
+        pk[STATE_STEP_DT] = gap_s if gate_on else float("nan")
         if self.q2 is None:
             pk[STATE_HAVE_Q2] = 0.0
         else:
@@ -295,9 +311,18 @@ class TrackerState:
         if n:
             pk[STATE_PAVE:STATE_PAVE + 6 * n] = self.paving.ravel()
 
+    def _gap(self, dt: float | None) -> float:
+        """Seconds from the last accepted sample to one ``dt`` after the last one read (NaN: unknown)."""
+        return self.skipped_time + dt if dt is not None else float("nan")
+
     def _anchor_age(self, dt: float | None) -> float:
-        """Seconds from the last certain step to a sample ``dt`` after the last one read (NaN: unknown)."""
-        return self.anchor_age + dt * (self.skipped + 1) if dt is not None else float("nan")
+        """Seconds from the anchor's step to a sample ``dt`` after the last one read (NaN: unknown)."""
+        return self.anchor_age + self._gap(dt)
+
+    def skip(self, dt: float | None, **fields) -> "TrackerState":
+        """This state after a sample ``dt`` seconds on that it refused or held: one more skipped sample
+        (and ``fields`` replaced)."""
+        return replace(self, skipped=self.skipped + 1, skipped_time=self._gap(dt), **fields)
 
     def since(self, certain: bool) -> int:
         """``uncertain_since`` of the next step, reported ``certain`` or not."""
@@ -327,9 +352,9 @@ class TrackerState:
         i = out_int.tolist()
         status = i[I_STATUS]
         if status == STATUS_REJECTED:                       # an outlier: only the counts of refusals move
-            return replace(self, refused=self.refused + 1, skipped=self.skipped + 1, **extra)
+            return self.skip(dt, refused=self.refused + 1, **extra)
         if status == STATUS_UNREACHABLE:                    # pose held: only the count of skipped samples
-            return replace(self, skipped=self.skipped + 1, **extra)
+            return self.skip(dt, **extra)
         certain, n_cand = bool(i[I_CERTAIN]), i[I_N_CAND]
         f = out_real[OUT_INFO:OUT_INFO + F_INNOV + 1].tolist()
         dqn, innov = f[F_DQ], f[F_INNOV]
@@ -345,7 +370,7 @@ class TrackerState:
             n = out_real[OUT_N_PAVE]
             paving = out_real[OUT_PAVE:OUT_PAVE + 6 * int(n)].reshape(-1, 6).copy() if 1 <= n <= PAVE_BOXES else None
         return TrackerState(X, q.copy(), self.X, scale, self.steps + 1,
-                            float("nan") if dt is None else float(dt) * (self.skipped + 1), self.q, cands,
+                            float(self._gap(dt)), self.q, cands,
                             i[I_CERTIFICATE] in (CERT_CONTINUATION, CERT_REACQUIRED), self.since(certain),
                             bool(i[I_INTACT]),
                             innov if self.steps < 2 else max(innov, 0.8 * self.a_scale + 0.2 * innov), 0,
@@ -386,6 +411,7 @@ class TrackerState:
         a[_N_PAVE] = 0.0 if self.paving is None else len(self.paving)
         if self.paving is not None:
             a[_PAVE:_PAVE + self.paving.size] = self.paving.ravel()
+        a[_SKIPPED_TIME], a[_CLEAN_TIME] = self.skipped_time, self.clean_time
         if self.clean is not None:
             a[_BASE:2 * _BASE] = self.clean.as_array()[:_BASE]
         if self.walk is not None:
@@ -422,14 +448,16 @@ class TrackerState:
                    int(a[_SKIPPED]), None if np.any(np.isnan(a[_READING:_READING + 3])) else a[_READING:_READING + 3].copy(),
                    a[_REPEATS:_REPEATS + 3].astype(np.int64), None, int(a[_CLEAN_LAG]),
                    _saved_cover(a),
-                   a[_ANCHOR_BOUND:_ANCHOR_BOUND + 3].copy(), paving=_saved_paving(a))
+                   a[_ANCHOR_BOUND:_ANCHOR_BOUND + 3].copy(), paving=_saved_paving(a),
+                   skipped_time=_saved_seconds(a, _SKIPPED_TIME, "skipped_time"),
+                   clean_time=_saved_seconds(a, _CLEAN_TIME, "clean_time"))
 
 
 #: Fields of TrackerState.as_array: X, q, X2 (NaN after a reset), dq_scale, steps, dt, q2 (NaN after a
 #: reset), number of candidates, verified, uncertain_since, candidates (6 x 3, NaN past the number), intact,
 #: a_scale, refused, anchor (NaN before the first certain step), anchor_age, skipped, reading (NaN before the
 #: first), repeats, clean_lag, the number of tubes and the cover (NaN past them), the anchor's bound, the number
-#: of paving boxes and the boxes (NaN past them); then the
+#: of paving boxes and the boxes (NaN past them), skipped_time, clean_time; then the
 #: clean state's first _BASE floats (NaN when there is none); then the walk (NaN when there is none).
 _X, _Q, _X2, _DQ_SCALE, _STEPS, _DT, _Q2, _N_CAND, _VERIFIED, _SINCE, _CANDS = 0, 3, 6, 9, 10, 11, 12, 15, 16, 17, 18
 _INTACT, _A_SCALE, _REFUSED, _ANCHOR, _AGE = _CANDS + 18, _CANDS + 19, _CANDS + 20, _CANDS + 21, _CANDS + 24
@@ -440,7 +468,9 @@ _TUBE = _N_TUBES + 1
 _ANCHOR_BOUND = _TUBE + MAX_COVER * TUBE_SIZE
 _N_PAVE = _ANCHOR_BOUND + 3
 _PAVE = _N_PAVE + 1
-_BASE = _PAVE + 6 * PAVE_BOXES
+_SKIPPED_TIME = _PAVE + 6 * PAVE_BOXES
+_CLEAN_TIME = _SKIPPED_TIME + 1
+_BASE = _CLEAN_TIME + 1
 _WALK = 2 * _BASE
 STATE_FLOATS = _WALK + ANY_SIZE
 _FINITE = [*range(_X, _X + 3), *range(_Q, _Q + 3), _DQ_SCALE, _STEPS, _N_CAND, _VERIFIED, _SINCE, _INTACT, _A_SCALE,

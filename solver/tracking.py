@@ -100,9 +100,11 @@ class _TrackerBase:
         q : array_like, shape (3,)
             Current joints (rad).
         dt : float, optional
-            Time since the previous sample (s).  Only the ratio of successive
-            ``dt`` matters (it scales the tool-space extrapolation); without it
-            the samples are taken as uniformly spaced.
+            Time since the previous sample read (s), refused or not.  It scales the
+            tool-space extrapolation and, with a speed bound, how far the platform can
+            have moved (the ``dt`` of refused and held samples add up, however uneven).
+            Without it the samples are taken as uniformly spaced and the speed bound
+            is not used.
 
         Returns
         -------
@@ -130,12 +132,12 @@ class _TrackerBase:
         extra = {}
         if self.stuck_after:
             repeats = repeat_counts(st, q)
-            held = stuck_refusal(st, q, repeats, self.stuck_after)
+            held = stuck_refusal(st, q, repeats, self.stuck_after, dt)
             if held is not None:                             # a stuck joint: back to the clean state, refused
                 self.state = held
                 return held.X.copy(), StepInfo(0, False, held.X.copy(), 0, 0.0, False, STATUS_REJECTED, False,
                                                0.0, 0.0, False, 0, max(len(held.candidates), 1), held.since(False))
-            extra = reading_fields(st, q, repeats)
+            extra = reading_fields(st, q, repeats, dt)
         st.pack(self._state_pack, dt, self.stuck_after)
         self._kernel(q, self._state_pack, deadline)
         of, oi = self._out_real, self._out_int

@@ -9,9 +9,11 @@ from solver import STATUS, SolverInputError, Tracker
 from solver._kernels.certify import TINY
 from solver._kernels.krawczyk import W_SIZE, krawczyk, newton_on_path
 from solver._kernels.kinematics import geometry
+from solver._kernels.layout import STATE_ANCHOR_AGE, STATE_REFUSED, STATE_SIZE
 from solver.direct_kinematics import kernel_constants
 from solver.sensors import quantize
 from solver.trajectories import circle_path
+from solver.tracker_state import TrackerState
 
 REJECTED = [k for k, v in STATUS.items() if v == "rejected"][0]
 TOL = Sensor("14-bit", bits=14, noise=1e-3).tolerance(3.0)
@@ -157,7 +159,8 @@ def test_an_outlier_is_refused_with_the_state_intact_and_the_next_sample_continu
     np.testing.assert_array_equal(Xr, tr.state.X)
     after = tr.state.as_array()
     same = np.isclose(before, after, equal_nan=True)
-    assert same.sum() == len(before) - 2 and tr.state.refused == tr.state.skipped == 1   # only the counts moved
+    assert same.sum() == len(before) - 3 and tr.state.refused == tr.state.skipped == 1   # only the counts moved
+    assert tr.state.skipped_time == 1e-3                                                    # (and their seconds)
     ref = Tracker(model, map1, joint_tolerance=tol)
     ref.reset(X[0], q[0])
     for k in range(1, 202):
@@ -166,6 +169,41 @@ def test_an_outlier_is_refused_with_the_state_intact_and_the_next_sample_continu
     Xn, info = tr.step(q[201], 1e-3)
     assert info.status != REJECTED and info.certain == ig.certain
     np.testing.assert_allclose(Xn, Xg, atol=1e-9)            # as if the outlier had never come
+
+
+@pytest.mark.parametrize("held_dt, dt", [(5e-3, 1e-3), (1e-3, 7e-3)])
+def test_a_refused_sample_only_delays_the_next_step_over_uneven_time_steps(model, map1, held_dt, dt):
+    """The step after a refused sample sees the time since the last accepted one as the sum of the
+    two samples' steps, whatever they are: its state pack is that of one step over that time (the
+    anchor's age, the speed gate's step, the extrapolation scale), but for the refusal count.
+    With the seconds counted as samples times the last ``dt`` the robot's region came out too small
+    (the paving and re-acquisition proved in a box the robot may have left)."""
+    X, q = _noisy_circle(model)
+    make = lambda: Tracker(model, map1, joint_tolerance=TOL, speed_bound=(2.0, 2.0))   # noqa: E731
+    tr, ref = make(), make()
+    for t in (tr, ref):
+        t.reset(X[0], q[0])
+        for k in range(1, 120):
+            t.step(q[k], 1e-3)
+    k_bad = 119 + round(held_dt / 1e-3)                         # the samples the time steps stand for
+    bad = q[k_bad].copy()
+    bad[0] += 0.1
+    _, info = tr.step(bad, held_dt)
+    assert info.status == REJECTED and tr.state.skipped_time == held_dt
+    a, b = np.zeros(STATE_SIZE), np.zeros(STATE_SIZE)
+    tr.state.pack(a, dt)
+    ref.state.pack(b, held_dt + dt)
+    assert a[STATE_ANCHOR_AGE] == pytest.approx(ref.state.anchor_age + held_dt + dt, rel=1e-12)
+    assert a[STATE_REFUSED] == 1 and b[STATE_REFUSED] == 0
+    a[STATE_REFUSED] = 0
+    np.testing.assert_allclose(a, b, rtol=1e-12, atol=0)
+    saved = TrackerState.from_array(tr.state.as_array())       # the seconds survive a save
+    assert saved.skipped_time == held_dt
+    Xn, info = tr.step(q[k_bad + round(dt / 1e-3)], dt)
+    Xg, ig = ref.step(q[k_bad + round(dt / 1e-3)], held_dt + dt)
+    assert info.status == ig.status == 0 and info.certain == ig.certain
+    np.testing.assert_array_equal(Xn, Xg)
+    assert tr.state.skipped_time == 0.0 and tr.state.dt == pytest.approx(held_dt + dt, rel=1e-12)
 
 
 def _tracked(model, map1, n):

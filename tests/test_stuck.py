@@ -90,6 +90,31 @@ def test_a_stuck_joint_is_refused_rolled_back_and_its_release_is_one_step(model,
     assert info.certain == info_r.certain and info.status == info_r.status
 
 
+def test_the_release_after_a_stuck_joint_spans_the_seconds_of_uneven_steps(model, map1, noisy):
+    """The rollback counts the seconds of the stuck readings, not their number times the last step:
+    with steps of 1 to 9 ms the release is one step over their sum, as from the clean state."""
+    X, q = noisy
+    q = q.copy()
+    q[201:221, 1] = q[200, 1]
+    steps = 1e-3 * (1 + np.arange(21) % 9)                       # the steps of samples 201..221 (s)
+    tr = Tracker(model, map1, joint_tolerance=SENSOR.tolerance(3.0), stuck_after=SENSOR.stuck_after(),
+                 speed_bound=(2.0, 2.0))
+    ref = Tracker(model, map1, joint_tolerance=SENSOR.tolerance(3.0), speed_bound=(2.0, 2.0))
+    for t in (tr, ref):
+        t.reset(X[0], q[0])
+        for k in range(1, 201):
+            t.step(q[k], 1e-3)
+    for k in range(201, 221):
+        tr.step(q[k], steps[k - 201])
+    assert tr.state.skipped == 20 and tr.state.skipped_time == pytest.approx(steps[:20].sum(), rel=1e-12)
+    x, info = tr.step(q[221], steps[20])
+    xr, info_r = ref.step(q[221], steps.sum())
+    np.testing.assert_array_equal(x, xr)
+    assert info.certain == info_r.certain and info.status == info_r.status
+    assert tr.state.dt == pytest.approx(ref.state.dt, rel=1e-12)
+    assert tr.state.anchor_age == pytest.approx(ref.state.anchor_age, rel=1e-12)
+
+
 def test_the_detector_leaves_a_noisy_stream_without_stuck_joints_alone(model, map1, noisy):
     X, q = noisy
     tr = Tracker(model, map1, joint_tolerance=SENSOR.tolerance(3.0), stuck_after=SENSOR.stuck_after())
