@@ -44,8 +44,11 @@ from solver.baselines import BASELINES
 from solver.tracker_state import STATUS
 
 REJECTED = [k for k, v in STATUS.items() if v == "rejected"][0]
-#: Methods that vouch: the baselines' and the default-constructed tracker's ("bare", exact grades only).
-VOUCHING = _VOUCHING + ("bare",)
+#: The default-constructed tracker ("bare"), and the same with only a speed bound given ("bare-speed", what its
+#: warning asks for): exact grades only, reset at the first reading.
+BARE = ("bare", "bare-speed")
+#: Methods that vouch: the baselines' and the default-constructed trackers'.
+VOUCHING = _VOUCHING + BARE
 
 
 #: The benchmark's start poses are exact (noise-free pose and joints): a start tolerance of rounding.
@@ -56,6 +59,7 @@ def make_methods(model, maps, names, tol, speed, stuck_after=0):
     makers = {"default": lambda p: Tracker(model, maps[p], joint_tolerance=tol, speed_bound=speed,
                                            stuck_after=stuck_after, start_tolerance=EXACT_START),
               "bare": lambda p: Tracker(model, maps[p]),          # default construction (exact joints assumed)
+              "bare-speed": lambda p: Tracker(model, maps[p], speed_bound=speed),
               "paper": lambda p: Tracker(model, maps[p], mode="paper", joint_tolerance=tol, speed_bound=speed,
                                          stuck_after=stuck_after, start_tolerance=EXACT_START)}
     for name, cls in BASELINES.items():
@@ -128,7 +132,8 @@ def _parser() -> argparse.ArgumentParser:
                     help="sensor grades (experiments.sensors.SENSOR_GRADES; default all)")
     ap.add_argument("--methods", nargs="+", default=["default", "bare", "paper", "newton"],
                     help="trackers and baselines to run (default: default bare paper newton; bare, the "
-                         "default-constructed tracker, runs on the grades without noise)")
+                         "default-constructed tracker, and bare-speed, the same with a speed bound, run on "
+                         "the grades without noise)")
     ap.add_argument("--no-floor", dest="floor", action="store_false",
                     help="skip the fold floor (bench/sensor_oracle.py's fold test on the default mode's "
                          "uncertain steps)")
@@ -185,7 +190,7 @@ def bound_checks(X, bounds, certain, counted, X_true, q, q_true, tol):
 def _run_grade(model, maps, suite, sensor, args, speed, dt, secs, worst, per_path) -> dict:
     """Every method on every path's stream of ``sensor``; the totals per method."""
     tol = sensor.tolerance(args.sigmas) if args.tolerance else 0.0
-    names = [m for m in args.methods if m != "bare" or (sensor.noise == 0.0 and not sensor.glitch)]
+    names = [m for m in args.methods if m not in BARE or (sensor.noise == 0.0 and not sensor.glitch)]
     makers = make_methods(model, maps, names, tol, speed, sensor.stuck_after() if args.stuck else 0)
     tot = {m: dict(counted=0, errors=0, silent=0, alarms=0, refused=0, recovery=0, run=0, checked=0, broken=0,
                    ratios=[], floor=0) for m in makers}
@@ -198,7 +203,7 @@ def _run_grade(model, maps, suite, sensor, args, speed, dt, secs, worst, per_pat
         for m, make in makers.items():
             bounds = np.empty((len(q), 3))
             qm = q
-            if m == "bare":                   # as a new user would: reset at the first reading, not the exact joints
+            if m in BARE:                     # as a new user would: reset at the first reading, not the exact joints
                 qm = q.copy()
                 qm[0] = stream.q[0]
             X, certain, refused, s = run_stream(make(path.posture), qm, path.X[0], dt, bounds)
@@ -212,7 +217,7 @@ def _run_grade(model, maps, suite, sensor, args, speed, dt, secs, worst, per_pat
                 c[0] = False
                 tot[m]["run"] = max(tot[m]["run"], longest_run((c & ~certain)[c]))
                 n_chk, n_bad, ratios = bound_checks(X, bounds, certain, counted, path.X, q, path.q,
-                                                    tol if m != "bare" else 0.0)      # bare: exact joints
+                                                    tol if m not in BARE else 0.0)    # bare: exact joints
                 tot[m]["checked"] += n_chk
                 tot[m]["broken"] += n_bad
                 tot[m]["ratios"].append(ratios)
@@ -257,7 +262,7 @@ def trust_rows(rows) -> list:
     out = []
     for gname, tot in rows.items():
         for m, t in tot.items():
-            if m not in ("default", "bare", "paper"):
+            if m not in ("default", "paper") + BARE:
                 continue
             n = max(t["counted"], 1)
             r = np.concatenate(t["ratios"]) if t["ratios"] else np.empty((0, 3))
@@ -344,8 +349,8 @@ def _report(rows, grades, secs, n_paths, elapsed, per_path, names):
         harsh = [g for g in noisy if grades[g].noise > 1e-4 and not grades[g].glitch]
         pct = {g: 100 * rows[g]["default"]["alarms"] / max(rows[g]["default"]["counted"], 1) for g in noisy}
         floor = {g: 100 * rows[g]["default"]["floor"] / max(rows[g]["default"]["counted"], 1) for g in noisy}
-        checked = sum(rows[g][m]["checked"] for g in noisy for m in rows[g] if m in ("default", "bare"))
-        broken = sum(rows[g][m]["broken"] for g in noisy for m in rows[g] if m in ("default", "bare"))
+        checked = sum(rows[g][m]["checked"] for g in noisy for m in rows[g] if m in ("default",) + BARE)
+        broken = sum(rows[g][m]["broken"] for g in noisy for m in rows[g] if m in ("default",) + BARE)
         headline = [(f"joints from encoders ({', '.join(noisy)}), default mode: silent errors / errors",
                      f"{sum(t['silent'] for t in d)} / {sum(t['errors'] for t in d):,}"
                      + (f" (Newton: {sum(rows[g]['newton']['errors'] for g in noisy):,}, all silent)"

@@ -255,7 +255,9 @@ class Tracker(_TrackerBase):
         Outlier gate (with ``joint_tolerance > 0``): refuse a sample whose joint step is off the
         expected one by more than the tolerance allows plus this many recent mean differences.
     speed_bound : (float, float) or None
-        Bound on the platform's speed (m/s, rad/s) that narrows re-acquisition (needs ``dt``).
+        Bound on the platform's speed (m/s, rad/s) that narrows re-acquisition and the
+        set-membership paving (needs ``dt``).  With measured joints and no bound, certainty lost
+        near a singularity seldom comes back (see "Sensors").
     reacquire_boxes : int
         Pose boxes one re-acquisition may examine (0: none).
     stuck_after : int
@@ -392,6 +394,10 @@ class Tracker(_TrackerBase):
         note = (f"q0 lies on a {bits}-bit encoder grid (2 pi / 2**{bits} rad): readings, not exact joints; "
                 f"joint_tolerance = 0 would vouch for the branch along the readings, so the tracker takes half "
                 f"a step, joint_tolerance = {tol:.3g} rad (pass joint_tolerance, e.g. Sensor.tolerance(), to choose)")
+        if self.speed_bound is None:
+            note += ("; with readings and no speed_bound, certainty lost near a singularity seldom comes back "
+                     "(re-acquisition would have to rule out every other pose of the tool space): pass "
+                     "speed_bound=(m/s, rad/s), a bound on the platform's speed")
         warnings.warn(note, stacklevel=3)
         return note
 

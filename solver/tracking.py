@@ -54,8 +54,8 @@ class _TrackerBase:
         self._state_pack = np.empty(STATE_SIZE)
         self._out_real = np.empty(OUT_SIZE)
         self._out_real[OUT_N_TUBES] = 0.0                  # a baseline's step leaves no cover of tubes,
-        self._out_real[OUT_REGION:OUT_N_PAVE + 1] = np.nan  # no set-membership paving
-        self._out_real[OUT_N_PAVE] = 0.0
+        self._out_real[OUT_REGION:OUT_REGION + 6] = np.nan  # no set-membership region,
+        self._out_real[OUT_N_PAVE] = 0.0                    # and no paving
         self._out_int = np.empty(INFO_I_SIZE, dtype=np.int64)
         #: seconds one step may take (None: no budget); only the tracker has anytime proofs
         self.step_budget: float | None = None

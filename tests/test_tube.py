@@ -278,6 +278,10 @@ def test_a_default_tracker_on_encoder_readings_takes_half_a_step_and_says_so(mod
     with pytest.warns(UserWarning, match="16-bit encoder grid"):
         res = tracker.track(q, X_true[0])
     assert "joint_tolerance" in tracker.start.note and tracker.joint_tolerance == pytest.approx(np.pi / 2 ** 16)
+    assert "pass speed_bound" in tracker.start.note                       # what else to set
+    bounded = Tracker(model, coarse_map(model, 1), speed_bound=(2.0, 2.0))
+    with pytest.warns(UserWarning, match="16-bit encoder grid"):
+        assert "speed_bound" not in bounded.reset(X_true[0], q[0]).note
     assert res.certain.mean() > 0.9
     err = np.abs(res.X - X_true)
     err[:, 2] = np.abs(wrap_angle(res.X[:, 2] - X_true[:, 2]))
