@@ -129,3 +129,28 @@ def outlier_gate(innov, threshold, noise, Xp, qp, M, l1, l2sq, b):
         if moved > noise * max(S[r, 0], max(S[r, 1], S[r, 2])):
             return GATE_REFUSE
     return GATE_SUSPECT
+
+
+@njit(cache=True)
+def swing(poses, real, Xp, qp, noise, params, seconds, M, l1, l2sq, b):
+    """Is a sample the outlier gate refused a joint's swing after all?  A joint next to a serial
+    singularity swings by up to radians in a sample while the platform moves as usual, beyond what
+    the gate's first-order test sees.  It is one when a real DK solution (``poses`` (6, 3) complex,
+    ``real`` (6,)) lies where the platform can be: within the speed bound's reach in ``seconds``
+    of the previous pose ``Xp`` (3,) (at joints ``qp``), plus what ``noise`` (rad) on the joints
+    of both samples moves each pose coordinate (first order at ``Xp``).  A glitch of the sensor
+    moves the DK solutions by its size times those gains, far beyond.  Never without a speed
+    bound.  A swing is taken, vouched for by nothing (it may still be a glitch)."""
+    if not (params[PARAM_SPEED] > 0.0 and math.isfinite(seconds)):
+        return False
+    S = np.empty((3, 3))
+    if not pose_gains(Xp, qp, M, l1, l2sq, b, S):
+        return False
+    r = np.empty(3)
+    for i in range(3):
+        r[i] = params[PARAM_SPEED + (1 if i == 2 else 0)] * seconds + noise * (S[i, 0] + S[i, 1] + S[i, 2])
+    for k in range(6):
+        if real[k] and abs(poses[k, 0].real - Xp[0]) <= r[0] and abs(poses[k, 1].real - Xp[1]) <= r[1] \
+                and abs(wrap(poses[k, 2].real - Xp[2])) <= r[2]:
+            return True
+    return False

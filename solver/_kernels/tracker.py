@@ -32,7 +32,7 @@ from .certify import CERT_NONE, comes_from
 from .clock import expired
 from .choice import choose_default, choose_paper, joint_step, linear_prediction, predict, wdist
 from .direct_kinematics import dk_one
-from .gates import GATE_PASS, GATE_REFUSE, outlier_gate, speed_gate
+from .gates import GATE_PASS, GATE_REFUSE, outlier_gate, speed_gate, swing
 from .kinematics import geometry, jacobian
 from .layout import (F_D_BEST, F_D_SECOND, F_DQ, F_COND, F_INNOV, I_AMBIGUOUS, I_CERTAIN, I_CERTIFICATE, I_INTACT,
                      I_JUMP, I_LABEL, I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, I_TRUST, INFO_F_SIZE, INFO_I_SIZE,
@@ -71,13 +71,22 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
     work = step_pack(q, state, params, out_real, out_int)
     anytime[ANY_CUT] = 0.0
     refused, untrusted = gate_phase(state, work, params, model_pack, out_real, out_int)
-    if refused:
+    if refused and not params[PARAM_SPEED] > 0.0:
+        refuse(state, out_real, out_int)
         return
     poses = np.empty((6, 3), dtype=np.complex128)
     real = np.empty(6, dtype=np.bool_)
     near_prev = np.zeros(7, dtype=np.bool_)
     n_real, n_near, single = solve_phase(q, rule, state, work, model_pack, sample_to_sextic, labels, map_pack,
                                          stencil, poses, real, near_prev, out_int)
+    if refused:
+        M, l1, l2sq, b = geometry(model_pack)
+        noise = 2.0 * params[PARAM_JOINT_TOL] * (1.0 + state[STATE_EXT_SCALE])
+        if not swing(poses, real, state[STATE_X:STATE_X + 3], state[STATE_Q:STATE_Q + 3], noise, params,
+                     state[STATE_STEP_DT], M, l1, l2sq, b):
+            refuse(state, out_real, out_int)
+            return
+        untrusted = True                       # a joint's swing: taken, vouched for by nothing
     cond_prev = linear_prediction(state, work, model_pack, out_real)
     if n_real == 0:
         out_real[OUT_X_PRED:OUT_X_PRED + 3] = work[STEP_X_LIN:STEP_X_LIN + 3]
@@ -167,11 +176,14 @@ def gate_phase(state, work, params, model_pack, out_real, out_int):
                                b)
     a_scale = state[STATE_A_SCALE]
     untrusted = forced or (gated and a_scale > 0.0 and worst > noise + params[PARAM_GATE] * a_scale)
-    if verdict == GATE_REFUSE:
-        out_real[OUT_X_PRED:OUT_X_PRED + 3] = Xp
-        hold(state, out_real, out_int, STATUS_REJECTED)
-        return True, untrusted
-    return False, untrusted
+    return verdict == GATE_REFUSE, untrusted
+
+
+@njit(cache=True, inline="always")
+def refuse(state, out_real, out_int):
+    """A refused sample's result: the previous pose held, status rejected."""
+    out_real[OUT_X_PRED:OUT_X_PRED + 3] = state[STATE_X:STATE_X + 3]
+    hold(state, out_real, out_int, STATUS_REJECTED)
 
 
 @njit(cache=True, inline="always")
