@@ -138,9 +138,10 @@ def swing(poses, real, Xp, qp, noise, params, seconds, M, l1, l2sq, b):
     the gate's first-order test sees.  It is one when a real DK solution (``poses`` (6, 3) complex,
     ``real`` (6,)) lies where the platform can be: within the speed bound's reach in ``seconds``
     of the previous pose ``Xp`` (3,) (at joints ``qp``), plus what ``noise`` (rad) on the joints
-    of both samples moves each pose coordinate (first order at ``Xp``).  A glitch of the sensor
-    moves the DK solutions by its size times those gains, far beyond.  Never without a speed
-    bound.  A swing is taken, vouched for by nothing (it may still be a glitch)."""
+    of both samples moves each pose coordinate (first order at ``Xp``, at most the speed gate's
+    margin 2 RHO_CAP).  A glitch of the sensor moves the DK solutions by its size times those
+    gains, in general beyond.  Never without a speed bound.  A swing is taken, vouched for by
+    nothing (it may still be a glitch), and leaves the gate's envelopes as they were."""
     if not (params[PARAM_SPEED] > 0.0 and math.isfinite(seconds)):
         return False
     S = np.empty((3, 3))
@@ -148,7 +149,8 @@ def swing(poses, real, Xp, qp, noise, params, seconds, M, l1, l2sq, b):
         return False
     r = np.empty(3)
     for i in range(3):
-        r[i] = params[PARAM_SPEED + (1 if i == 2 else 0)] * seconds + noise * (S[i, 0] + S[i, 1] + S[i, 2])
+        r[i] = params[PARAM_SPEED + (1 if i == 2 else 0)] * seconds + min(noise * (S[i, 0] + S[i, 1] + S[i, 2]),
+                                                                          2.0 * RHO_CAP)
     for k in range(6):
         if real[k] and abs(poses[k, 0].real - Xp[0]) <= r[0] and abs(poses[k, 1].real - Xp[1]) <= r[1] \
                 and abs(wrap(poses[k, 2].real - Xp[2])) <= r[2]:

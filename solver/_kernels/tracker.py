@@ -71,7 +71,7 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
     work = step_pack(q, state, params, out_real, out_int)
     anytime[ANY_CUT] = 0.0
     refused, untrusted = gate_phase(state, work, params, model_pack, out_real, out_int)
-    if refused and not params[PARAM_SPEED] > 0.0:
+    if refused and not (params[PARAM_SPEED] > 0.0 and math.isfinite(state[STATE_STEP_DT])):
         refuse(state, out_real, out_int)
         return
     poses = np.empty((6, 3), dtype=np.complex128)
@@ -86,7 +86,9 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
                      state[STATE_STEP_DT], M, l1, l2sq, b):
             refuse(state, out_real, out_int)
             return
-        untrusted = True                       # a joint's swing: taken, vouched for by nothing
+        untrusted = True                       # a joint's swing: taken, vouched for by nothing,
+        out_real[OUT_INFO + F_INNOV] = state[STATE_A_SCALE]      # and the gate's envelopes stay as they
+        out_real[OUT_INFO + F_DQ] = state[STATE_DQ_SCALE]        # were (a glitch must not open the gate)
     cond_prev = linear_prediction(state, work, model_pack, out_real)
     if n_real == 0:
         out_real[OUT_X_PRED:OUT_X_PRED + 3] = work[STEP_X_LIN:STEP_X_LIN + 3]
@@ -181,7 +183,9 @@ def gate_phase(state, work, params, model_pack, out_real, out_int):
 
 @njit(cache=True, inline="always")
 def refuse(state, out_real, out_int):
-    """A refused sample's result: the previous pose held, status rejected."""
+    """A refused sample's result: the previous pose held, status rejected (no solutions reported)."""
+    out_int[I_N_REAL] = 0
+    out_int[I_NEAR_BORDER] = 0
     out_real[OUT_X_PRED:OUT_X_PRED + 3] = state[STATE_X:STATE_X + 3]
     hold(state, out_real, out_int, STATUS_REJECTED)
 
