@@ -128,7 +128,9 @@ samples:
   moves the pose more than noise could (first order), the sample is refused:
   status ``rejected``, pose held, state kept (only the count of refusals moves).
   If it does not (a joint swinging next to a serial singularity), the sample is
-  taken.  Such a sample, off by more than the gate allows yet taken, may still be
+  taken; with ``speed_bound`` also when a DK solution of it lies within the
+  platform's reach of the last pose (a swing beyond the first-order test; it
+  leaves the envelope as it was).  Such a sample, off by more than the gate allows yet taken, may still be
   a glitch: it is vouched for by nothing and ends the chain of certificates (a
   joint accelerating as it did in recent samples is not such a sample).  After ``MAX_REFUSED`` refusals in a
   row the next sample is taken (the joints really moved) and vouching ends until
