@@ -111,7 +111,11 @@ samples:
   space (interval inverse kinematics in the map's posture,
   :mod:`._kernels.exclusion`) shows that every pose of the posture whose joints
   are within the tolerance lies in that hull (else, the same with an axis-aligned
-  Krawczyk box about the chosen solution); the search covers the poses the
+  Krawczyk box about the chosen solution; else, with a speed bound, the
+  eliminant in one variable, phi, over the reading's joint box in affine
+  arithmetic, :mod:`._kernels.eliminant`: one solution in any posture has its phi
+  in the region's range, for every joint vector of the box, where a needle next
+  to a fold is too long and curved for any tube); the search covers the poses the
   platform can have reached when ``speed_bound`` (m/s, rad/s) is given, else the
   tool space: the hull of a set-membership paving (:mod:`._kernels.paving`), up to
   32 pose boxes kept from the last certain pose's bound, each uncertain step

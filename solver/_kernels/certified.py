@@ -26,7 +26,7 @@ from .layout import (I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_TRUST, MAP_
                      STATE_VERIFIED, TRUST_CERTAIN, TRUST_LOST, TRUST_POSSIBLE)
 from .linalg import wrap
 from .paving import region_step
-from .reacquisition import cover_solution, reacquired, reacquired_anytime, region_choice
+from .reacquisition import cover_solution, eliminant_reacquired, reacquired, reacquired_anytime, region_choice
 from .tracker_packs import STEP_DQ, STEP_QU
 from .tube import TUBE_SIZE, tube_test
 from .tube_chain import MAX_COVER, pose_bound, tube_chain
@@ -79,6 +79,7 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
     tubes = out_real[OUT_TUBE:OUT_TUBE + MAX_COVER * TUBE_SIZE].reshape((MAX_COVER, TUBE_SIZE))
     bound = out_real[OUT_BOUND:OUT_BOUND + 3]
     n_tubes = 0
+    boxed = False                              # re-acquired by the eliminant: the bound is its box, no tubes
     for r in range(3):
         bound[r] = np.inf
     keep = np.empty(6, dtype=np.bool_)
@@ -116,6 +117,10 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
                                          new_cands, keep, tubes)
                 if n_tubes > 0:
                     n_new, cert, intact, linked = 1, CERT_REACQUIRED, True, True
+                elif not expired(deadline) and eliminant_reacquired(chosen, cert != CERT_NONE, state, work, poses,
+                                                                    real, params, model_pack, new_cands, keep,
+                                                                    bound, deadline):
+                    n_new, cert, intact, linked, boxed = 1, CERT_REACQUIRED, True, True, True
     certain = False
     if cert != CERT_NONE:        # the choice follows the certificates; vouched only with the chain intact
         sole = 0
@@ -150,7 +155,7 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
         zero = np.zeros(3)
         certain = tube_test(Xc, qu, zero, zero, M, l1, l2sq, b, tubes[0])
         n_tubes = 1
-    if certain:
+    if certain and not boxed:
         certain = pose_bound(tubes, n_tubes, qu, tol, Xc, bound)
         if not certain:
             for r in range(3):

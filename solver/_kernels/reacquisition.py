@@ -6,7 +6,9 @@ for the pose box known to hold the robot (the region: :func:`.gates.reacquire_re
 of the joint box ``q +- tol`` by tubes holds one solution per joint vector and every pose of the
 region in the tracker's posture reaching a tube's joints lies in that tube's fat box
 (:func:`.exclusion.tube_exclusion`, the covers of :data:`REACQUIRE_COVERS`), or else an
-axis-aligned Krawczyk box does (:func:`.exclusion.reacquire`).
+axis-aligned Krawczyk box does (:func:`.exclusion.reacquire`), or else the eliminant shows that one
+solution, in any posture, has its phi in the region's range for every joint vector of the box
+(:func:`eliminant_reacquired`, :mod:`.eliminant`).
 
 :func:`reacquired` runs that proof within one step.  With a step budget it is resumable
 (:func:`reacquired_anytime`): the proof for the reading it began at keeps its place (attempt,
@@ -26,11 +28,12 @@ from .anytime import (ANY_R_F, ANY_R_HULL, ANY_R_K, ANY_R_N, ANY_R_N_PATH, ANY_R
                       WALK_CLOSED, path_append, walk_append, walk_begin, walk_on)
 from .certify import elbow_bits
 from .clock import expired
+from .eliminant import eliminant_certificate
 from .exclusion import (HULL_FACTORS, PREIMAGE_STACK, exclusion_cover, fat_hull, in_region, preimage_on,
                         reacquire, reacquire_box, tube_exclusion)
 from .gates import reacquire_region
 from .kinematics import geometry
-from .krawczyk import PAD
+from .krawczyk import PAD, TWO_PI
 from .layout import PARAM_JOINT_TOL, PARAM_POSTURE_BITS, PARAM_REACQUIRE
 from .linalg import wrap
 from .tracker_packs import STEP_QU
@@ -130,6 +133,53 @@ def reacquired(chosen, certified, state, work, poses, real, params, model_pack, 
         keep[k] = k == target
     new_cands[0, :] = Xc
     return n
+
+
+@njit(cache=True)
+def eliminant_reacquired(chosen, certified, state, work, poses, real, params, model_pack, new_cands, keep, bound,
+                         deadline=0.0):
+    """Re-acquire from this sample by the eliminant (:mod:`.eliminant`): the solution of
+    :func:`reacquire_target` is the only one, in any posture, whose phi lies in the region's phi range
+    for every joint vector of the reading's box (whole, else in 2**3 parts).  Where the tube covers
+    fail on a long, curved needle this one-dimensional test still closes.  On success ``keep`` (6,)
+    marks the solution alone, ``new_cands[0]`` holds it, ``bound`` (3,) the half-widths (m, m, rad) of
+    a box about it holding the robot's pose; returns True."""
+    region, Xc = np.empty(6), np.empty(3)
+    qu, tol = work[STEP_QU:STEP_QU + 3], params[PARAM_JOINT_TOL]
+    target = reacquire_target(chosen, certified, keep, poses, real, params, state, qu, model_pack, Xc, region)
+    if target < 0 or not region[5] - region[4] < TWO_PI - 1e-9:
+        return False
+    M, l1, l2sq, b = geometry(model_pack)
+    box, part = np.empty(6), np.empty(6)
+    ok = False
+    for n in (1, 2):
+        t = np.full(3, tol / n)
+        qc = np.empty(3)
+        ok = True
+        for i in range(n ** 3):
+            for j in range(3):
+                qc[j] = qu[j] + tol * (-1.0 + (2.0 * ((i // n ** j) % n) + 1.0) / n)
+            if not eliminant_certificate(Xc[2] if n == 1 else np.nan, qc, t, region[4], region[5], M, l1, l2sq, b,
+                                         part, deadline):
+                ok = False
+                break
+            for r in range(3):
+                box[2 * r] = part[2 * r] if i == 0 else min(box[2 * r], part[2 * r])
+                box[2 * r + 1] = part[2 * r + 1] if i == 0 else max(box[2 * r + 1], part[2 * r + 1])
+        if ok or expired(deadline):
+            break
+    if not ok:
+        return False
+    p = Xc[2] + TWO_PI * round((0.5 * (box[4] + box[5]) - Xc[2]) / TWO_PI)      # phi beside the box's
+    X = (Xc[0], Xc[1], p)
+    for r in range(3):
+        bound[r] = max(X[r] - box[2 * r], box[2 * r + 1] - X[r])
+        if not bound[r] >= 0.0:
+            return False
+    for k in range(6):
+        keep[k] = k == target
+    new_cands[0, :] = Xc
+    return True
 
 
 @njit(cache=True, inline="always")
