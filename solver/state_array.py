@@ -38,9 +38,10 @@ def _saved_paving(a: np.ndarray) -> np.ndarray | None:
         return None
     paving = a[_PAVE:_PAVE + 6 * int(n)].reshape(-1, 6).copy() if n == int(n) and 1 <= n <= PAVE_BOXES else None
     if paving is None or not np.all(np.isfinite(paving)) or np.any(paving[:, 0::2] > paving[:, 1::2]) \
-            or a[_SINCE] < 0 or np.any(np.isnan(a[_ANCHOR:_ANCHOR + 3])):
-        raise TrackerError(f"state: a paving of 1 to {PAVE_BOXES} pose boxes (lo <= hi) of an uncertain state with "
-                           f"an anchor expected, got {n:g} boxes "
+            or (a[_SINCE] < 0 and a[_N_TUBES] > 0) or np.any(np.isnan(a[_ANCHOR:_ANCHOR + 3])):
+        raise TrackerError(f"state: a paving of 1 to {PAVE_BOXES} pose boxes (lo <= hi) with an anchor, of an "
+                           f"uncertain state or a certain one without tubes (re-acquired by the eliminant) "
+                           f"expected, got {n:g} boxes "
                            f"{np.array2string(a[_PAVE:_PAVE + 12], threshold=12)}... (uncertain_since {a[_SINCE]:g})")
     return paving
 

@@ -282,20 +282,22 @@ class TrackerState:
         # the time since), whatever the sensor did since: also after refusals (the joints jumped and stayed)
         anchor, age, anchor_bound = self.anchor, self._anchor_age(dt), self.anchor_bound
         region, paving = out_real[OUT_REGION:OUT_REGION + 6], self.paving
-        if not certain and np.all(np.isfinite(region)):    # the set-membership step's paving holds the robot now
+        paved = bool(np.all(np.isfinite(region)))          # the set-membership step's paving holds the robot now
+        if paved:                                          # (uncertain, or certain by the eliminant: no tubes)
             anchor, anchor_bound, age = 0.5 * (region[0::2] + region[1::2]), 0.5 * (region[1::2] - region[0::2]), 0.0
             n = out_real[OUT_N_PAVE]
             paving = out_real[OUT_PAVE:OUT_PAVE + 6 * int(n)].reshape(-1, 6).copy() if 1 <= n <= PAVE_BOXES else None
+        boxed = certain and not paved                      # a certain step's bound starts the next region
         return TrackerState(X, q.copy(), self.X, scale, self.steps + 1,
                             float(self._gap(dt)), self.q, cands,
                             i[I_CERTIFICATE] in (CERT_CONTINUATION, CERT_REACQUIRED), self.since(certain),
                             bool(i[I_INTACT]),
                             innov if self.steps < 2 else max(innov, 0.8 * self.a_scale + 0.2 * innov), 0,
-                            X if certain else anchor, 0.0 if certain else age, **extra,
+                            X if boxed else anchor, 0.0 if certain else age, **extra,
                             tube=_cover(out_real) if certain else None,
-                            anchor_bound=out_real[OUT_BOUND:OUT_BOUND + 3].copy() if certain else
+                            anchor_bound=out_real[OUT_BOUND:OUT_BOUND + 3].copy() if boxed else
                             (NO_BOUND if anchor is None else anchor_bound), walk=None if certain else walk,
-                            paving=None if certain else paving)
+                            paving=None if boxed else paving)
 
     def as_array(self) -> np.ndarray:
         """The state as :data:`STATE_FLOATS` floats (the fields are listed above ``_X`` at the end of this

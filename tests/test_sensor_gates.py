@@ -10,6 +10,7 @@ from solver import STATUS, Tracker, jacobians
 from solver._kernels.exclusion import reacquire
 from solver._kernels.gates import GATE_PASS, GATE_REFUSE, GATE_SUSPECT, outlier_gate, pose_gains
 from solver._kernels.kinematics import geometry
+from solver._kernels.tube import TUBE_SIZE
 from solver.baselines import NewtonTracker
 from solver.direct_kinematics import kernel_constants
 
@@ -268,7 +269,11 @@ def test_the_tracker_s_paving_holds_the_robot_and_survives_a_save(model, hard):
     bad[_N_PAVE] = 99.0
     with pytest.raises(TrackerError, match="paving"):
         TrackerState.from_array(bad)
+    from solver.state_array import _N_TUBES, _TUBE
     bad = saved.copy()
-    bad[_SINCE] = -1.0                                        # a paving beside a certain state
-    with pytest.raises(TrackerError, match="paving"):
+    bad[_SINCE], bad[_N_TUBES], bad[_TUBE:_TUBE + TUBE_SIZE] = -1.0, 1.0, 0.0   # a paving beside a certain
+    with pytest.raises(TrackerError, match="paving"):                           # state's cover of tubes
         TrackerState.from_array(bad)
+    ok = saved.copy()
+    ok[_SINCE] = -1.0                                         # certain without tubes (the eliminant's): kept
+    assert TrackerState.from_array(ok).paving is not None

@@ -165,6 +165,8 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
     if not certain and tol > 0.0 and not untrusted:
         region_step(state, qu, params, model_pack, out_real[OUT_REGION:OUT_REGION + 6],
                     out_real[OUT_N_PAVE:OUT_N_PAVE + 1 + 6 * PAVE_BOXES], deadline)
+    elif certain and boxed:
+        paving_cut(state, qu, params, model_pack, Xc, bound, out_real, deadline)
     if certain or n_tubes > 0:
         anytime[ANY_N] = 0.0                   # certain (or re-acquired): no walk, continuation or
         anytime[ANY_K_ON] = 0.0                # re-acquisition left
@@ -327,3 +329,25 @@ def chains(state, work, poses, real, params, model_pack, new_cands, keep, deadli
                                           int(params[PARAM_POSTURE_BITS]), int(params[PARAM_MAX_TESTS]), model_pack,
                                           new_cands, keep, deadline)
     return n_new, cert, intact and intact_before, linked
+
+
+@njit(cache=True, inline="always")
+def paving_cut(state, qu, params, model_pack, Xc, bound, out_real, deadline):
+    """A step the eliminant re-acquired: its box about ``Xc`` (3,), half-widths ``bound`` (3,), cut to the
+    hull of the set-membership paving of this reading (:func:`.paving.region_step`), which holds the
+    robot too and follows the needle more closely.  ``bound`` narrowed in place; the paving stays in the
+    result pack (OUT_REGION, OUT_PAVE): the next step's region grows from it, not from the box."""
+    hull = out_real[OUT_REGION:OUT_REGION + 6]
+    region_step(state, qu, params, model_pack, hull, out_real[OUT_N_PAVE:OUT_N_PAVE + 1 + 6 * PAVE_BOXES], deadline)
+    if hull[0] <= hull[1] and hull[2] <= hull[3] and hull[4] <= hull[5]:
+        shift = 2.0 * np.pi * np.round((Xc[2] - 0.5 * (hull[4] + hull[5])) / (2.0 * np.pi))
+        b = np.empty(3)
+        ok = True
+        for r in range(3):
+            s = shift if r == 2 else 0.0
+            lo, hi = max(Xc[r] - bound[r], hull[2 * r] + s), min(Xc[r] + bound[r], hull[2 * r + 1] + s)
+            b[r] = max(abs(Xc[r] - lo), abs(hi - Xc[r]))
+            ok = ok and lo <= hi
+        if ok:
+            for r in range(3):
+                bound[r] = min(bound[r], b[r])

@@ -218,7 +218,7 @@ def eliminant_certificate(phi_c, qc, tol, plo, phi, M, l1, l2sq, b, bound_box, d
             top -= 1
             lo, hi = stack[top, 0], stack[top, 1]
             evals += 1
-            if evals > MAX_EVALS or (evals % 64 == 0 and expired(deadline)):
+            if evals > MAX_EVALS or (evals % 16 == 0 and expired(deadline)):
                 return False
             eliminant(0.5 * (lo + hi), 0.5 * (hi - lo), D0, D1, b, l2sq, ev)
             free = ev[0] > 0.0 or ev[1] < 0.0           # f cannot vanish here

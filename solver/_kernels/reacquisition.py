@@ -143,7 +143,7 @@ def eliminant_reacquired(chosen, certified, state, work, poses, real, params, mo
     for every joint vector of the reading's box (whole, else in 2**3 parts).  Where the tube covers
     fail on a long, curved needle this one-dimensional test still closes.  On success ``keep`` (6,)
     marks the solution alone, ``new_cands[0]`` holds it, ``bound`` (3,) the half-widths (m, m, rad) of
-    a box about it holding the robot's pose; returns True."""
+    a box about it holding the robot's pose (the eliminant's box cut to the region); returns True."""
     region, Xc = np.empty(6), np.empty(3)
     qu, tol = work[STEP_QU:STEP_QU + 3], params[PARAM_JOINT_TOL]
     target = reacquire_target(chosen, certified, keep, poses, real, params, state, qu, model_pack, Xc, region)
@@ -170,6 +170,9 @@ def eliminant_reacquired(chosen, certified, state, work, poses, real, params, mo
             break
     if not ok:
         return False
+    for r in range(2):                            # the robot is in the region too (its phi range is the box's)
+        box[2 * r] = max(box[2 * r], region[2 * r])
+        box[2 * r + 1] = min(box[2 * r + 1], region[2 * r + 1])
     p = Xc[2] + TWO_PI * round((0.5 * (box[4] + box[5]) - Xc[2]) / TWO_PI)      # phi beside the box's
     X = (Xc[0], Xc[1], p)
     for r in range(3):
