@@ -346,6 +346,8 @@ def paving_cut(state, qu, params, model_pack, Xc, bound, out_real, deadline):
         for r in range(3):
             s = shift if r == 2 else 0.0
             lo, hi = max(Xc[r] - bound[r], hull[2 * r] + s), min(Xc[r] + bound[r], hull[2 * r + 1] + s)
+            if r == 2 and not hull[5] - hull[4] + 2.0 * bound[2] < np.pi:
+                lo, hi = Xc[2] - bound[2], Xc[2] + bound[2]      # another turn's copy of the hull could be the robot's
             b[r] = max(abs(Xc[r] - lo), abs(hi - Xc[r]))
             ok = ok and lo <= hi
         if ok:
