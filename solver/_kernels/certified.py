@@ -157,9 +157,9 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
         n_tubes = 1
     if certain and not boxed:
         certain = pose_bound(tubes, n_tubes, qu, tol, Xc, bound)
-        if not certain:
-            for r in range(3):
-                bound[r] = np.inf
+    if not certain:                            # (also an eliminant's bound about a solution not taken)
+        for r in range(3):
+            bound[r] = np.inf
     out_real[OUT_N_TUBES] = n_tubes if certain else 0
     out_real[OUT_REGION:OUT_REGION + 6], out_real[OUT_N_PAVE] = np.nan, 0.0
     if not certain and tol > 0.0 and not untrusted:

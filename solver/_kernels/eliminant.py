@@ -58,7 +58,7 @@ def _aff_add(x, xo, y, yo, sy, z, zo):
     """z = x + sy y (affine forms at offsets; ``sy`` +1 or -1), the rounding in the remainder."""
     for j in range(5):
         z[zo + j] = x[xo + j] + sy * y[yo + j]
-    z[zo + A_R] = x[xo + A_R] + y[yo + A_R] + PAD * (_mag(x, xo) + _mag(y, yo))
+    z[zo + A_R] = (x[xo + A_R] + y[yo + A_R]) * (1.0 + PAD) + PAD * (_mag(x, xo) + _mag(y, yo))
 
 
 @njit(cache=True, inline="always")
@@ -70,7 +70,7 @@ def _aff_mul(x, xo, y, yo, z, zo):
     z[zo] = xc * yc
     for j in range(1, 5):
         z[zo + j] = xc * y[yo + j] + yc * x[xo + j]
-    z[zo + A_R] = abs(xc) * y[yo + A_R] + abs(yc) * x[xo + A_R] + dx * dy + \
+    z[zo + A_R] = (abs(xc) * y[yo + A_R] + abs(yc) * x[xo + A_R] + dx * dy) * (1.0 + PAD) + \
         PAD * (_mag(x, xo) * _mag(y, yo) + abs(xc * yc) + 1e-300)
 
 
@@ -102,7 +102,7 @@ def q_scale(k, x):
     for o in (0, A_SIZE):
         for j in range(5):
             z[o + j] = k * x[o + j]
-        z[o + A_R] = abs(k) * x[o + A_R] + PAD * abs(k) * _mag(x, o)
+        z[o + A_R] = abs(k) * x[o + A_R] * (1.0 + PAD) + PAD * abs(k) * _mag(x, o)
     return z
 
 
@@ -172,9 +172,10 @@ def joint_box_elbows(qc, tol, M, l1, D0, D1):
     Taylor remainder ``l1 tol^2 / 2``."""
     for i in range(3):
         cq, sq = math.cos(qc[i]), math.sin(qc[i])
-        r = 0.5 * l1[i] * tol[i] * tol[i]
-        D0[i] = q_const(M[i, 0] + l1[i] * cq, 1 + i, -l1[i] * sq * tol[i], r)
-        D1[i] = q_const(M[i, 1] + l1[i] * sq, 1 + i, l1[i] * cq * tol[i], r)
+        r0 = 0.5 * l1[i] * tol[i] * tol[i] + PAD * (abs(M[i, 0]) + l1[i])     # Taylor, and the rounding of M +
+        r1 = 0.5 * l1[i] * tol[i] * tol[i] + PAD * (abs(M[i, 1]) + l1[i])     # l1 cos q where it cancels
+        D0[i] = q_const(M[i, 0] + l1[i] * cq, 1 + i, -l1[i] * sq * tol[i], r0)
+        D1[i] = q_const(M[i, 1] + l1[i] * sq, 1 + i, l1[i] * cq * tol[i], r1)
 
 
 @njit(cache=True)

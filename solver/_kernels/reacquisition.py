@@ -40,6 +40,8 @@ from .tracker_packs import STEP_QU
 from .tube import TUBE_K, TUBE_Q, TUBE_SIZE, TUBE_T, TUBE_X, spread, tube_test
 from .tube_chain import MAX_COVER, pose_bound
 
+#: Double precision's unit roundoff.
+EPS = 2.220446049250313e-16
 #: Re-acquisition by tubes tries the first covers of :data:`.exclusion.EXCLUSION_COVERS`: the reading's
 #: joint box whole, in 3 and 8 slabs across the needle, in 2**3 parts.
 REACQUIRE_COVERS = 4
@@ -153,7 +155,9 @@ def eliminant_reacquired(chosen, certified, state, work, poses, real, params, mo
     box, part = np.empty(6), np.empty(6)
     ok = False
     for n in (1, 2):
-        t = np.full(3, tol / n)
+        t = np.empty(3)                           # the parts' half-widths, padded for the rounding of their centres
+        for j in range(3):
+            t[j] = tol / n + 4.0 * EPS * (abs(qu[j]) + tol)
         qc = np.empty(3)
         ok = True
         for i in range(n ** 3):
@@ -173,6 +177,8 @@ def eliminant_reacquired(chosen, certified, state, work, poses, real, params, mo
     for r in range(2):                            # the robot is in the region too (its phi range is the box's)
         box[2 * r] = max(box[2 * r], region[2 * r])
         box[2 * r + 1] = min(box[2 * r + 1], region[2 * r + 1])
+        if box[2 * r] > box[2 * r + 1]:
+            return False                          # the proof and the region disagree: vouch for nothing
     p = Xc[2] + TWO_PI * round((0.5 * (box[4] + box[5]) - Xc[2]) / TWO_PI)      # phi beside the box's
     X = (Xc[0], Xc[1], p)
     for r in range(3):
