@@ -28,6 +28,7 @@ from .anytime import (ANY_R_F, ANY_R_HULL, ANY_R_K, ANY_R_N, ANY_R_N_PATH, ANY_R
                       WALK_CLOSED, path_append, walk_append, walk_begin, walk_on)
 from .certify import elbow_bits
 from .clock import expired
+from .direct_kinematics import EPS
 from .eliminant import eliminant_certificate
 from .exclusion import (HULL_FACTORS, PREIMAGE_STACK, exclusion_cover, fat_hull, in_region, preimage_on,
                         reacquire, reacquire_box, tube_exclusion)
@@ -40,8 +41,6 @@ from .tracker_packs import STEP_QU
 from .tube import TUBE_K, TUBE_Q, TUBE_SIZE, TUBE_T, TUBE_X, spread, tube_test
 from .tube_chain import MAX_COVER, pose_bound
 
-#: Double precision's unit roundoff.
-EPS = 2.220446049250313e-16
 #: Re-acquisition by tubes tries the first covers of :data:`.exclusion.EXCLUSION_COVERS`: the reading's
 #: joint box whole, in 3 and 8 slabs across the needle, in 2**3 parts.
 REACQUIRE_COVERS = 4
