@@ -191,7 +191,7 @@ from .grid import default_bounds
 from .manipulator import Manipulator
 from .maptensor import MapTensor
 from .ordering import rule_code
-from .start import START_TOLERANCE, StartInfo, encoder_bits, honest_start  # noqa: F401  (re-exported)
+from .start import START_TOLERANCE, StartInfo, encoder_bits, encoder_note, honest_start  # noqa: F401  (re-exported)
 from .tracker_state import TrackerError
 from .tracking import _TrackerBase
 
@@ -212,6 +212,10 @@ GATE = 4.0
 
 #: With measured joints: pose boxes one re-acquisition may examine (see "Sensors").
 REACQUIRE_BOXES = 10000
+
+#: With ``joint_tolerance = 0`` and a reset at joints off any encoder grid: the readings after it that are
+#: checked for one (an encoder stream is on its grid from its first reading).
+GRID_WATCH = 3
 
 
 
@@ -256,7 +260,8 @@ class Tracker(_TrackerBase):
     joint_tolerance : float
         Bound on the joints' measurement error, rad (0: the joints are exact).  See "Sensors".  Left
         at 0, a :meth:`reset` whose joints lie on an encoder grid (:func:`solver.start.encoder_bits`)
-        sets it to half an encoder step, with a warning and :attr:`StartInfo.note`.
+        sets it to half an encoder step, with a warning and :attr:`StartInfo.note`; after a reset at
+        exact joints, so does one of the first :data:`GRID_WATCH` readings on a grid (with a warning).
     gate : float
         Outlier gate (with ``joint_tolerance > 0``): refuse a sample whose joint step is off the
         expected one by more than the tolerance allows plus this many recent mean differences.
@@ -378,6 +383,7 @@ class Tracker(_TrackerBase):
                              self._w, int(self._params[_lay.PARAM_REACQUIRE]) or REACQUIRE_BOXES)
         start = start._replace(note=note)
         self.start = start
+        self._watch = GRID_WATCH if self.joint_tolerance == 0.0 and self.model.kind == "3-RRR" else 0
         # the robot is within the proven bound of the start, or else within the start tolerance of X0 (the
         # start's own assumption): where re-acquisition and the set-membership steps begin
         anchor, bound = (start.X, start.pose_bound) if start.certain else (st.X, np.array(self.start_tolerance, float))
@@ -385,10 +391,11 @@ class Tracker(_TrackerBase):
                              intact=start.certain, tube=start.tube, anchor_bound=bound.copy())
         return start
 
-    def _encoder_tolerance(self, q0) -> str:
+    def _encoder_tolerance(self, q0, what: str = "q0", stacklevel: int = 3) -> str:
         """With ``joint_tolerance = 0``: joints ``q0`` (3,) on an encoder grid are readings, not exact
         joints; take half an encoder step as the tolerance (so that ``certain`` is about the robot,
-        not about the readings), say so and warn.  Returns the note ("" when nothing changed)."""
+        not about the readings), say so (:func:`solver.start.encoder_note`) and warn.  Returns the note
+        ("" when nothing changed)."""
         if self.joint_tolerance > 0.0 or self.model.kind != "3-RRR":
             return ""
         bits = encoder_bits(q0)
@@ -397,15 +404,17 @@ class Tracker(_TrackerBase):
         tol = float(np.pi / 2.0 ** bits) * (1.0 + 1e-9)
         self.joint_tolerance = tol
         self._params[_lay.PARAM_JOINT_TOL] = tol
-        note = (f"q0 lies on a {bits}-bit encoder grid (2 pi / 2**{bits} rad): readings, not exact joints; "
-                f"joint_tolerance = 0 would vouch for the branch along the readings, so the tracker takes half "
-                f"a step, joint_tolerance = {tol:.3g} rad (pass joint_tolerance, e.g. Sensor.tolerance(), to choose)")
-        if self.speed_bound is None:
-            note += ("; with readings and no speed_bound, certainty lost near a singularity seldom comes back "
-                     "(re-acquisition would have to rule out every other pose of the tool space): pass "
-                     "speed_bound=(m/s, rad/s), a bound on the platform's speed")
-        warnings.warn(note, stacklevel=3)
+        note = encoder_note(what, bits, tol, self.speed_bound)
+        warnings.warn(note, stacklevel=stacklevel)
         return note
+
+    def _watch_grid(self, q):
+        """After a reset at joints off any encoder grid, the first :data:`GRID_WATCH` readings: one on a
+        grid makes the tracker take half a step as its tolerance from that step on, as a reset there
+        would (the robot was homed at exact joints, the stream comes from encoders)."""
+        self._watch -= 1
+        if self._encoder_tolerance(q, f"the reading of step {self.state.steps + 1}", stacklevel=4):
+            self._watch = 0
 
     def _kernel(self, q, state_pack, deadline):
         anytime, walk = self._anytime, self.state.walk

@@ -40,6 +40,8 @@ class _TrackerBase:
     name = "base"
     #: Identical readings in a row that mark a joint stuck (0: off); see :mod:`solver.stuck`.
     stuck_after = 0
+    #: Readings still to check for an encoder grid after a reset at exact joints (see :class:`solver.Tracker`).
+    _watch = 0
 
     def __init__(self, model):
         if not isinstance(model, tuple(MANIPULATOR_TYPES.values())):
@@ -129,6 +131,8 @@ class _TrackerBase:
             raise TrackerError(f"{self.name}: no state; call reset(X0, q0) first")
         if dt is not None and not (np.isfinite(dt) and dt > 0):
             raise SolverInputError(f"dt: expected a positive time step in s, got {dt!r}")
+        if self._watch:                                      # readings after an exact start: on an encoder grid?
+            self._watch_grid(q)
         extra = {}
         if self.stuck_after:
             repeats = repeat_counts(st, q)

@@ -1,4 +1,6 @@
 """Tube certificates (solver._kernels.tube), the proven pose bound and the honest start."""
+import warnings
+
 import numpy as np
 import pytest
 
@@ -290,6 +292,27 @@ def test_a_default_tracker_on_encoder_readings_takes_half_a_step_and_says_so(mod
     from solver.start import encoder_bits
     assert encoder_bits([0.0, np.pi / 2, -np.pi]) is None                               # set by hand
     assert encoder_bits(np.array([3, -700, 12345]) * 2 * np.pi / 2 ** 14) == 14
+
+
+def test_a_tracker_started_at_exact_joints_then_fed_encoder_readings_says_so_and_is_never_silently_wrong(model):
+    """Homed at exact joints (the reset's q0 off any grid), then exact 16-bit readings: the first reading
+    on the grid makes the tracker take half a step as its tolerance, with a warning that says what to
+    set; from there on it is never certain and wrong, and its bound holds against the robot."""
+    sensor = Sensor("16-bit-exact", bits=16)
+    X_true, q_true, q = noisy_stream(model, sensor, n=600)
+    q[0] = q_true[0]
+    tracker = Tracker(model, coarse_map(model, 1))
+    with pytest.warns(UserWarning, match="the reading of step 1 lies on a 16-bit encoder grid"):
+        res = tracker.track(q, X_true[0])
+    assert tracker.start.note == "" and tracker.joint_tolerance == pytest.approx(np.pi / 2 ** 16)
+    err = np.abs(res.X - X_true)
+    err[:, 2] = np.abs(wrap_angle(res.X[:, 2] - X_true[:, 2]))
+    assert np.all(err[res.certain] <= res.pose_bound[res.certain])
+    assert res.certain.mean() > 0.9
+    exact = Tracker(model, coarse_map(model, 1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert exact.track(q_true[:50], X_true[0]).certain.all()        # float joints: nothing to say
 
 
 def test_the_tube_survives_a_rejected_step_and_a_saved_state(model):
