@@ -113,7 +113,7 @@ samples:
   are within the tolerance lies in that hull (else, the same with an axis-aligned
   Krawczyk box about the chosen solution; else, with a speed bound, the
   eliminant in one variable, phi, over the reading's joint box in affine
-  arithmetic, :mod:`._kernels.eliminant`: one solution in any posture has its phi
+  arithmetic, :mod:`._kernels.eliminant`: one solution in the posture has its phi
   in the region's range, for every joint vector of the box, where a needle next
   to a fold is too long and curved for any tube); the search covers the poses the
   platform can have reached when ``speed_bound`` (m/s, rad/s) is given, else the

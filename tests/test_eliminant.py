@@ -112,6 +112,39 @@ def test_the_certificate_refuses_a_range_that_can_hold_two_solutions(model, geo)
     assert not eliminant_certificate(phis[0], q, t, phis[0] - 0.01, phis[0] + 0.01, M, l1, -np.abs(l2sq), b, box)
 
 
+@pytest.mark.parametrize("posture", [3, 6])
+def test_a_whole_turn_closes_where_the_other_solutions_are_in_other_postures(model, geo, rng, posture):
+    """With the posture known, the runs of the other real DK solutions are ruled out by their boxes:
+    over a whole turn of phi the certificate closes where the solution is the only one in its posture
+    (and only there), and every DK solution in that posture at random joint vectors of the box lies in
+    the returned box.  Without the posture a whole turn is refused."""
+    from solver.kinematics import posture_of
+    M, l1, l2sq, b = geo
+    t, box = np.full(3, 1e-4), np.empty(6)
+    sole, closed, checked = 0, 0, 0
+    for _ in range(120):
+        X0 = np.array([rng.uniform(0.2, 0.9), rng.uniform(0.1, 0.7), rng.uniform(-np.pi, np.pi)])
+        q0 = ik(model, X0, posture)
+        if not np.all(np.isfinite(q0)):                              # out of reach
+            continue
+        alone = sum(int(posture_of(model, p, q0)) == posture for p in dk_all(model, q0).real_poses()) == 1
+        ok = eliminant_certificate(X0[2], q0, t, X0[2] - np.pi, X0[2] + np.pi, M, l1, l2sq, b, box, 0.0,
+                                   posture - 1)
+        assert not ok or alone
+        sole, closed = sole + alone, closed + ok
+        if ok and checked < 4:
+            checked += 1
+            assert not eliminant_certificate(X0[2], q0, t, X0[2] - np.pi, X0[2] + np.pi, M, l1, l2sq, b,
+                                             np.empty(6))
+            for _ in range(100):
+                q = q0 + 1e-4 * rng.uniform(-1, 1, 3)
+                for p in dk_all(model, q).real_poses():
+                    if int(posture_of(model, p, q)) == posture:
+                        c = p[2] + 2 * np.pi * np.round((0.5 * (box[4] + box[5]) - p[2]) / (2 * np.pi))
+                        assert box[0] <= p[0] <= box[1] and box[2] <= p[1] <= box[3] and box[4] <= c <= box[5]
+    assert sole >= 5 and closed >= 0.8 * sole and checked >= 4
+
+
 def test_the_tracker_stays_certain_through_a_needle_the_tubes_cannot_hold(model):
     """The encoder stream of ``p3-circle-2mm`` at 16 bits + 1e-4 rad through its ill-conditioned
     stretch: certain on most steps (the tube covers alone were certain on none of them), with the

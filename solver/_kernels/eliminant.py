@@ -19,7 +19,9 @@ most one root, and exactly one when ``f`` has opposite signs at the run's two en
 vector.  Intervals where neither holds are halved.  When exactly one run holds a root, and the
 solution to re-acquire has its phi there, every pose of the region (in any posture) reaching the
 joint box is that solution's: its phi in the run, its ``P = n / delta`` in the interval enclosure
-over the run (``delta`` kept away from 0), which gives the pose bound.
+over the run (``delta`` kept away from 0), which gives the pose bound.  With the robot's posture
+known, a run whose box holds no pose reaching the joint box in that posture is ruled out too
+(another assembly mode in another posture), and the range may be a whole turn.
 """
 from __future__ import annotations
 
@@ -29,6 +31,7 @@ import numpy as np
 from numba import njit
 
 from .clock import expired
+from .exclusion import posture_misses
 from .krawczyk import PAD, TWO_PI
 
 #: The first cut of the region's phi range (rad), the narrowest interval halving may reach, and the
@@ -179,17 +182,20 @@ def joint_box_elbows(qc, tol, M, l1, D0, D1):
 
 
 @njit(cache=True)
-def eliminant_certificate(phi_c, qc, tol, plo, phi, M, l1, l2sq, b, bound_box, deadline=0.0):
+def eliminant_certificate(phi_c, qc, tol, plo, phi, M, l1, l2sq, b, bound_box, deadline=0.0, posture_bits=-1):
     """Whether, for every joint vector of ``qc +- tol`` (3,, rad), at most one DK solution has its phi
     in [plo, phi] (rad, less than a turn), in the run of intervals holding ``phi_c`` (the module
     docstring): a robot known to be in that phi range, at joints in the box, is at that solution.
+    With a posture (``posture_bits`` >= 0: the robot is known to be in posture ``posture_bits + 1``),
+    another run that may hold a root is ruled out when no pose of its box reaches the joint box in
+    that posture (:func:`.exclusion.posture_misses`), and the range may be a whole turn.
     On success the box (x lo, x hi, y lo, y hi, phi lo, phi hi) holding those solutions goes into
     ``bound_box`` (6,).  False also for a prismatic leg (the 3-RPR), on a cut the ``deadline`` made,
     or when :data:`MAX_EVALS` evaluations did not decide."""
     for i in range(3):
         if l2sq[i] < 0.0:
             return False
-    if not (phi - plo < TWO_PI - 1e-9) or not plo < phi:
+    if not (phi - plo < (TWO_PI + 1e-9 if posture_bits >= 0 else TWO_PI - 1e-9)) or not plo < phi:
         return False
     if phi_c == phi_c:
         while phi_c < plo:
@@ -200,7 +206,8 @@ def eliminant_certificate(phi_c, qc, tol, plo, phi, M, l1, l2sq, b, bound_box, d
             return False
     D0, D1 = np.empty((3, Q_SIZE)), np.empty((3, Q_SIZE))
     joint_box_elbows(qc, tol, M, l1, D0, D1)
-    ev = np.empty(10)
+    ev, other = np.empty(10), np.empty(6)
+    eps = max(tol[0], max(tol[1], tol[2]))
     n0 = max(1, int(math.ceil((phi - plo) / PHI_STEP)))
     stack = np.empty((64 + n0, 2))                # intervals still to look at, the leftmost on top
     top = 0
@@ -235,9 +242,11 @@ def eliminant_certificate(phi_c, qc, tol, plo, phi, M, l1, l2sq, b, bound_box, d
         if cur_on and (done or free or sign != cur_sign):      # the run ends
             r_lo, r_hi = run[0, 0], run[n_run - 1, 1]
             mine = r_lo <= phi_c <= r_hi if phi_c == phi_c else False
-            if mine or end_signs(r_lo, r_hi, D0, D1, b, l2sq, ev) != 1:
-                # the run of the solution (or, with phi_c NaN, the one run that may hold a root): at most one
-                # root per joint vector
+            if mine or (end_signs(r_lo, r_hi, D0, D1, b, l2sq, ev) != 1 and not (
+                    posture_bits >= 0 and run_box(run, n_run, D0, D1, b, l2sq, ev, other)
+                    and posture_misses(other, qc, eps, posture_bits, M, l1, l2sq, b))):
+                # the run of the solution (or, with phi_c NaN, the one run that may hold a root in the
+                # posture): at most one root per joint vector
                 if found or not (mine or phi_c != phi_c):
                     return False                       # another run may hold a root
                 if not run_box(run, n_run, D0, D1, b, l2sq, ev, bound_box):

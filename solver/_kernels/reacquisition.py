@@ -7,8 +7,8 @@ of the joint box ``q +- tol`` by tubes holds one solution per joint vector and e
 region in the tracker's posture reaching a tube's joints lies in that tube's fat box
 (:func:`.exclusion.tube_exclusion`, the covers of :data:`REACQUIRE_COVERS`), or else an
 axis-aligned Krawczyk box does (:func:`.exclusion.reacquire`), or else the eliminant shows that one
-solution, in any posture, has its phi in the region's range for every joint vector of the box
-(:func:`eliminant_reacquired`, :mod:`.eliminant`).
+solution in the tracker's posture has its phi in the region's range (a whole turn without a bound
+on phi) for every joint vector of the box (:func:`eliminant_reacquired`, :mod:`.eliminant`).
 
 :func:`reacquired` runs that proof within one step.  With a step budget it is resumable
 (:func:`reacquired_anytime`): the proof for the reading it began at keeps its place (attempt,
@@ -140,16 +140,21 @@ def reacquired(chosen, certified, state, work, poses, real, params, model_pack, 
 def eliminant_reacquired(chosen, certified, state, work, poses, real, params, model_pack, new_cands, keep, bound,
                          deadline=0.0):
     """Re-acquire from this sample by the eliminant (:mod:`.eliminant`): the solution of
-    :func:`reacquire_target` is the only one, in any posture, whose phi lies in the region's phi range
-    for every joint vector of the reading's box (whole, else in 2**3 parts).  Where the tube covers
-    fail on a long, curved needle this one-dimensional test still closes.  On success ``keep`` (6,)
+    :func:`reacquire_target` is the only one in the tracker's posture whose phi lies in the region's
+    phi range (a whole turn when the region does not bound phi) for every joint vector of the
+    reading's box (whole, else in 2**3 parts); a solution in another posture is ruled out by its
+    box.  Where the tube covers fail on a long, curved needle this one-dimensional test still closes.  On success ``keep`` (6,)
     marks the solution alone, ``new_cands[0]`` holds it, ``bound`` (3,) the half-widths (m, m, rad) of
     a box about it holding the robot's pose (the eliminant's box cut to the region); returns True."""
     region, Xc = np.empty(6), np.empty(3)
     qu, tol = work[STEP_QU:STEP_QU + 3], params[PARAM_JOINT_TOL]
     target = reacquire_target(chosen, certified, keep, poses, real, params, state, qu, model_pack, Xc, region)
-    if target < 0 or not region[5] - region[4] < TWO_PI - 1e-9:
+    if target < 0:
         return False
+    posture = int(params[PARAM_POSTURE_BITS])
+    plo, phi = region[4], region[5]
+    if not phi - plo < TWO_PI - 1e-9:             # no bound on phi: a whole turn, the posture rules out the rest
+        plo, phi = Xc[2] - np.pi, Xc[2] + np.pi
     M, l1, l2sq, b = geometry(model_pack)
     box, part = np.empty(6), np.empty(6)
     ok = False
@@ -162,8 +167,8 @@ def eliminant_reacquired(chosen, certified, state, work, poses, real, params, mo
         for i in range(n ** 3):
             for j in range(3):
                 qc[j] = qu[j] + tol * (-1.0 + (2.0 * ((i // n ** j) % n) + 1.0) / n)
-            if not eliminant_certificate(Xc[2] if n == 1 else np.nan, qc, t, region[4], region[5], M, l1, l2sq, b,
-                                         part, deadline):
+            if not eliminant_certificate(Xc[2] if n == 1 else np.nan, qc, t, plo, phi, M, l1, l2sq, b, part,
+                                         deadline, posture):
                 ok = False
                 break
             for r in range(3):
