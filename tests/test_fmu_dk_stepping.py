@@ -57,6 +57,32 @@ def test_state_round_trip_is_bit_for_bit(make, map1):
     assert first == tracker_rows(map1, Q[:700])[300:]
 
 
+def test_a_saved_state_keeps_the_unfinished_proof(make, map1):
+    """step_budget_share tiny: the first steps have no time for a proof (out_of_budget, not certain) and
+    leave the walk unfinished.  The FMU state saved then, restored into another instance, goes on: given
+    time (a longer communication step: the budget is the share of it), both close the proof at the same
+    step, certain, with the same outputs, and the pose is the unbudgeted tracker's."""
+    start = dict(circle_start(), step_budget_share=1e-4)             # 100 ns at h = 1 ms
+    a = make("a", **start)
+    for k in range(3):
+        a.step(Q[k])
+        assert a.get_values(["certain", "out_of_budget"]) == [False, True]
+    state = a.fmu.getFMUstate()
+    blob = a.fmu.serializeFMUstate(state)
+    a.fmu.freeFMUstate(state)
+    b = make("b", **start)
+    restored = b.fmu.deSerializeFMUstate(blob)
+    b.fmu.setFMUstate(restored)
+    b.fmu.freeFMUstate(restored)
+    rows = []
+    for m in (a, b):
+        m.set_q(Q[3])
+        m.fmu.doStep(a.t, 10.0)                                       # a budget of 1 ms
+        rows.append((m.outputs(), m.get_values(["certain", "out_of_budget"])))
+    assert rows[0] == rows[1] and rows[0][1] == [True, False]
+    assert rows[0][0][:3] == tracker_rows(map1, Q[:4])[3][:3]
+
+
 def test_reset_returns_to_the_initial_pose(make, map1):
     m = make(**circle_start())
     initial = m.outputs()

@@ -143,9 +143,10 @@ def eliminant_reacquired(chosen, certified, state, work, poses, real, params, mo
     :func:`reacquire_target` is the only one in the tracker's posture whose phi lies in the region's
     phi range (a whole turn when the region does not bound phi) for every joint vector of the
     reading's box (whole, else in 2**3 parts); a solution in another posture is ruled out by its
-    box.  Where the tube covers fail on a long, curved needle this one-dimensional test still closes.  On success ``keep`` (6,)
-    marks the solution alone, ``new_cands[0]`` holds it, ``bound`` (3,) the half-widths (m, m, rad) of
-    a box about it holding the robot's pose (the eliminant's box cut to the region); returns True."""
+    box.  Where the tube covers fail on a long, curved needle this one-dimensional test still
+    closes.  On success ``keep`` (6,) marks the solution alone, ``new_cands[0]`` holds it, ``bound``
+    (3,) the half-widths (m, m, rad) of a box about it holding the robot's pose (the eliminant's box
+    cut to the region); returns True."""
     region, Xc = np.empty(6), np.empty(3)
     qu, tol = work[STEP_QU:STEP_QU + 3], params[PARAM_JOINT_TOL]
     target = reacquire_target(chosen, certified, keep, poses, real, params, state, qu, model_pack, Xc, region)
