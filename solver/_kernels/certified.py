@@ -24,7 +24,7 @@ from .layout import (I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_TRUST, MAP_
                      PARAM_MAX_TESTS, PARAM_POSTURE_BITS, PARAM_REACQUIRE, PAVE_BOXES, STATE_CANDS, STATE_EXT_SCALE,
                      STATE_HAVE_Q2, STATE_INTACT, STATE_N_CAND, STATE_N_TUBES, STATE_Q, STATE_Q2, STATE_TUBE,
                      STATE_VERIFIED, TRUST_CERTAIN, TRUST_LOST, TRUST_POSSIBLE)
-from .linalg import wrap
+from .linalg import turns_to, wrap
 from .paving import region_step
 from .reacquisition import cover_solution, eliminant_reacquired, reacquired, reacquired_anytime, region_choice
 from .tracker_packs import STEP_DQ, STEP_QU
@@ -340,7 +340,7 @@ def paving_cut(state, qu, params, model_pack, Xc, bound, out_real, deadline):
     hull = out_real[OUT_REGION:OUT_REGION + 6]
     region_step(state, qu, params, model_pack, hull, out_real[OUT_N_PAVE:OUT_N_PAVE + 1 + 6 * PAVE_BOXES], deadline)
     if hull[0] <= hull[1] and hull[2] <= hull[3] and hull[4] <= hull[5]:
-        shift = 2.0 * np.pi * np.round((Xc[2] - 0.5 * (hull[4] + hull[5])) / (2.0 * np.pi))
+        shift = turns_to(0.5 * (hull[4] + hull[5]), Xc[2])
         b = np.empty(3)
         ok = True
         for r in range(3):

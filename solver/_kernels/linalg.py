@@ -14,6 +14,12 @@ def wrap(a):
 
 
 @njit(cache=True)
+def turns_to(a, ref):
+    """The whole turns (rad, a multiple of 2 pi) that bring the angle ``a`` nearest ``ref``."""
+    return 2.0 * math.pi * round((ref - a) / (2.0 * math.pi))
+
+
+@njit(cache=True)
 def det3(A):
     """Determinant of a 3x3 matrix by cofactors of its first row."""
     return (A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1]) - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])

@@ -36,7 +36,7 @@ from .gates import reacquire_region
 from .kinematics import geometry
 from .krawczyk import PAD, TWO_PI
 from .layout import PARAM_JOINT_TOL, PARAM_POSTURE_BITS, PARAM_REACQUIRE
-from .linalg import wrap
+from .linalg import turns_to, wrap
 from .tracker_packs import STEP_QU
 from .tube import TUBE_K, TUBE_Q, TUBE_SIZE, TUBE_T, TUBE_X, spread, tube_test
 from .tube_chain import MAX_COVER, pose_bound
@@ -184,7 +184,7 @@ def eliminant_reacquired(chosen, certified, state, work, poses, real, params, mo
         box[2 * r + 1] = min(box[2 * r + 1], region[2 * r + 1])
         if box[2 * r] > box[2 * r + 1]:
             return False                          # the proof and the region disagree: vouch for nothing
-    p = Xc[2] + TWO_PI * round((0.5 * (box[4] + box[5]) - Xc[2]) / TWO_PI)      # phi beside the box's
+    p = Xc[2] + turns_to(Xc[2], 0.5 * (box[4] + box[5]))      # phi beside the box's
     X = (Xc[0], Xc[1], p)
     for r in range(3):
         bound[r] = max(X[r] - box[2 * r], box[2 * r + 1] - X[r])
