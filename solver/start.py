@@ -18,7 +18,7 @@ from ._kernels.tube_chain import MAX_COVER, pose_bound
 from .direct_kinematics import dk_all
 from .kinematics import wrap_angle
 
-__all__ = ["START_TOLERANCE", "StartInfo", "honest_start", "encoder_bits", "encoder_note"]
+__all__ = ["START_TOLERANCE", "StartInfo", "honest_start"]
 
 #: How far the initial pose given to :meth:`solver.Tracker.reset` may be from the robot's (m, m, rad).
 START_TOLERANCE = (0.01, 0.01, 0.05)
@@ -51,42 +51,6 @@ class StartInfo(NamedTuple):
     reason: str
     tube: np.ndarray | None = None
     note: str = ""
-
-
-#: Encoders of MIN_ENCODER_BITS to MAX_ENCODER_BITS bits per turn are recognised from their readings
-#: (:func:`encoder_bits`).
-MIN_ENCODER_BITS, MAX_ENCODER_BITS = 8, 24
-
-
-def encoder_bits(q) -> int | None:
-    """The bits per turn of the encoder grid the joints ``q`` (3,) (rad) lie on, or None.
-
-    Readings of a ``B``-bit encoder are integer multiples of ``2 pi / 2**B``; joints that are all
-    such multiples for some ``B <= MAX_ENCODER_BITS`` (the smallest is returned, at least
-    ``MIN_ENCODER_BITS``: joints on a coarser grid, such as 0 or pi / 2, are set by hand) are taken
-    as encoder readings.  Joints computed in floating point (inverse kinematics, a simulation) land
-    on such a grid with a probability of about ``1e-8``.
-    """
-    q = np.asarray(q, dtype=float)
-    for bits in range(1, MAX_ENCODER_BITS + 1):
-        k = q * (2.0 ** bits / (2.0 * np.pi))
-        if np.all(np.abs(k - np.round(k)) <= 1e-9 * np.maximum(1.0, np.abs(k))):
-            # joints on a grid coarser than MIN_ENCODER_BITS (0, pi / 2, ...) are set by hand, not read
-            return bits if bits >= MIN_ENCODER_BITS else None
-    return None
-
-
-def encoder_note(what: str, bits: int, tol: float, speed_bound) -> str:
-    """What a tracker with ``joint_tolerance = 0`` says when ``what`` (joints) lies on a ``bits``-bit
-    encoder grid and it takes ``tol`` (rad, half a step) as its tolerance: why, and what to set."""
-    note = (f"{what} lies on a {bits}-bit encoder grid (2 pi / 2**{bits} rad): readings, not exact joints; "
-            f"joint_tolerance = 0 would vouch for the branch along the readings, so the tracker takes half "
-            f"a step, joint_tolerance = {tol:.3g} rad (pass joint_tolerance, e.g. Sensor.tolerance(), to choose)")
-    if speed_bound is None:
-        note += ("; with readings and no speed_bound, certainty lost near a singularity seldom comes back "
-                 "(re-acquisition would have to rule out every other pose of the tool space): pass "
-                 "speed_bound=(m/s, rad/s), a bound on the platform's speed")
-    return note
 
 
 def honest_start(model_pack, model, X0, q0, start_tolerance, joint_tolerance: float, weights,

@@ -95,74 +95,26 @@ Sensors
 -------
 The certificates above are about the joints the tracker is given.  Joints from
 encoders are not the robot's: near a singularity a few milliradians of noise can
-put the measured joints past a fold that the robot never crosses, and a proof
-about the measured joints then vouches for a branch the robot is not on.  Give
-the tracker a bound on the measurement error, ``joint_tolerance`` (rad, e.g. 3
-noise sigmas plus half an encoder step; :meth:`solver.sensors.Sensor.tolerance`),
-and ``certain`` means a proof for every joint path within that tolerance of the
-samples:
-
-* *tubes* (above) cover the joint segment widened by the tolerance, so a chain of
-  them vouches for every such path; once one fails (a fold within the tolerance,
-  or a box too wide for the test) ``certain`` stays False until
-* *re-acquisition* proves, from the present sample alone, that the robot's pose is
-  the solution of the reading's tube: a tube twice as wide as the needle's hull
-  still holds one solution per joint vector, and a branch and bound over the tool
-  space (interval inverse kinematics in the map's posture,
-  :mod:`._kernels.exclusion`) shows that every pose of the posture whose joints
-  are within the tolerance lies in that hull (else, the same with an axis-aligned
-  Krawczyk box about the chosen solution; else, with a speed bound, the
-  eliminant in one variable, phi, over the reading's joint box in affine
-  arithmetic, :mod:`._kernels.eliminant`: one solution in the posture has its phi
-  in the region's range, for every joint vector of the box, where a needle next
-  to a fold is too long and curved for any tube); the search covers the poses the
-  platform can have reached when ``speed_bound`` (m/s, rad/s) is given, else the
-  tool space: the hull of a set-membership paving (:mod:`._kernels.paving`), up to
-  32 pose boxes kept from the last certain pose's bound, each uncertain step
-  growing them by the speed bound and cutting them to the poses that reach its
-  reading's joint box (``TrackerState.paving``).  That region also steers the
-  choice: a solution outside it (or in another posture) cannot be the robot's, so
-  when the chosen one is, the one real solution inside it in the posture is
-  taken (a choice, not a proof; the speed gate leaves it alone) and is the one
-  re-acquisition tries;
-* an *outlier gate* (:mod:`._kernels.gates`) looks at a sample whose joint step
-  differs from the expected one (constant joint velocity) by more than the
-  tolerance allows plus ``gate`` times the recent differences (an envelope that
-  rises at once and decays by a fifth per sample).  If that unexpected motion
-  moves the pose more than noise could (first order), the sample is refused:
-  status ``rejected``, pose held, state kept (only the count of refusals moves).
-  If it does not (a joint swinging next to a serial singularity), the sample is
-  taken; with ``speed_bound`` also when a DK solution of it lies within the
-  platform's reach of the last pose (a swing beyond the first-order test; it
-  leaves the envelope as it was).  Such a sample, off by more than the gate allows yet taken, may still be
-  a glitch: it is vouched for by nothing and ends the chain of certificates (a
-  joint accelerating as it did in recent samples is not such a sample).  After ``MAX_REFUSED`` refusals in a
-  row the next sample is taken (the joints really moved) and vouching ends until
-  a re-acquisition, which searches the poses the platform can have reached since
-  the last certain step (the speed bound is about the robot, whatever the sensor
-  did);
-* with ``speed_bound``, a *speed gate*: when the chosen solution is farther
-  than the platform can have moved since the last sample (plus 0.1 m / 0.1 rad),
-  the measured joints crossed a fold that the robot did not.  If exactly one
-  real solution is within that reach it is taken (not vouched for, the chain
-  ends); otherwise the previous pose is held (status ``unreachable``), at most
-  ``MAX_HELD`` samples in a row (:data:`solver.tracker_state.MAX_HELD`).  The gate leaves alone
-  a solution that a chain of Krawczyk boxes joins to a previous candidate along
-  the measured joints (the segment between the samples crossed no fold: a
-  choice, not a proof) or that was re-acquired: on an ill-conditioned path the
-  measured solution jumps farther than the platform moves, on its own branch.
-  Before it holds the pose or takes another solution (default mode, a trusted
-  sample, one previous candidate), a chain back to that candidate may use ten
-  times ``max_tests`` tests (only then: the slow steps stay rare);
-* with ``stuck_after``, a *stuck-joint detector* (:mod:`solver.stuck`): a
-  noisy encoder rarely repeats a reading, so a joint read ``stuck_after`` times
-  in a row with the same value is stuck; the state rolls back to before the
-  repeats, the samples are refused while it stays stuck, and the first reading
-  that moves again is one step over the whole time since.
-
-The proofs hold while the sensor keeps its tolerance: the ``stuck_after - 1``
-repeated readings before a detection, and a joint stuck on an exact (noise-free)
-encoder, break it unnoticed.  Measured on noisy streams: ``bench/bench_sensors.py``.
+put the measured joints past a fold that the robot never crosses.  Give the
+tracker a bound on the measurement error, ``joint_tolerance`` (rad, e.g. 3 noise
+sigmas plus half an encoder step; :meth:`solver.sensors.Sensor.tolerance`), and
+``certain`` means a proof for every joint path within that tolerance of the
+samples: tubes cover the joint segment widened by the tolerance; once one fails
+(a fold within the tolerance, or a box too wide for the test), *re-acquisition*
+(:mod:`._kernels.reacquisition`) proves from the present sample alone, over the
+poses the platform can have reached (``speed_bound``, m/s and rad/s: the hull
+of a set-membership paving kept in ``TrackerState.paving``; else the tool
+space), that one pose of the posture is the robot's.  The same region steers
+the choice.  An *outlier gate* (``gate``, :mod:`._kernels.gates`) refuses a
+sample whose unexpected joint motion moves the pose more than noise could
+(status ``rejected``, state kept); a *speed gate* (with ``speed_bound``) holds
+the pose when the chosen solution is farther than the platform can have moved
+(status ``unreachable``, at most :data:`solver.tracker_state.MAX_HELD` samples);
+``stuck_after`` detects a stuck joint (:mod:`solver.stuck`).  With
+``joint_tolerance = 0``, joints on an encoder grid are taken as readings
+(:mod:`solver.encoder_grid`).  The whole design, its measurements and what it
+cannot do: ``docs/sensors.md``; the proofs hold while the sensor keeps its
+tolerance.
 
 A step budget
 -------------
@@ -191,7 +143,8 @@ from .grid import default_bounds
 from .manipulator import Manipulator
 from .maptensor import MapTensor
 from .ordering import rule_code
-from .start import START_TOLERANCE, StartInfo, encoder_bits, encoder_note, honest_start  # noqa: F401  (re-exported)
+from .encoder_grid import encoder_bits, encoder_note, grid_tolerance
+from .start import START_TOLERANCE, StartInfo, honest_start
 from .tracker_state import TrackerError
 from .tracking import _TrackerBase
 
@@ -259,7 +212,7 @@ class Tracker(_TrackerBase):
         Krawczyk tests one chain of certificates may use.
     joint_tolerance : float
         Bound on the joints' measurement error, rad (0: the joints are exact).  See "Sensors".  Left
-        at 0, a :meth:`reset` whose joints lie on an encoder grid (:func:`solver.start.encoder_bits`)
+        at 0, a :meth:`reset` whose joints lie on an encoder grid (:func:`solver.encoder_grid.encoder_bits`)
         sets it to half an encoder step, with a warning and :attr:`StartInfo.note`; after a reset at
         exact joints, so does one of the first :data:`GRID_WATCH` readings on a grid (with a warning).
     gate : float
@@ -394,14 +347,14 @@ class Tracker(_TrackerBase):
     def _encoder_tolerance(self, q0, what: str = "q0", stacklevel: int = 3) -> str:
         """With ``joint_tolerance = 0``: joints ``q0`` (3,) on an encoder grid are readings, not exact
         joints; take half an encoder step as the tolerance (so that ``certain`` is about the robot,
-        not about the readings), say so (:func:`solver.start.encoder_note`) and warn.  Returns the note
+        not about the readings), say so (:func:`solver.encoder_grid.encoder_note`) and warn.  Returns the note
         ("" when nothing changed)."""
         if self.joint_tolerance > 0.0 or self.model.kind != "3-RRR":
             return ""
         bits = encoder_bits(q0)
         if bits is None:
             return ""
-        tol = float(np.pi / 2.0 ** bits) * (1.0 + 1e-9)
+        tol = grid_tolerance(bits)
         self.joint_tolerance = tol
         self._params[_lay.PARAM_JOINT_TOL] = tol
         note = encoder_note(what, bits, tol, self.speed_bound)

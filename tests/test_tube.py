@@ -289,7 +289,7 @@ def test_a_default_tracker_on_encoder_readings_takes_half_a_step_and_says_so(mod
     err[:, 2] = np.abs(wrap_angle(res.X[:, 2] - X_true[:, 2]))
     assert np.all(err[res.certain] <= res.pose_bound[res.certain])
     assert Tracker(model, coarse_map(model, 1)).reset(X_true[0], q_true[0]).note == ""   # float joints: exact
-    from solver.start import encoder_bits
+    from solver.encoder_grid import encoder_bits
     assert encoder_bits([0.0, np.pi / 2, -np.pi]) is None                               # set by hand
     assert encoder_bits(np.array([3, -700, 12345]) * 2 * np.pi / 2 ** 14) == 14
 
