@@ -141,7 +141,10 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-tolerance", dest="tolerance", action="store_false",
                     help="run the trackers without the sensor's joint_tolerance (as for exact joints)")
     ap.add_argument("--speed", type=float, nargs=2, default=None, metavar=("M_PER_S", "RAD_PER_S"),
-                    help="the trackers' speed_bound (default: 1.25 times the fastest path's speeds)")
+                    help="the trackers' speed_bound on every path (default: each path's own, --speed-scope)")
+    ap.add_argument("--speed-scope", choices=("path", "suite"), default="path",
+                    help="without --speed: 1.25 times the path's own fastest speeds (path, default: what a "
+                         "controller that planned the motion knows) or the fastest of the whole suite's (suite)")
     ap.add_argument("--no-speed", action="store_true", help="no speed bound (re-acquisition over the tool space)")
     ap.add_argument("--no-stuck", dest="stuck", action="store_false",
                     help="run the trackers without the stuck-joint detector (solver.stuck)")
@@ -150,8 +153,18 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
+def path_speed(path, dt: float) -> tuple:
+    """A speed bound for one path (m/s, rad/s): 1.25 times its platform's fastest linear and angular
+    speed over its samples ``dt`` (s) apart, at least 0.5 rad/s.  What a controller that planned the
+    motion (the paper's Fig. 2 loop) can give its tracker."""
+    v = float(np.max(np.hypot(*np.diff(path.X[:, :2], axis=0).T))) / dt
+    w = float(np.max(np.abs(wrap_angle(np.diff(path.X[:, 2]))))) / dt
+    return 1.25 * v, max(1.25 * w, 0.5)
+
+
 def _suite_and_speed(model, args, dt: float):
-    """The paths of ``--suite`` and the trackers' speed bound (None: none)."""
+    """The paths of ``--suite`` and the suite-wide speed bound (None: none): ``--speed``, else the
+    largest of the paths' :func:`path_speed`."""
     suite = []
     if args.suite in ("all", "default"):
         suite += default_suite(model, samplings=(args.rate,) + ((1000, 300, 100, 30) if args.coarse else ()))
@@ -160,10 +173,17 @@ def _suite_and_speed(model, args, dt: float):
     if args.limit:
         suite = suite[:args.limit]
     if args.speed is None and not args.no_speed:
-        v = max(float(np.max(np.hypot(*np.diff(p.X[:, :2], axis=0).T))) for p in suite) / dt
-        w = max(float(np.max(np.abs(wrap_angle(np.diff(p.X[:, 2]))))) for p in suite) / dt
-        args.speed = (1.25 * v, max(1.25 * w, 0.5))
+        bounds = np.array([path_speed(p, dt) for p in suite])
+        args.speed = tuple(float(v) for v in bounds.max(axis=0))
     return suite, None if args.no_speed else tuple(args.speed)
+
+
+def speed_of(path, speed, args, dt: float):
+    """The speed bound the trackers get on ``path``: none, the one given (``--speed``, or
+    ``--speed-scope suite``: the suite-wide ``speed``), else the path's own (:func:`path_speed`)."""
+    if speed is None or args.speed_given or args.speed_scope == "suite":
+        return speed
+    return path_speed(path, dt)
 
 
 def longest_run(flags) -> int:
@@ -191,15 +211,16 @@ def _run_grade(model, maps, suite, sensor, args, speed, dt, secs, worst, per_pat
     """Every method on every path's stream of ``sensor``; the totals per method."""
     tol = sensor.tolerance(args.sigmas) if args.tolerance else 0.0
     names = [m for m in args.methods if m not in BARE or (sensor.noise == 0.0 and not sensor.glitch)]
-    makers = make_methods(model, maps, names, tol, speed, sensor.stuck_after() if args.stuck else 0)
+    stuck = sensor.stuck_after() if args.stuck else 0
     tot = {m: dict(counted=0, errors=0, silent=0, alarms=0, refused=0, recovery=0, run=0, checked=0, broken=0,
-                   ratios=[], floor=0) for m in makers}
+                   ratios=[], floor=0) for m in names}
     rng = np.random.default_rng(7)
     for i, path in enumerate(suite):
         stream = sensor.measure(path.q, seed=1000 + i)
         q = stream.q.copy()
         q[0] = path.q[0]                                      # the tracker starts from a known configuration
         truth, counted = sensor_truth(model, q, path.X, stream.glitch)
+        makers = make_methods(model, maps, names, tol, speed_of(path, speed, args, dt), stuck)
         for m, make in makers.items():
             bounds = np.empty((len(q), 3))
             qm = q
@@ -233,6 +254,7 @@ def _run_grade(model, maps, suite, sensor, args, speed, dt, secs, worst, per_pat
 
 def main(argv=None):
     args = _parser().parse_args(argv)
+    args.speed_given = args.speed is not None
     model = Manipulator.paper()
     dt = 1e-3
     suite, speed = _suite_and_speed(model, args, dt)
@@ -250,10 +272,20 @@ def main(argv=None):
     tol = ", ".join(f"{g} {grades[g].tolerance(args.sigmas) * 1e3:.3g} mrad" for g in args.grades)
     print(f"{len(suite)} paths at {args.rate} samples per revolution, dt = 1 ms, {elapsed:.0f} s; joint_tolerance "
           f"{args.sigmas:g} sigma + half a step ({tol if args.tolerance else 'off'}); speed_bound "
-          f"{'none' if speed is None else f'{speed[0]:.2f} m/s, {speed[1]:.2f} rad/s'}")
+          f"{_speed_text(speed, args)}")
     _print_tables(rows, grades, secs, suite, args.grades, per_path, worst)
     _write_csv(rows, Path(args.out) / "sensor_suite.csv")
-    _report(rows, grades, secs, len(suite), elapsed, per_path, [p.name for p in suite])
+    _report(rows, grades, secs, len(suite), elapsed, per_path, [p.name for p in suite], _speed_text(speed, args))
+
+
+def _speed_text(speed, args) -> str:
+    """How the run bounded the platform's speed, for the printed and published headers."""
+    if speed is None:
+        return "none"
+    if args.speed_given or args.speed_scope == "suite":
+        return f"{speed[0]:.2f} m/s, {speed[1]:.2f} rad/s on every path"
+    return (f"1.25 times each path's fastest (at least 0.5 rad/s; at most {speed[0]:.2f} m/s, "
+            f"{speed[1]:.2f} rad/s)")
 
 
 def trust_rows(rows) -> list:
@@ -317,7 +349,7 @@ def _write_csv(rows, path: Path) -> None:
                         f"{t['recovery']}\n")
 
 
-def _report(rows, grades, secs, n_paths, elapsed, per_path, names):
+def _report(rows, grades, secs, n_paths, elapsed, per_path, names, speed_text):
     """The totals per sensor and method and the step times into docs/benchmarks.md (bench/report.py)."""
     from report import publish, table
     lines = []
@@ -380,7 +412,8 @@ def _report(rows, grades, secs, n_paths, elapsed, per_path, names):
                              "0 (not met)" if any(worse[g] for g in noisy if g in worse) else "0"))
     publish("sensors", counts + "\n\n" + steps, headline=headline,
             note=f"{n_paths} paths at 1 kHz, {elapsed:.0f} s. Errors: the real DK solution of the measured joints "
-                 "nearest the noise-free pose is the truth, counted where the second nearest is at least 3x farther.")
+                 "nearest the noise-free pose is the truth, counted where the second nearest is at least 3x farther. "
+                 f"Speed bound: {speed_text}.")
 
 
 if __name__ == "__main__":
