@@ -41,6 +41,7 @@ from experiments.sensors import SENSOR_GRADES, sensor_truth
 from experiments.suite import default_suite, hard_suite
 from solver import DEFAULT_RULE, DEFAULT_STEP, Manipulator, SolverInputError, Tracker, cached_map, wrap_angle
 from solver.baselines import BASELINES
+from solver.sensors import speed_bound
 from solver.tracker_state import STATUS
 
 REJECTED = [k for k, v in STATUS.items() if v == "rejected"][0]
@@ -154,12 +155,10 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def path_speed(path, dt: float) -> tuple:
-    """A speed bound for one path (m/s, rad/s): 1.25 times its platform's fastest linear and angular
-    speed over its samples ``dt`` (s) apart, at least 0.5 rad/s.  What a controller that planned the
-    motion (the paper's Fig. 2 loop) can give its tracker."""
-    v = float(np.max(np.hypot(*np.diff(path.X[:, :2], axis=0).T))) / dt
-    w = float(np.max(np.abs(wrap_angle(np.diff(path.X[:, 2]))))) / dt
-    return 1.25 * v, max(1.25 * w, 0.5)
+    """A speed bound for one path (m/s, rad/s): :func:`solver.sensors.speed_bound` of its poses, 1.25
+    times its fastest speeds, at least 0.5 rad/s: what a controller that planned the motion (the
+    paper's Fig. 2 loop) can give its tracker."""
+    return speed_bound(path.X, dt)
 
 
 def _suite_and_speed(model, args, dt: float):

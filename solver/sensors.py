@@ -2,12 +2,13 @@
 
 A :class:`Sensor` is an encoder model for the three joints: ``bits`` per turn (the reading
 is on a grid of ``2 pi / 2**bits`` rad) and white noise of standard deviation ``noise``
-(rad) before quantization.  It answers the two numbers the tracker needs on measured joints::
+(rad) before quantization.  It answers two of the numbers the tracker needs on measured joints;
+:func:`speed_bound` gives the third from the planned motion::
 
-    from solver.sensors import Sensor
+    from solver.sensors import Sensor, speed_bound
     enc = Sensor("12-bit", bits=12, noise=1e-3)
     tracker = Tracker(model, cached_map(model, 1), joint_tolerance=enc.tolerance(3.0),
-                      stuck_after=enc.stuck_after())
+                      speed_bound=speed_bound(X_planned, 1e-3), stuck_after=enc.stuck_after())
 
 Streams of such readings with glitches (outliers, stuck joints, dropouts) and the truth to
 score them against are experiments: ``experiments.sensors``.  Nothing in the tracker imports
@@ -19,10 +20,51 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import SolverInputError
+from .angles import wrap_angle
+from .checks import SolverInputError, as_array
 from .stuck import stuck_samples
 
-__all__ = ["Sensor", "quantize"]
+__all__ = ["Sensor", "quantize", "speed_bound"]
+
+
+def speed_bound(X, dt: float, margin: float = 1.25, min_angular: float = 0.5) -> tuple[float, float]:
+    """A bound on the platform's speed from its planned motion: the tracker's ``speed_bound``.
+
+    The tracker's set-membership paving and re-acquisition search the poses the platform can have
+    reached since its last certain step, so the tighter the bound the sooner certainty comes back
+    after an ill-conditioned stretch (``docs/sensors.md``); a bound the robot exceeds voids the
+    proofs.  A controller that planned the motion knows its fastest speeds; ``margin`` covers the
+    tracking error.
+
+    Parameters
+    ----------
+    X : array_like, shape (n, 3)
+        Planned poses (m, m, rad), ``n >= 2``, ``dt`` apart.
+    dt : float
+        Time between two poses, s (> 0).
+    margin : float
+        Factor on the fastest planned speeds (>= 1).
+    min_angular : float
+        Least angular bound, rad/s (>= 0): a plan whose orientation is constant still turns a little.
+
+    Returns
+    -------
+    (float, float)
+        ``margin`` times the fastest linear speed (m/s) and angular speed (rad/s, at least
+        ``min_angular``) between consecutive poses.
+    """
+    X = as_array("X", X, (3,))
+    if X.ndim != 2 or len(X) < 2:
+        raise SolverInputError(f"X: expected planned poses of shape (n, 3) with n >= 2, got shape {X.shape}")
+    for name, val, least in (("dt", dt, 0.0), ("margin", margin, 1.0), ("min_angular", min_angular, 0.0)):
+        if not (isinstance(val, (int, float, np.integer, np.floating)) and np.isfinite(val) and val >= least
+                and (name != "dt" or val > 0.0)):
+            raise SolverInputError(f"{name}: expected a number {'> 0' if name == 'dt' else f'>= {least:g}'}, "
+                                   f"got {val!r}")
+    d = np.diff(X, axis=0)
+    v = float(np.max(np.hypot(d[:, 0], d[:, 1]))) / dt
+    w = float(np.max(np.abs(wrap_angle(d[:, 2])))) / dt
+    return margin * v, max(margin * w, float(min_angular))
 
 
 def quantize(q, bits: int) -> np.ndarray:

@@ -5,7 +5,7 @@ import pytest
 from conftest import pose_distance, track_stream
 from experiments.sensors import SENSOR_GRADES, Sensor, sensor_truth
 from experiments.suite import default_suite, near_singular_circle, make_path
-from solver import STATUS, SolverInputError, Tracker
+from solver import STATUS, SolverInputError, Tracker, wrap_angle
 from solver._kernels.certify import TINY
 from solver._kernels.krawczyk import W_SIZE, krawczyk, newton_on_path
 from solver._kernels.kinematics import geometry
@@ -292,3 +292,19 @@ def test_speed_bound_is_checked(model, map1):
     for bad in ((0.0, 1.0), (1.0,), "fast"):
         with pytest.raises(ValueError, match="speed_bound"):
             Tracker(model, map1, joint_tolerance=1e-3, speed_bound=bad)
+
+
+def test_a_speed_bound_from_the_plan_holds_every_planned_step_and_ignores_the_wrap_of_phi():
+    from solver.sensors import speed_bound
+    t = np.arange(2001) * 1e-3
+    r, omega = 0.05, 2 * np.pi                                 # a 5 cm circle a second; phi turns 3 rad/s across +-pi
+    X = np.c_[0.8 + r * np.cos(omega * t), 0.6 + r * np.sin(omega * t), wrap_angle(3.0 - 3.0 * t)]
+    v, w = speed_bound(X, 1e-3)
+    assert v == pytest.approx(1.25 * r * omega, rel=1e-4) and w == pytest.approx(1.25 * 3.0, rel=1e-9)
+    steps = np.diff(X, axis=0)
+    assert np.all(np.hypot(steps[:, 0], steps[:, 1]) / 1e-3 <= v)
+    assert speed_bound(X[:, :3] * [1, 1, 0], 1e-3)[1] == 0.5    # constant orientation: the least angular bound
+    with pytest.raises(ValueError, match=r"margin: expected a number >= 1, got 0.9"):
+        speed_bound(X, 1e-3, margin=0.9)
+    with pytest.raises(ValueError, match=r"X: expected planned poses of shape \(n, 3\) with n >= 2"):
+        speed_bound(X[:1], 1e-3)
