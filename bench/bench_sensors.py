@@ -12,6 +12,10 @@ Sensors (:data:`experiments.sensors.SENSOR_GRADES`): exact joints; 16-, 14- and 
 encoders with 1e-3 rad of white noise; outliers (0.1 rad, one sample), a stuck
 joint (20 samples) and dropouts (NaN) on the 14-bit encoder, five per stream.
 
+Trackers: ``joint_tolerance`` ``--sigmas`` noise sigmas plus half a step, ``stuck_after`` from the
+sensor, and on each path a speed bound 1.25 times that path's fastest (:func:`solver.sensors.speed_bound`;
+``--speed-scope suite``: the suite's fastest on every path, as runs before 2026-11-27).
+
 Truth (:func:`experiments.sensors.sensor_truth`): the real DK solution of the measured
 joints nearest to the noise-free pose, counted only where the second nearest is at
 least three times farther and the sample is not a glitch.  On counted steps:
