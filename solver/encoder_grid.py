@@ -46,7 +46,8 @@ def encoder_note(what: str, bits: int, tol: float, speed_bound) -> str:
     if speed_bound is None:
         note += ("; with readings and no speed_bound, certainty lost near a singularity seldom comes back "
                  "(re-acquisition would have to rule out every other pose of the tool space): pass "
-                 "speed_bound=(m/s, rad/s), a bound on the platform's speed")
+                 "speed_bound=(m/s, rad/s), a bound on the platform's speed (solver.sensors.speed_bound of the "
+                 "planned motion gives one)")
     return note
 
 
