@@ -5,7 +5,8 @@
 
 Encoder streams as ``bench/bench_sensors.py`` makes them (the suites at 1 kHz, each grade's
 simulated encoder; truth and counted steps as there), the tracker configured as the README says
-(``joint_tolerance = Sensor.tolerance(3)``, a speed bound 1.25x the fastest path's, ``stuck_after``,
+(``joint_tolerance = Sensor.tolerance(3)``, one speed bound for every path, 1.25x the suite's fastest
+(``bench_sensors.py --speed-scope suite``; bench_sensors gives each path its own), ``stuck_after``,
 ``dt = 1 ms``), run without a budget and with each ``--budgets`` (seconds), every run in this
 process, one after the other.
 

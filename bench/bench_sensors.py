@@ -184,7 +184,7 @@ def _suite_and_speed(model, args, dt: float):
 def speed_of(path, speed, args, dt: float):
     """The speed bound the trackers get on ``path``: none, the one given (``--speed``, or
     ``--speed-scope suite``: the suite-wide ``speed``), else the path's own (:func:`path_speed`)."""
-    if speed is None or args.speed_given or args.speed_scope == "suite":
+    if speed is None or getattr(args, "speed_given", False) or args.speed_scope == "suite":
         return speed
     return path_speed(path, dt)
 
@@ -285,7 +285,7 @@ def _speed_text(speed, args) -> str:
     """How the run bounded the platform's speed, for the printed and published headers."""
     if speed is None:
         return "none"
-    if args.speed_given or args.speed_scope == "suite":
+    if getattr(args, "speed_given", False) or args.speed_scope == "suite":
         return f"{speed[0]:.2f} m/s, {speed[1]:.2f} rad/s on every path"
     return (f"1.25 times each path's fastest (at least 0.5 rad/s; at most {speed[0]:.2f} m/s, "
             f"{speed[1]:.2f} rad/s)")

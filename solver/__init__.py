@@ -17,8 +17,9 @@ solutions), ``ordering`` (their numbering rules), ``grid`` (the map grid over th
 space), ``maptensor`` (procedures 1 and 2), ``mapfile`` (the map file format),
 ``mapcache`` (the one map cache), ``cache`` (:func:`cache_dir`, the root of every disk
 cache), ``progress`` (phase lines and progress bars of long work), ``tracker``
-(procedure 3) with ``tracking``, ``tracker_state`` and ``stuck``, ``baselines``,
-``sensors`` (the encoder model: the tracker's joint tolerance and stuck threshold),
+(procedure 3) with ``tracking``, ``tracker_state``, ``start``, ``encoder_grid`` and ``stuck``, ``baselines``,
+``sensors`` (the encoder model: the tracker's joint tolerance and stuck threshold; its speed bound
+from the planned motion),
 ``trajectories`` (shared tool-space paths), ``manipulators`` and ``rpr`` (the 3-RPR).
 """
 from .cache import CACHE_ENV, cache_dir

@@ -27,7 +27,8 @@ from .stuck import stuck_samples
 __all__ = ["Sensor", "quantize", "speed_bound"]
 
 
-def speed_bound(X, dt: float, margin: float = 1.25, min_angular: float = 0.5) -> tuple[float, float]:
+def speed_bound(X, dt: float, margin: float = 1.25, min_linear: float = 0.01,
+                min_angular: float = 0.5) -> tuple[float, float]:
     """A bound on the platform's speed from its planned motion: the tracker's ``speed_bound``.
 
     The tracker's set-membership paving and re-acquisition search the poses the platform can have
@@ -44,27 +45,34 @@ def speed_bound(X, dt: float, margin: float = 1.25, min_angular: float = 0.5) ->
         Time between two poses, s (> 0).
     margin : float
         Factor on the fastest planned speeds (>= 1).
+    min_linear : float
+        Least linear bound, m/s (> 0): a plan that holds the platform still still moves it a little
+        (the tracker needs both bounds > 0).
     min_angular : float
-        Least angular bound, rad/s (>= 0): a plan whose orientation is constant still turns a little.
+        Least angular bound, rad/s (> 0): a plan whose orientation is constant still turns a little.
 
     Returns
     -------
     (float, float)
-        ``margin`` times the fastest linear speed (m/s) and angular speed (rad/s, at least
-        ``min_angular``) between consecutive poses.
+        ``margin`` times the fastest linear speed (m/s, at least ``min_linear``) and angular speed
+        (rad/s, at least ``min_angular``) between consecutive poses.
     """
     X = as_array("X", X, (3,))
     if X.ndim != 2 or len(X) < 2:
         raise SolverInputError(f"X: expected planned poses of shape (n, 3) with n >= 2, got shape {X.shape}")
-    for name, val, least in (("dt", dt, 0.0), ("margin", margin, 1.0), ("min_angular", min_angular, 0.0)):
-        if not (isinstance(val, (int, float, np.integer, np.floating)) and np.isfinite(val) and val >= least
-                and (name != "dt" or val > 0.0)):
-            raise SolverInputError(f"{name}: expected a number {'> 0' if name == 'dt' else f'>= {least:g}'}, "
-                                   f"got {val!r}")
+    for name, val, least in (("dt", dt, 0.0), ("margin", margin, 1.0), ("min_linear", min_linear, 0.0),
+                             ("min_angular", min_angular, 0.0)):
+        ok = (isinstance(val, (int, float, np.integer, np.floating)) and not isinstance(val, (bool, np.bool_))
+              and np.isfinite(val) and (val >= least if name == "margin" else val > least))
+        if not ok:
+            raise SolverInputError(f"{name}: expected a number {'>= 1' if name == 'margin' else '> 0'}, got {val!r}")
     d = np.diff(X, axis=0)
-    v = float(np.max(np.hypot(d[:, 0], d[:, 1]))) / dt
-    w = float(np.max(np.abs(wrap_angle(d[:, 2])))) / dt
-    return margin * v, max(margin * w, float(min_angular))
+    v = float(np.max(np.hypot(d[:, 0], d[:, 1]))) / float(dt)
+    w = float(np.max(np.abs(wrap_angle(d[:, 2])))) / float(dt)
+    bound = (max(float(margin) * v, float(min_linear)), max(float(margin) * w, float(min_angular)))
+    if not all(np.isfinite(bound)):
+        raise SolverInputError(f"X, dt: the planned speeds are not finite (dt = {dt!r}), got {bound}")
+    return bound
 
 
 def quantize(q, bits: int) -> np.ndarray:

@@ -294,7 +294,7 @@ def test_speed_bound_is_checked(model, map1):
             Tracker(model, map1, joint_tolerance=1e-3, speed_bound=bad)
 
 
-def test_a_speed_bound_from_the_plan_holds_every_planned_step_and_ignores_the_wrap_of_phi():
+def test_a_speed_bound_from_the_plan_holds_every_planned_step_and_ignores_the_wrap_of_phi(model, coarse_map1):
     from solver.sensors import speed_bound
     t = np.arange(2001) * 1e-3
     r, omega = 0.05, 2 * np.pi                                 # a 5 cm circle a second; phi turns 3 rad/s across +-pi
@@ -304,6 +304,11 @@ def test_a_speed_bound_from_the_plan_holds_every_planned_step_and_ignores_the_wr
     steps = np.diff(X, axis=0)
     assert np.all(np.hypot(steps[:, 0], steps[:, 1]) / 1e-3 <= v)
     assert speed_bound(X[:, :3] * [1, 1, 0], 1e-3)[1] == 0.5    # constant orientation: the least angular bound
+    still = speed_bound(np.repeat(X[:1], 5, axis=0), 1e-3)      # a plan holding still: the least bounds, which
+    assert still == (0.01, 0.5)                                # a tracker takes (both > 0)
+    Tracker(model, coarse_map1, joint_tolerance=1e-4, speed_bound=still)
+    with pytest.raises(ValueError, match=r"dt: expected a number > 0, got True"):
+        speed_bound(X, True)
     with pytest.raises(ValueError, match=r"margin: expected a number >= 1, got 0.9"):
         speed_bound(X, 1e-3, margin=0.9)
     with pytest.raises(ValueError, match=r"X: expected planned poses of shape \(n, 3\) with n >= 2"):
