@@ -158,16 +158,9 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def path_speed(path, dt: float) -> tuple:
-    """A speed bound for one path (m/s, rad/s): :func:`solver.sensors.speed_bound` of its poses, 1.25
-    times its fastest speeds, at least 0.5 rad/s: what a controller that planned the motion (the
-    paper's Fig. 2 loop) can give its tracker."""
-    return speed_bound(path.X, dt)
-
-
 def _suite_and_speed(model, args, dt: float):
     """The paths of ``--suite`` and the suite-wide speed bound (None: none): ``--speed``, else the
-    largest of the paths' :func:`path_speed`."""
+    largest of the paths' :func:`solver.sensors.speed_bound`."""
     suite = []
     if args.suite in ("all", "default"):
         suite += default_suite(model, samplings=(args.rate,) + ((1000, 300, 100, 30) if args.coarse else ()))
@@ -176,17 +169,18 @@ def _suite_and_speed(model, args, dt: float):
     if args.limit:
         suite = suite[:args.limit]
     if args.speed is None and not args.no_speed:
-        bounds = np.array([path_speed(p, dt) for p in suite])
+        bounds = np.array([speed_bound(p.X, dt) for p in suite])
         args.speed = tuple(float(v) for v in bounds.max(axis=0))
     return suite, None if args.no_speed else tuple(args.speed)
 
 
 def speed_of(path, speed, args, dt: float):
-    """The speed bound the trackers get on ``path``: none, the one given (``--speed``, or
-    ``--speed-scope suite``: the suite-wide ``speed``), else the path's own (:func:`path_speed`)."""
-    if speed is None or getattr(args, "speed_given", False) or args.speed_scope == "suite":
+    """The speed bound the trackers get on ``path``: none, the one for every path (``--speed``, or
+    ``--speed-scope suite``: the suite-wide ``speed``), else the path's own: 1.25 times its fastest
+    (:func:`solver.sensors.speed_bound`), what a controller that planned the motion knows."""
+    if speed is None or args.speed_scope == "suite":
         return speed
-    return path_speed(path, dt)
+    return speed_bound(path.X, dt)
 
 
 def longest_run(flags) -> int:
@@ -257,7 +251,8 @@ def _run_grade(model, maps, suite, sensor, args, speed, dt, secs, worst, per_pat
 
 def main(argv=None):
     args = _parser().parse_args(argv)
-    args.speed_given = args.speed is not None
+    if args.speed is not None:
+        args.speed_scope = "suite"                            # the bound given, on every path
     model = Manipulator.paper()
     dt = 1e-3
     suite, speed = _suite_and_speed(model, args, dt)
@@ -285,7 +280,7 @@ def _speed_text(speed, args) -> str:
     """How the run bounded the platform's speed, for the printed and published headers."""
     if speed is None:
         return "none"
-    if getattr(args, "speed_given", False) or args.speed_scope == "suite":
+    if args.speed_scope == "suite":
         return f"{speed[0]:.2f} m/s, {speed[1]:.2f} rad/s on every path"
     return (f"1.25 times each path's fastest (at least 0.5 rad/s; at most {speed[0]:.2f} m/s, "
             f"{speed[1]:.2f} rad/s)")

@@ -60,12 +60,11 @@ def speed_bound(X, dt: float, margin: float = 1.25, min_linear: float = 0.01,
     X = as_array("X", X, (3,))
     if X.ndim != 2 or len(X) < 2:
         raise SolverInputError(f"X: expected planned poses of shape (n, 3) with n >= 2, got shape {X.shape}")
-    for name, val, least in (("dt", dt, 0.0), ("margin", margin, 1.0), ("min_linear", min_linear, 0.0),
-                             ("min_angular", min_angular, 0.0)):
-        ok = (isinstance(val, (int, float, np.integer, np.floating)) and not isinstance(val, (bool, np.bool_))
-              and np.isfinite(val) and (val >= least if name == "margin" else val > least))
-        if not ok:
-            raise SolverInputError(f"{name}: expected a number {'>= 1' if name == 'margin' else '> 0'}, got {val!r}")
+    for name, val, least, strict in (("dt", dt, 0, True), ("margin", margin, 1, False),
+                                     ("min_linear", min_linear, 0, True), ("min_angular", min_angular, 0, True)):
+        if (isinstance(val, (bool, np.bool_)) or not isinstance(val, (int, float, np.integer, np.floating))
+                or not np.isfinite(val) or (val <= least if strict else val < least)):
+            raise SolverInputError(f"{name}: expected a number {'>' if strict else '>='} {least}, got {val!r}")
     d = np.diff(X, axis=0)
     v = float(np.max(np.hypot(d[:, 0], d[:, 1]))) / float(dt)
     w = float(np.max(np.abs(wrap_angle(d[:, 2])))) / float(dt)
