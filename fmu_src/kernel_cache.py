@@ -43,15 +43,16 @@ the index's source stamp, in place of numba's mtime and size, so extraction date
    shipped folder.  If the root cannot be written (another user's, a read-only home), a folder of
    the process's own under the temporary folder takes its place (removed at exit).
 
-Compilation is announced.  A kernel found in neither place is compiled; before that, its name and
-an estimate (the manifest's build-time seconds) go to the log of the FMU instance that runs it
-(:func:`attach`: pythonfmu's ``log``, the host's logger) and to the Python logger
-``fmu_src.<ModelName>`` (stderr): ``compiling <kernel>, about N s``.  Only the outermost compile is
-announced (numba compiles the callees inside it).  :func:`attach` also says at instantiation when
-the shipped kernels cannot serve this process at all (other numba, Python or machine).  pythonfmu
-hands an instance's log to the host when the FMI call returns: the instantiation's message reaches
-the host's logger before the calls that compile (kernels first run in initialization or a step);
-a single kernel's message comes with the call that compiled it (stderr has it at once).
+Never on the host's thread.  When the shipped kernels cannot serve this process at all (other
+numba, Python or machine, none shipped, other code), :func:`attach` has them compiled at
+instantiation in a child process of the same interpreter (:mod:`fmu_src.kernel_warmup`), which the
+host process then loads from the user cache: numba's compiler recurses deeply and overflows the small
+stacks of host threads.  A kernel still found in neither place (a signature the warm-up did not
+reach) is compiled in process and announced: its name and an estimate (the manifest's build-time
+seconds) go to the log of the FMU instance that runs it (pythonfmu's ``log``, the host's logger) and
+to the Python logger ``fmu_src.<ModelName>`` (stderr): ``compiling <kernel>, about N s``.  Only the
+outermost compile is announced (numba compiles the callees inside it).  pythonfmu hands an
+instance's log to the host when the FMI call returns (stderr has it at once).
 
 :func:`install` runs when :mod:`fmu_src.table_slave` is imported, before a slave imports its
 packages: if numba is already imported it patches it at once, otherwise when
@@ -176,6 +177,8 @@ def shipped_problem(resources: str) -> str | None:
             return f"its compiled kernels are for {what} {info.get(what)}, this process has {value}"
     if info.get("key") != bundle_key(resources):
         return "its compiled kernels are for other code than the modules it carries"
+    if not any(f.endswith(".nbi") for _, _, files in os.walk(os.path.join(resources, SHIPPED)) for f in files):
+        return "its kernel folder holds no compiled kernel"
     return None
 
 
@@ -333,20 +336,20 @@ def _hosts_own_packages(resources: str) -> bool:
 
 
 def attach(slave) -> None:
-    """Send the compile announcements of ``slave``'s FMU to ``slave`` (a pythonfmu slave, weakly held),
-    and say now if its shipped kernels cannot serve this process (called before ``setup()``)."""
+    """Send the compile announcements of ``slave``'s FMU to ``slave`` (a pythonfmu slave, weakly held);
+    if its shipped kernels cannot serve this process, have them compiled in a child process first
+    (:func:`fmu_src.kernel_warmup.ensure`, which says so and raises ``KernelCompileError`` if that
+    fails).  Called before ``setup()``."""
     resources = getattr(slave, "resources", None)
     if not resources or not os.path.isdir(resources):
         return
     _SLAVES[:] = [ref for ref in _SLAVES if ref() is not None] + [weakref.ref(slave)]
     problem = (shipped_problem(resources) if _has_kernel_packages(resources)
                and not _hosts_own_packages(resources) else None)
-    if problem and (resources, None) not in _ANNOUNCED:
-        _ANNOUNCED.add((resources, None))
-        total = manifest(resources).get("total_seconds")
-        about = f"about {max(1, round(total))} s" if total else "about a minute"
-        _send(slave, resources, f"{type(slave).__name__}: {problem}: compiling them at first use, {about} "
-                                f"(once; kept in {cache_root()})")
+    if problem:
+        from .kernel_warmup import ensure
+
+        ensure(slave, resources, problem)   # compiled in a child process, never on the host's thread
 
 
 class _PatchOnImport(importlib.abc.MetaPathFinder):

@@ -29,13 +29,14 @@ status, so fmi2Error is not possible there.  A check that passed is not repeated
 from __future__ import annotations
 
 import logging
+import os
 import re
 import sys
 from pathlib import Path
 from typing import NamedTuple
 
 __all__ = ["FILE", "Requirement", "MissingRequirements", "format_requirements", "parse_requirements",
-           "problems", "install_command", "message", "require", "instantiated"]
+           "problems", "interpreter", "install_command", "message", "require", "instantiated"]
 
 #: The file in the FMU's ``resources/`` folder (the name ``pythonfmu deploy`` looks for).
 FILE = "requirements.txt"
@@ -155,18 +156,40 @@ def problems(requirements: list[Requirement]) -> list[tuple[Requirement, str]]:
     return out
 
 
+def _runs(path: str) -> bool:
+    return bool(path) and os.path.isfile(path) and os.access(path, os.X_OK)
+
+
+def interpreter() -> str:
+    """The Python executable of this interpreter's environment, as a path that exists ("" if none).
+
+    ``sys.executable`` when it is a file that runs: a Python host, or a C host whose loader started
+    the interpreter under its own name.  A host that embedded Python without naming it (pythonfmu's
+    wrappers alone set a program name like ``<cwd>/PythonFMU``, which does not exist) gets the
+    ``bin/python3.X`` of the environment the interpreter actually runs (``sys.prefix``, then
+    ``sys.base_prefix``), the one whose ``pip`` installs what this process imports.
+    """
+    if _runs(sys.executable):
+        return sys.executable
+    version = "%d.%d" % sys.version_info[:2]
+    for prefix in dict.fromkeys((sys.prefix, sys.base_prefix, sys.exec_prefix)):
+        for name in (f"python{version}", "python3", "python"):
+            candidate = os.path.join(prefix, "bin", name)
+            if _runs(candidate):
+                return candidate
+    return ""
+
+
 def install_command(requirements: list[Requirement]) -> str:
     """The pip command that installs ``requirements`` into this interpreter's environment."""
-    exe = sys.executable or ""
-    python = f'"{exe}"' if " " in exe else exe
-    if not Path(exe).name.lower().startswith("python"):
-        python = "python3"                 # an embedding host (not a Python executable)
+    exe = interpreter()
+    python = (f'"{exe}"' if " " in exe else exe) or "python3"
     return f"{python} -m pip install " + " ".join(f'"{r.spec}"' for r in requirements)
 
 
 def message(model: str, found: list[tuple[Requirement, str]]) -> str:
     """The text of :class:`MissingRequirements` for the FMU ``model`` (one problem a line, then the fix)."""
-    where = sys.executable or "the host's embedded interpreter"
+    where = interpreter() or f"the host's embedded interpreter, prefix {sys.prefix}"
     reasons = "".join(f"\n  {why} (the FMU needs {req.spec})" for req, why in found)
     return (f"{model}.fmu cannot run in this Python environment ({where}, Python "
             f"{sys.version.split()[0]}):{reasons}\nInstall what it needs into that environment:\n  "

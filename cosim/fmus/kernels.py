@@ -11,7 +11,10 @@ it to :func:`shipped_kernels` and builds it again with the entries returned:
 2. the child's numba cache of the FMU's key (``<generic root>/<model>/<key>/``, :func:`fmu_src.kernel_cache.
    bundle_key`) becomes ``resources/kernels/`` with ``resources/kernels/manifest.json``: numba and
    Python versions, machine, key, and the compile seconds of each outermost kernel (what the
-   runtime quotes when it must compile one after all).
+   runtime quotes when it must compile one after all);
+3. the scenario's runs become ``resources/kernel_runs.json`` (:data:`fmu_src.kernel_warmup.RUNS`): a host
+   whose process cannot use the shipped kernels (another numba or Python) replays them in a child
+   process of its own interpreter, which compiles the kernels for it (:mod:`fmu_src.kernel_warmup`).
 
 The generic cache lives under the project's cache root (``cache_dir("fmu-kernels-generic")``), one
 folder per model (an FMU ships its own kernels, not those another FMU of the same code warmed up),
@@ -45,6 +48,7 @@ from pathlib import Path
 import numba
 
 from fmu_src.kernel_cache import GENERIC_CPU, MANIFEST, SHIPPED, key_of
+from fmu_src.kernel_warmup import IN_PROCESS, RUNS
 from solver import cache_dir, progress
 
 try:
@@ -159,6 +163,7 @@ def _extraction_folder(fmu: Path):
 def _run_child(fmu: Path, scenario: Scenario, root: Path) -> dict:
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CPU_FEATURES")}
     env.update(NUMBA_CPU_NAME=GENERIC_CPU, NUMBA_CPU_FEATURES="", NUMBA_CACHE_DIR=str(root), PYTHONHASHSEED="0")
+    env[IN_PROCESS] = "1"               # this child is where they compile (the FMU would ask for a child of its own)
     with tempfile.TemporaryDirectory(prefix="fmu_kernels_") as tmp, _extraction_folder(fmu) as folder:
         runs = Path(tmp) / "runs.json"
         runs.write_text(json.dumps([r.as_json() for r in scenario.runs]))
@@ -235,6 +240,7 @@ def _warmed_entries(fmu, scenario, root, folder, key, done) -> dict[str, bytes]:
                 "machine": platform.machine().lower(), "key": key, "seconds": seconds,
                 "total_seconds": round(sum(seconds.values()), 1)}
     entries[f"resources/{SHIPPED}/{MANIFEST}"] = (json.dumps(manifest, indent=1, sort_keys=True) + "\n").encode()
+    entries[f"resources/{RUNS}"] = (json.dumps([r.as_json() for r in scenario.runs], sort_keys=True) + "\n").encode()
     return entries
 
 

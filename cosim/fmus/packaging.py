@@ -51,7 +51,7 @@ from fmu_src.table_slave import TableSlave
 
 from .sources import SLAVE_DIR
 
-__all__ = ["BuildError", "build_fmu", "bundled_files", "third_party_modules", "declared_requirements",
+__all__ = ["BuildError", "build_fmu", "bundled_files", "third_party_modules", "run_time_modules", "declared_requirements",
            "project_dependencies"]
 
 _ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
@@ -116,13 +116,36 @@ def bundled_files(script: Path, packages: Mapping[str, Path]) -> dict[str, Path]
     return dict(sorted(out.items()))
 
 
+#: numpy functions whose compiled (numba) form calls BLAS or LAPACK, which numba takes from scipy
+#: (``scipy.linalg.cython_blas``/``cython_lapack``) when the code runs, not when it is imported
+_BLAS_CALLS = frozenset({"dot", "vdot", "inner", "matmul", "linalg"})
+
+
+def _loads_blas(tree: ast.AST) -> bool:
+    """Whether a module's code uses the matrix product ``@`` or a numpy BLAS/LAPACK function."""
+    return any((isinstance(node, ast.BinOp) and isinstance(node.op, ast.MatMult))
+               or (isinstance(node, ast.Attribute) and node.attr in _BLAS_CALLS) for node in ast.walk(tree))
+
+
+def run_time_modules(path: Path) -> set[str]:
+    """The modules ``path`` needs at run time without importing them: scipy for a module that imports
+    numba and uses ``@``, ``np.dot`` or ``np.linalg`` (numba compiles them into calls of scipy's BLAS
+    and LAPACK: without scipy the first such call aborts the process with "Specified LAPACK function
+    could not be found")."""
+    names = _imported_names(Path(path), None, False)
+    if not any(n == "numba" or n.startswith("numba.") for n in names):
+        return set()
+    return {"scipy"} if _loads_blas(ast.parse(Path(path).read_text(), filename=str(path))) else set()
+
+
 def third_party_modules(files, local) -> dict[str, list[str]]:
-    """The top-level modules that ``files`` import and that are neither the standard library nor
-    ``local`` (the bundled packages): ``{module: [importing file names]}``."""
+    """The top-level modules that ``files`` import, or load at run time (:func:`run_time_modules`), and
+    that are neither the standard library nor ``local`` (the bundled packages):
+    ``{module: [importing file names]}``."""
     out: dict[str, set[str]] = {}
     skip = set(sys.stdlib_module_names) | set(local) | {"__future__"}
     for path in files:
-        for name in _imported_names(Path(path), None, False):
+        for name in (*_imported_names(Path(path), None, False), *run_time_modules(Path(path))):
             top = name.split(".")[0] if name else ""
             if top and top not in skip:
                 out.setdefault(top, set()).add(Path(path).name)

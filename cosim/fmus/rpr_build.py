@@ -29,13 +29,14 @@ from solver.rpr import RPR_WORK_BOUNDS, RPRManipulator
 
 from .builds import BuildResult, _stage_documentation, project_packages
 from .checks import validate
+from .kernels import Run, Scenario, warm_up
 from .packaging import build_fmu
 from .references import read_csv, write_csv
 from .sources import REFERENCE_DIR, slave_script
 from ..simulation import input_table, simulate
 
 __all__ = ["RPR_NAME", "RPR_RESOLUTION", "RPR_REFERENCE_RESOLUTION", "RPR_OUTPUTS", "build_rpr_dk", "rpr_map",
-           "run_rpr_loop", "write_rpr_reference", "read_rpr_reference", "LOOP_N", "LOOP_H"]
+           "run_rpr_loop", "rpr_warm_up_scenario", "write_rpr_reference", "read_rpr_reference", "LOOP_N", "LOOP_H"]
 
 RPR_NAME = "RPRDirectKinematics"
 #: Default node spacing of the 3-RPR map: 25 mm, 3 degrees (3.5 million nodes over the work region).
@@ -73,9 +74,21 @@ def rpr_map(model: RPRManipulator, resolution=RPR_RESOLUTION, rule: str = DEFAUL
     return path
 
 
+def rpr_warm_up_scenario(n: int = LOOP_N, h: float = LOOP_H, cusp: int = 1) -> Scenario:
+    """The runs that compile the kernels the 3-RPR's DK FMU ships: its reference run round the cusp loop
+    (:func:`run_rpr_loop`), in the default mode and, for a fifth of it, the paper's."""
+    path = cusp_loop_path(RPRManipulator.zein_wenger_chablat(), cusp, n)
+    start = dict(zip(("x0", "y0", "phi0"), (float(v) for v in path.X[0])))
+    inputs = {f"rho{j + 1}": path.q[:, j] for j in range(3)}
+    return Scenario([Run(len(path.q), h, {**start, "mode": 0}, inputs),
+                     Run(len(path.q) // 5, h, {**start, "mode": 1}, {k: v[:len(path.q) // 5] for k, v in inputs.items()})])
+
+
 def build_rpr_dk(out_dir="build", resolution=RPR_RESOLUTION, rule: str = DEFAULT_RULE, cache_dir=None,
-                 check: bool = True, log=print) -> BuildResult:
-    """Build ``<out_dir>/RPRDirectKinematics.fmu`` (see the module docstring)."""
+                 check: bool = True, log=print, kernels: bool = True) -> BuildResult:
+    """Build ``<out_dir>/RPRDirectKinematics.fmu`` (see the module docstring); ``kernels``: ship the
+    kernels compiled along :func:`rpr_warm_up_scenario` (:mod:`cosim.fmus.kernels`), so a host starts it
+    in seconds and compiles nothing."""
     t0 = time.perf_counter()
     model = RPRManipulator.zein_wenger_chablat()
     out_dir = Path(out_dir)
@@ -90,7 +103,8 @@ def build_rpr_dk(out_dir="build", resolution=RPR_RESOLUTION, rule: str = DEFAULT
              "sha256": hashlib.sha256(data).hexdigest()}]}, indent=1, sort_keys=True) + "\n")
         fmu = build_fmu(slave_script(RPR_NAME), out_dir, project_packages=project_packages(),
                         data_files={"maps/posture1.npz": map_file, "maps/manifest.json": manifest},
-                        documentation_dir=_stage_documentation(tmp, RPR_NAME), check=check)
+                        documentation_dir=_stage_documentation(tmp, RPR_NAME), check=check,
+                        kernels=warm_up(rpr_warm_up_scenario()) if kernels else None)
     problems = validate(fmu) if check else []
     return BuildResult(fmu, {1: map_file}, 1, "default", time.perf_counter() - t0, map_seconds, problems)
 
