@@ -24,7 +24,9 @@ outside it...) raises :class:`dynamics.DynamicsError`, refused here as a step.
 # first: a host without the packages this FMU imports learns which and how to install them
 # (fmu_src.requirements; the list is resources/requirements.txt)
 from fmu_src.requirements import require
+from fmu_src.wrapper_refs import hold_globals
 
+hold_globals(globals())   # pythonfmu's wrapper releases a reference to this module's globals per instantiation
 require(__file__)
 
 import numpy as np

@@ -7,7 +7,9 @@ run: ``fmu_src/RPRDirectKinematics.md``.  Built by ``python build_fmu.py --manip
 """
 # first: a host without the packages this FMU imports learns which and how to install them
 from fmu_src.requirements import require
+from fmu_src.wrapper_refs import hold_globals
 
+hold_globals(globals())   # pythonfmu's wrapper releases a reference to this module's globals per instantiation
 require(__file__)
 
 import numpy as np  # noqa: E402

@@ -21,6 +21,9 @@ from pythonfmu3 import Fmi3Slave
 
 from fmu_src.fmi3_adapter import Fmi3Adapter, Row3
 from fmu_src.requirements import MissingRequirements, require
+from fmu_src.wrapper_refs import hold_globals
+
+hold_globals(globals())   # as in every slave script (fmu_src/wrapper_refs.py)
 
 # first: a host without the packages this FMU imports learns which and how to install them.  The
 # module must import even then: pythonfmu3 0.3.4's wrapper crashes the host process (SIGSEGV) when the

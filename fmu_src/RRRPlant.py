@@ -19,7 +19,9 @@ space, a non-finite value) raises :class:`dynamics.DynamicsError`, refused here 
 # first: a host without the packages this FMU imports learns which and how to install them
 # (fmu_src.requirements; the list is resources/requirements.txt)
 from fmu_src.requirements import require
+from fmu_src.wrapper_refs import hold_globals
 
+hold_globals(globals())   # pythonfmu's wrapper releases a reference to this module's globals per instantiation
 require(__file__)
 
 from dataclasses import replace

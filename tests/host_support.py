@@ -47,6 +47,8 @@ H = 1e-3
 OUTPUTS = {"RRRDirectKinematics": ("x", "y", "phi", "cond", "uncertain_since"),
            "RRRPlant": ("q1", "q2", "q3", "dq1", "dq2", "dq3", "x_true", "y_true", "phi_true", "energy"),
            "ComputedTorqueController": ("tau1", "tau2", "tau3", "x_ref", "y_ref", "q1_ref")}
+#: the outputs compared for the 3-RPR's DK FMU (built apart: :func:`cosim.fmus.rpr_build.build_rpr_dk`)
+RPR_OUTPUTS = ("x", "y", "phi", "cond", "uncertain_since")
 
 
 def compile_host(folder: Path) -> Path:
@@ -79,6 +81,13 @@ def host_case(name: str, fmu: Path, work: Path, steps: int, folder: Path | None 
         q = ik(Manipulator.paper(), np.vstack([X, X[:1]]), 1)          # once round, back to the start
         rows, names = q, ("q1", "q2", "q3")
         starts = ",".join(f"{vr[n]}={v!r}" for n, v in zip(("x0", "y0", "phi0"), map(float, X[0])))
+    elif name == "RPRDirectKinematics":                                  # round the loop about cusp 1
+        from experiments.rpr_suite import cusp_loop_path
+        from solver.rpr import RPRManipulator
+
+        path = cusp_loop_path(RPRManipulator.zein_wenger_chablat(), 1, steps)
+        rows, names = path.q, ("rho1", "rho2", "rho3")
+        starts = ",".join(f"{vr[n]}={v!r}" for n, v in zip(("x0", "y0", "phi0"), map(float, path.X[0])))
     elif name == "RRRPlant":
         t = np.arange(steps + 1) * H
         rows, names = np.column_stack([0.05 * np.sin(3 * t), -0.04 * np.cos(2 * t), 0.03 * np.sin(5 * t)]), \
@@ -87,8 +96,41 @@ def host_case(name: str, fmu: Path, work: Path, steps: int, folder: Path | None 
         inputs = work / f"{name}-inputs.txt"
         inputs.write_text(" ".join(str(vr[n]) for n in names) + "\n"
                           + "\n".join(" ".join(repr(float(v)) for v in row) for row in rows) + "\n")
-    outputs = ",".join(str(vr[n]) for n in OUTPUTS[name])
+    outputs = ",".join(str(vr[n]) for n in OUTPUTS.get(name, RPR_OUTPUTS))
     return folder, md.guid, str(inputs), outputs, starts
+
+
+#: fmpy's run of the C host's call sequence; same arguments, same output format
+FMPY_HOST = """
+    import sys
+    from fmpy.fmi2 import FMU2Slave
+
+    folder, model, guid, h, steps, inputs, outputs, starts = sys.argv[1:]
+    h, steps, out_vr = float(h), int(steps), [int(v) for v in outputs.split(",")]
+    in_vr, rows = [], []
+    if inputs != "-":
+        lines = open(inputs).read().split("\\n")
+        in_vr = [int(v) for v in lines[0].split()]
+        rows = [[float(v) for v in line.split()] for line in lines[1:] if line.strip()]
+    fmu = FMU2Slave(guid=guid, unzipDirectory=folder, modelIdentifier=model, instanceName="fmpy_host")
+    fmu.instantiate()
+    for item in ([] if starts == "-" else starts.split(",")):
+        vr, value = item.split("=")
+        fmu.setReal([int(vr)], [float(value)])
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    if in_vr:
+        fmu.setReal(in_vr, rows[0])
+    fmu.exitInitializationMode()
+    for k in range(steps):
+        if in_vr:
+            fmu.setReal(in_vr, rows[k])
+        fmu.doStep(k * h, h)
+        print(repr((k + 1) * h), *map(repr, fmu.getReal(out_vr)))
+    fmu.terminate()
+    fmu.freeInstance()
+    print("end", flush=True)
+"""
 
 
 def no_python_env(**extra) -> dict:

@@ -28,43 +28,10 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from host_support import CC, H, OUTPUTS, compile_host, host_case, no_python_env, output_table  # noqa: E402
-from host_support import run_python, session_fmus  # noqa: E402
+from host_support import FMPY_HOST, run_python, session_fmus  # noqa: E402
 
 STEPS = 100
 pytestmark = pytest.mark.skipif(CC is None, reason="no C compiler (cc or gcc) on PATH: the C host cannot be built")
-
-#: fmpy's run of the C host's call sequence; same arguments, same output format
-FMPY_HOST = """
-    import sys
-    from fmpy.fmi2 import FMU2Slave
-
-    folder, model, guid, h, steps, inputs, outputs, starts = sys.argv[1:]
-    h, steps, out_vr = float(h), int(steps), [int(v) for v in outputs.split(",")]
-    in_vr, rows = [], []
-    if inputs != "-":
-        lines = open(inputs).read().split("\\n")
-        in_vr = [int(v) for v in lines[0].split()]
-        rows = [[float(v) for v in line.split()] for line in lines[1:] if line.strip()]
-    fmu = FMU2Slave(guid=guid, unzipDirectory=folder, modelIdentifier=model, instanceName="fmpy_host")
-    fmu.instantiate()
-    for item in ([] if starts == "-" else starts.split(",")):
-        vr, value = item.split("=")
-        fmu.setReal([int(vr)], [float(value)])
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    if in_vr:
-        fmu.setReal(in_vr, rows[0])
-    fmu.exitInitializationMode()
-    for k in range(steps):
-        if in_vr:
-            fmu.setReal(in_vr, rows[k])
-        fmu.doStep(k * h, h)
-        print(repr((k + 1) * h), *map(repr, fmu.getReal(out_vr)))
-    fmu.terminate()
-    fmu.freeInstance()
-    print("end", flush=True)
-"""
-
 
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory):

@@ -10,7 +10,10 @@
 """
 from pythonfmu import DefaultExperiment
 
+from fmu_src.wrapper_refs import hold_globals
 from fmu_src.table_slave import TableSlave, Var
+
+hold_globals(globals())   # pythonfmu's wrapper releases a reference to this module's globals per instantiation
 
 
 class FmuInfraProbe(TableSlave):

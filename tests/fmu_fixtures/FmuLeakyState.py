@@ -2,7 +2,10 @@
 
 The build cannot see it (the attribute appears only after the first step); ``smoke_check`` must.
 """
+from fmu_src.wrapper_refs import hold_globals
 from fmu_src.table_slave import TableSlave, Var
+
+hold_globals(globals())   # pythonfmu's wrapper releases a reference to this module's globals per instantiation
 
 
 class FmuLeakyState(TableSlave):
