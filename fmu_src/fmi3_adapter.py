@@ -23,9 +23,20 @@ are taken from the flat list the C wrapper passes: pythonfmu3's own array setter
 initialization, doStep, terminate and the FMU state go to the core; the core's log messages are
 handed on to pythonfmu3's log queue with their status after every call.  ``do_step`` answers
 fmi3OK, fmi3Discard (the core refused the step and rolled it back) or fmi3Error (a doStep the FMI
-state table forbids): pythonfmu3's wrapper returns the status it is given.  pythonfmu3's wrapper
-returns fmi3OK after every other call that does not raise (an exception is fmi3Fatal), so a set
-or get the core refuses changes nothing and is logged with status fmi3Error, but returns fmi3OK.
+state table forbids): pythonfmu3's wrapper returns the status it is given.
+
+Where FMI 3.0's state machine differs from the core's FMI 2.0 one, the adapter answers as FMI 3.0
+says: a get in Instantiated reads the start values (or the values set), without computing; after a
+doStep that returned fmi3Discard the FMU is in the state before the call (StepMode, FMI 3.0 has no
+stepFailed), so the core goes back from stepFailed to stepComplete (its state was rolled back).
+
+Statuses.  pythonfmu3's wrapper returns fmi3OK after every other call that does not raise (an
+exception is fmi3Fatal).  Behind the project's FMI 3.0 loader (``fmu_src/loader/fmi3_loader.c``, what
+the build puts in the FMU's binary on Linux) the core hands its state and the status of each call
+over in log category :data:`fmu_src.fmi_states.HAND_OFF_CATEGORY` (passed through here, consumed by
+the loader, never shown to the host): a set or get the core refuses, an unknown value reference and
+a refused exitInitializationMode return fmi3Error.  Without the loader (no C compiler at build time)
+such a call changes nothing and is logged with status fmi3Error, but returns fmi3OK.
 """
 from __future__ import annotations
 
@@ -36,6 +47,8 @@ from pythonfmu3 import Boolean, Float64, Int32
 from pythonfmu3.enums import Fmi3Causality, Fmi3Initial, Fmi3Status, Fmi3Variability
 from pythonfmu3.fmi3slave import Fmi3StepResult
 from pythonfmu3.variables import Dimension
+
+from .fmi_states import HAND_OFF_CATEGORY, INSTANTIATED, STEP_COMPLETE, STEP_FAILED
 
 __all__ = ["Row3", "Fmi3Adapter", "Fmi3TableError"]
 
@@ -179,6 +192,8 @@ class Fmi3Adapter:
         self.core.last_call_refusal = msg
         self.log(msg, Fmi3Status.error)
         self.core._pylog.error("%s", msg)
+        self.core._hand_off(Fmi3Status.error)        # behind the C loader: the call returns fmi3Error
+        self._relay()
 
     def _set(self, kind: str, vrs, values) -> None:
         flat = self._flat(kind, vrs)
@@ -200,7 +215,18 @@ class Fmi3Adapter:
             self._refuse_vrs(f"fmi3Get{kind}", kind, vrs)
             return []
         core = self.core
-        out = (core.get_real if kind == "Float64" else core.get_integer if kind == "Int32" else core.get_boolean)(flat)
+        get = core.get_real if kind == "Float64" else core.get_integer if kind == "Int32" else core.get_boolean
+        if not core._can_get and core._fmi_state == INSTANTIATED:
+            # FMI 3.0 reads the start values (or the values set) in Instantiated, FMI 2.0 does not: the
+            # core answers with its current values, nothing computed
+            saved = core._can_get, core._dirty
+            core._can_get, core._dirty = True, False
+            try:
+                out = get(flat)
+            finally:
+                core._can_get, core._dirty = saved
+        else:
+            out = get(flat)
         if core.log_queue:
             self._relay()
         return out
@@ -236,6 +262,11 @@ class Fmi3Adapter:
         core = self.core
         forbidden = core.refused_calls
         done = core.do_step(current_time, step_size)
+        if not done and core._fmi_state == STEP_FAILED:
+            # FMI 3.0: a doStep that returns fmi3Discard leaves the FMU in the state before the call
+            # (StepMode: set inputs, step again, get, set the FMU state, terminate); FMI 2.0's core went
+            # to stepFailed after rolling the step back
+            core._enter_state(STEP_COMPLETE)
         if core.log_queue:
             self._relay()
         if done:
@@ -270,6 +301,9 @@ class Fmi3Adapter:
         the core escapes '%' for FMI 2.0's printf-style logger, FMI 3.0's takes the text as it is)."""
         queue = self.core.log_queue
         for m in queue:
+            if m.category == HAND_OFF_CATEGORY:          # the core's hand-off, for the C loader only
+                self.log(m.msg.replace("%%", "%"), Fmi3Status(int(m.status)), HAND_OFF_CATEGORY)
+                continue
             category = m.category if m.category in self.log_categories else None
             self.log(m.msg.replace("%%", "%"), Fmi3Status(int(m.status)), category)
         queue.clear()

@@ -94,8 +94,9 @@ ALLOWED: dict[str, frozenset] = {
 
 #: the log category of the slave's hand-off to the C loader (the loader's ``STATUS_CATEGORY``)
 HAND_OFF_CATEGORY = "rrrdkCallStatus"
-#: pythonfmu's wrapper beside the loader in ``binaries/linux64/`` (:data:`cosim.fmus.native.WRAPPER_NAME`)
-_WRAPPER = "libpythonfmu-export.so"
+#: the Python wrapper beside the loader, by platform folder: pythonfmu's in an FMI 2.0 FMU, pythonfmu3's
+#: in the FMI 3.0 one (:data:`cosim.fmus.native.WRAPPER_NAME`, :data:`cosim.fmus.native.WRAPPER3_NAME`)
+_WRAPPERS = (("linux64", "libpythonfmu-export.so"), ("x86_64-linux", "libpythonfmu3-export.so"))
 
 #: what pythonfmu 0.7 returns for a refused call without the loader (FMI prescribes fmi2Error; the
 #: loader returns it)
@@ -104,11 +105,13 @@ REFUSED_STATUS = {name: (Fmi2Status.discard if name == "fmi2DoStep" else Fmi2Sta
 
 def behind_loader(resources) -> bool:
     """Whether an instance whose FMU's ``resources`` folder is ``resources`` runs behind the project's C
-    loader: on Linux, when pythonfmu's wrapper sits in ``binaries/linux64/`` beside the loader (the
-    build puts it there only with the loader; :mod:`cosim.fmus.native`)."""
+    loader: on Linux, when pythonfmu's wrapper sits in ``binaries/linux64/`` beside the loader, or
+    pythonfmu3's in ``binaries/x86_64-linux/`` (the FMI 3.0 FMU); the builds put them there only with
+    the loader (:mod:`cosim.fmus.native`)."""
     if not resources or not sys.platform.startswith("linux"):
         return False
-    return (Path(resources).parent / "binaries" / "linux64" / _WRAPPER).is_file()
+    binaries = Path(resources).parent / "binaries"
+    return any((binaries / platform / wrapper).is_file() for platform, wrapper in _WRAPPERS)
 
 
 def settable(var, state: str) -> bool:
