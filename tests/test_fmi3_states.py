@@ -219,6 +219,43 @@ def test_random_fmi3_call_sequences_keep_the_state_table(dk3):
     assert oracle.discards > 0
 
 
+def test_refused_and_forbidden_calls_return_fmi3_error(dk3):
+    """The FMI 3.0 loader: a set the slave refuses (a fixed parameter in StepMode), a get of an unknown
+    value reference, a call FMI 3.0 forbids in the state, a function of a feature the FMU lacks: fmi3Error,
+    one message naming the call, nothing changed; a get in Instantiated reads the start values."""
+    md3, dir3 = dk3
+    fmu = FMU3Slave(guid=md3.guid, unzipDirectory=dir3, modelIdentifier="RRRDirectKinematics3", instanceName="calls")
+    messages = []
+    fmu.instantiate(loggingOn=False, logMessage=lambda env, s, c, m: messages.append((int(s), m.decode())))
+    vr = {v.name: v.valueReference for v in md3.modelVariables}
+    start = {v.name: v.start for v in md3.modelVariables}
+    assert fmu.getFloat64([vr["q"]], nValues=3) == [float(x) for x in start["q"].split()]
+    assert fmu.getInt32([vr["posture"]]) == [int(start["posture"])]
+
+    def refused(fn, *args, text):
+        before = len(messages)
+        with pytest.raises(FMICallException) as info:
+            fn(*args)
+        new = messages[before:]
+        assert info.value.status == 3 and len(new) == 1 and new[0][0] == 3 and text in new[0][1], (text, new)
+
+    refused(fmu.doStep, 0.0, H, text="fmi3DoStep refused in state Instantiated: FMI 3.0 allows it in StepMode only")
+    refused(fmu.terminate, text="fmi3Terminate refused in state Instantiated")
+    refused(fmu.exitInitializationMode, text="fmi3ExitInitializationMode refused in state Instantiated")
+    refused(fmu.enterEventMode, text="fmi3EnterEventMode refused in state Instantiated: this FMU has no Event Mode")
+    refused(fmu.getFloat32, [0], 1, text="fmi3GetFloat32: this FMU has no Float32 variable")
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    refused(fmu.setFloat64, [vr["pose0"]], [0.5, 0.3, 0.0], text="not settable in this state")
+    refused(fmu.getFloat64, [999], 1, text="[999] are not all Float64 variables")
+    refused(fmu.enterInitializationMode, text="fmi3EnterInitializationMode refused in state StepMode")
+    fmu.doStep(0.0, H)                                    # nothing changed: the instance steps on
+    fmu.terminate()
+    refused(fmu.doStep, H, H, text="fmi3DoStep refused in state Terminated:")
+    assert all(map(math.isfinite, fmu.getFloat64([vr["pose"]], nValues=3)))
+    fmu.freeInstance()
+
+
 def test_the_fmi3_loader_keeps_the_same_state_table():
     """The C loader's FMI 3.0 table (fmi3_loader.c, FMI3_PLAIN/FMI3_STEP; masks of loader_common.h and
     fmi3_loader.h) allows each call in the states of :data:`fmu_src.fmi_states.ALLOWED3`."""

@@ -1,6 +1,6 @@
 """The FMI 3.0 DK FMU (``python build_fmu.py --fmi 3``): validation, arrays, identity with the FMI 2.0 FMU,
 FMU state, bad input and the statuses of the FMI 3.0 loader (a C host without Python:
-tests/test_c_host3.py; random call sequences: tests/test_fmi_states.py).
+tests/test_c_host3.py; forbidden and refused calls, random call sequences: tests/test_fmi3_states.py).
 
 Both FMUs are built into a temporary folder with the coarse reference map (40 mm / 6 deg, as
 tests/dk_fmu_support.py); the FMI 3.0 one runs through fmpy's ``FMU3Slave`` and ``simulate_fmu``,
@@ -258,42 +258,6 @@ def test_wrong_q_length_is_refused_not_a_crash(md3, dir3):
     pose = m.step(Q[2])                                   # the next valid step goes on
     assert m.get("status", "Int32") == [0] and all(map(math.isfinite, pose))
     m.close()
-
-
-def test_refused_and_forbidden_calls_return_fmi3_error(md3, dir3):
-    """The FMI 3.0 loader: a set the slave refuses (a fixed parameter in StepMode), a get of an unknown
-    value reference, a call FMI 3.0 forbids in the state, a function of a feature the FMU lacks: fmi3Error,
-    one message naming the call, nothing changed; a get in Instantiated reads the start values."""
-    fmu = FMU3Slave(guid=md3.guid, unzipDirectory=dir3, modelIdentifier="RRRDirectKinematics3", instanceName="calls")
-    messages = []
-    fmu.instantiate(loggingOn=False, logMessage=lambda env, s, c, m: messages.append((int(s), m.decode())))
-    vr = {v.name: v.valueReference for v in md3.modelVariables}
-    start = {v.name: v.start for v in md3.modelVariables}
-    assert fmu.getFloat64([vr["q"]], nValues=3) == [float(x) for x in start["q"].split()]
-    assert fmu.getInt32([vr["posture"]]) == [int(start["posture"])]
-
-    def refused(fn, *args, text):
-        before = len(messages)
-        with pytest.raises(FMICallException) as info:
-            fn(*args)
-        new = messages[before:]
-        assert info.value.status == 3 and len(new) == 1 and new[0][0] == 3 and text in new[0][1], (text, new)
-
-    refused(fmu.doStep, 0.0, H, text="fmi3DoStep refused in state Instantiated: FMI 3.0 allows it in StepMode only")
-    refused(fmu.terminate, text="fmi3Terminate refused in state Instantiated")
-    refused(fmu.exitInitializationMode, text="fmi3ExitInitializationMode refused in state Instantiated")
-    refused(fmu.enterEventMode, text="fmi3EnterEventMode refused in state Instantiated: this FMU has no Event Mode")
-    refused(fmu.getFloat32, [0], 1, text="fmi3GetFloat32: this FMU has no Float32 variable")
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
-    refused(fmu.setFloat64, [vr["pose0"]], [0.5, 0.3, 0.0], text="not settable in this state")
-    refused(fmu.getFloat64, [999], 1, text="[999] are not all Float64 variables")
-    refused(fmu.enterInitializationMode, text="fmi3EnterInitializationMode refused in state StepMode")
-    fmu.doStep(0.0, H)                                    # nothing changed: the instance steps on
-    fmu.terminate()
-    refused(fmu.doStep, H, H, text="fmi3DoStep refused in state Terminated:")
-    assert all(map(math.isfinite, fmu.getFloat64([vr["pose"]], nValues=3)))
-    fmu.freeInstance()
 
 
 def test_array_set_does_not_use_pythonfmu3s_reshape(md3, dir3):
