@@ -149,3 +149,25 @@ def test_c_host_without_any_python_fails_cleanly(dk3, host, tmp_path):
     for part in ("no Python interpreter fits the FMU RRRDirectKinematics3", "$RRR_DK_PYTHON: not set",
                  f"{gone}: missing", "python3 on PATH: none found", "Fix: set $RRR_DK_PYTHON"):
         assert part in run.stderr, (part, run.stderr[-2000:])
+
+
+def test_the_build_puts_the_loader_in_front_of_pythonfmu3s_wrapper(monkeypatch):
+    """native.loader_entries(..., fmi=3): the loader as the binary (the same bytes every time), pythonfmu3's
+    wrapper beside it, the runtime record, x86_64-linux only; without a C compiler the entries keep
+    pythonfmu3's binary with a NativeBuildWarning."""
+    from cosim.fmus import native
+
+    model = "RRRDirectKinematics3"
+    entries = {f"binaries/x86_64-linux/{model}.so": b"wrapper", f"binaries/x86_64-windows/{model}.dll": b"win",
+               "resources/a.txt": b"a"}
+    out = native.loader_entries(entries, model, fmi=3)
+    assert sorted(out) == sorted([f"binaries/x86_64-linux/{model}.so", "binaries/x86_64-linux/libpythonfmu3-export.so",
+                                  "resources/a.txt", "resources/python_runtime.txt"])
+    assert out["binaries/x86_64-linux/libpythonfmu3-export.so"] == b"wrapper"
+    assert out[f"binaries/x86_64-linux/{model}.so"][:4] == b"\x7fELF"
+    assert out == native.loader_entries(entries, model, fmi=3)          # deterministic
+    assert f"python={sys.executable}" in out["resources/python_runtime.txt"].decode()
+    monkeypatch.setattr(native, "compiler", lambda: None)
+    with pytest.warns(native.NativeBuildWarning, match="no C compiler.*keeps pythonfmu3's binary"):
+        bare = native.loader_entries(entries, model, fmi=3)
+    assert bare == {k: v for k, v in entries.items() if "windows" not in k}

@@ -123,8 +123,8 @@ def loader_entries(entries: Mapping[str, bytes], model: str, fmi: int = 2) -> di
     :data:`PLATFORMS` only; the binaries unchanged (with a :class:`NativeBuildWarning`) where the
     loader cannot be built.  ``fmi=3``: an FMI 3.0 FMU of pythonfmu3 (``x86_64-linux``, its wrapper
     as :data:`WRAPPER3_NAME`, the loader of :data:`LOADER3_FILES`)."""
-    platforms, wrapper, files = ((PLATFORMS, WRAPPER_NAME, LOADER_FILES) if fmi == 2 else
-                                 (PLATFORMS3, WRAPPER3_NAME, LOADER3_FILES))
+    platforms, wrapper, files, who = ((PLATFORMS, WRAPPER_NAME, LOADER_FILES, "pythonfmu") if fmi == 2 else
+                                      (PLATFORMS3, WRAPPER3_NAME, LOADER3_FILES, "pythonfmu3"))
     binary = f"binaries/{platforms[0]}/{model}.so"
     out = dict(entries)
     if binary not in entries:
@@ -134,12 +134,12 @@ def loader_entries(entries: Mapping[str, bytes], model: str, fmi: int = 2) -> di
                if not name.startswith("binaries/") or name.split("/")[1] in platforms}
     else:
         warnings.warn(f"{model}: the loader for hosts without Python is built on Linux only; the FMU keeps "
-                      "pythonfmu's binary", NativeBuildWarning, stacklevel=2)
+                      f"{who}'s binary", NativeBuildWarning, stacklevel=2)
         return out
     try:
         loader = compile_loader(files=files)
     except (RuntimeError, OSError) as exc:
-        warnings.warn(f"{model}: {exc}; the FMU keeps pythonfmu's binary and runs in Python hosts only "
+        warnings.warn(f"{model}: {exc}; the FMU keeps {who}'s binary and runs in Python hosts only "
                       "(fmpy, libcosimpy, ecospy)", NativeBuildWarning, stacklevel=2)
         return out
     out[f"binaries/{platforms[0]}/{wrapper}"] = entries[binary]

@@ -287,14 +287,19 @@ FMI3_STEP(FORWARD_STEP)
 
 /* fmi3DoStep: the return arguments are defined before the wrapper runs (pythonfmu3's sets
  * lastSuccessfulTime and terminateSimulation only; the FMU never asks for an event or returns early);
- * a refused call leaves them defined too */
+ * a refused call leaves them defined too; a NULL one is replaced by a local (the wrapper writes
+ * through the pointers unchecked) */
 EXPORT fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 t, fmi3Float64 h, fmi3Boolean noPrior, fmi3Boolean* event,
                              fmi3Boolean* stop, fmi3Boolean* early, fmi3Float64* last)
 {
-    if (event) *event = false;
-    if (stop) *stop = false;
-    if (early) *early = false;
-    if (last) *last = t;
+    fmi3Boolean spare[3];
+    fmi3Float64 spare_time;
+    event = event ? event : &spare[0];
+    stop = stop ? stop : &spare[1];
+    early = early ? early : &spare[2];
+    last = last ? last : &spare_time;
+    *event = *stop = *early = false;
+    *last = t;
     return forward_fmi3DoStep(c, t, h, noPrior, event, stop, early, last);
 }
 
