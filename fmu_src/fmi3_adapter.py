@@ -260,9 +260,9 @@ class Fmi3Adapter:
 
     def do_step(self, current_time: float, step_size: float):
         core = self.core
-        forbidden = core.refused_calls
+        forbidden, stepping = core.refused_calls, core._fmi_state == STEP_COMPLETE
         done = core.do_step(current_time, step_size)
-        if not done and core._fmi_state == STEP_FAILED:
+        if not done and stepping and core._fmi_state == STEP_FAILED:
             # FMI 3.0: a doStep that returns fmi3Discard leaves the FMU in the state before the call
             # (StepMode: set inputs, step again, get, set the FMU state, terminate); FMI 2.0's core went
             # to stepFailed after rolling the step back
