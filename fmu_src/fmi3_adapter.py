@@ -48,12 +48,23 @@ from pythonfmu3.enums import Fmi3Causality, Fmi3Initial, Fmi3Status, Fmi3Variabi
 from pythonfmu3.fmi3slave import Fmi3StepResult
 from pythonfmu3.variables import Dimension
 
-from .fmi_states import HAND_OFF_CATEGORY, INSTANTIATED, STEP_COMPLETE, STEP_FAILED
+from .fmi_states import (ERROR, HAND_OFF_CATEGORY, INITIALIZATION_MODE, INSTANTIATED, STEP_COMPLETE, STEP_FAILED,
+                         TERMINATED)
 
 __all__ = ["Row3", "Fmi3Adapter", "Fmi3TableError"]
 
 _CORE_TYPE = {"Float64": "Real", "Int32": "Integer", "Boolean": "Boolean"}
 _CLASS = {"Float64": Float64, "Int32": Int32, "Boolean": Boolean}
+#: FMI 3.0's names of the core's states, and what FMI 3.0 sets in them (the state table's footnotes)
+_STATE3 = {INSTANTIATED: "Instantiated", INITIALIZATION_MODE: "InitializationMode", STEP_COMPLETE: "StepMode",
+           TERMINATED: "Terminated", ERROR: "Terminated"}
+_SETTABLE3 = {"Instantiated": "the variables with initial exact or approx",
+              "InitializationMode": "the variables with initial exact and the inputs",
+              "StepMode": "the inputs and the tunable parameters"}
+#: the core's words for a discarded step (fmu_src.table_slave.TableSlave._refuse), and FMI 3.0's
+_DISCARD2 = ("(fmi2Discard,", "now in state stepFailed: fmi2SetFMUstate, fmi2Reset or fmi2Terminate)")
+_DISCARD3 = ("(fmi3Discard,", "still in StepMode: set valid inputs and step again, fmi3SetFMUState, fmi3Reset "
+             "or fmi3Terminate)")
 _OK, _DISCARD, _ERROR = (Fmi3StepResult(status=s) for s in (Fmi3Status.ok, Fmi3Status.discard, Fmi3Status.error))
 
 
@@ -186,8 +197,21 @@ class Fmi3Adapter:
 
     def _refuse_vrs(self, call: str, kind: str, vrs) -> None:
         valid = sorted(vr for vr, k in self._kind_of.items() if k == kind)
-        msg = (f"{type(self).__name__} instance {self.core.instance_name!r}: {call}: value references "
-               f"{list(vrs)} are not all {kind} variables (valid: {valid}); nothing done")
+        self._refuse(f"{type(self).__name__} instance {self.core.instance_name!r}: {call}: value references "
+                     f"{list(vrs)} are not all {kind} variables (valid: {valid}); nothing done")
+
+    def _refuse_set(self, kind: str, vrs, settable) -> None:
+        """fmi3Set<kind> of variables not settable in the state, refused in FMI 3.0's terms (the core's
+        check, its FMI 2.0 message not sent)."""
+        core = self.core
+        names = ", ".join(repr(self.ROWS[vr].name) for vr in vrs if not settable.issuperset(self._core_vrs[vr]))
+        state = _STATE3.get(core._fmi_state, core._fmi_state)
+        status = "fmi3Error" if core._loader else "fmi3Error by the standard; pythonfmu3 returns fmi3OK"
+        self._refuse(f"{type(self).__name__} instance {core.instance_name!r}: fmi3Set{kind} refused in state {state}: "
+                     f"variable(s) {names} not settable in this state (FMI 3.0 sets in {state} "
+                     f"{_SETTABLE3.get(state, 'no variable')}); nothing changed ({status})")
+
+    def _refuse(self, msg: str) -> None:
         self.core.refused_calls += 1
         self.core.last_call_refusal = msg
         self.log(msg, Fmi3Status.error)
@@ -201,6 +225,10 @@ class Fmi3Adapter:
             self._refuse_vrs(f"fmi3Set{kind}", kind, vrs)
             return
         core = self.core
+        settable = core._settable_now[_CORE_TYPE[kind]]
+        if not settable.issuperset(flat) and core._fmi_strict:
+            self._refuse_set(kind, vrs, settable)
+            return
         (core.set_real if kind == "Float64" else core.set_integer if kind == "Int32" else core.set_boolean)(
             flat, list(values))
         self._relay()
@@ -265,8 +293,10 @@ class Fmi3Adapter:
         if not done and stepping and core._fmi_state == STEP_FAILED:
             # FMI 3.0: a doStep that returns fmi3Discard leaves the FMU in the state before the call
             # (StepMode: set inputs, step again, get, set the FMU state, terminate); FMI 2.0's core went
-            # to stepFailed after rolling the step back
+            # to stepFailed after rolling the step back, and its message says so: FMI 3.0's words
             core._enter_state(STEP_COMPLETE)
+            for m in core.log_queue:
+                m.msg = m.msg.replace(_DISCARD2[0], _DISCARD3[0]).replace(_DISCARD2[1], _DISCARD3[1])
         if core.log_queue:
             self._relay()
         if done:
