@@ -23,9 +23,20 @@ are taken from the flat list the C wrapper passes: pythonfmu3's own array setter
 initialization, doStep, terminate and the FMU state go to the core; the core's log messages are
 handed on to pythonfmu3's log queue with their status after every call.  ``do_step`` answers
 fmi3OK, fmi3Discard (the core refused the step and rolled it back) or fmi3Error (a doStep the FMI
-state table forbids): pythonfmu3's wrapper returns the status it is given.  pythonfmu3's wrapper
-returns fmi3OK after every other call that does not raise (an exception is fmi3Fatal), so a set
-or get the core refuses changes nothing and is logged with status fmi3Error, but returns fmi3OK.
+state table forbids): pythonfmu3's wrapper returns the status it is given.
+
+Where FMI 3.0's state machine differs from the core's FMI 2.0 one, the adapter answers as FMI 3.0
+says: a get in Instantiated reads the start values (or the values set), without computing; after a
+doStep that returned fmi3Discard the FMU is in the state before the call (StepMode, FMI 3.0 has no
+stepFailed), so the core goes back from stepFailed to stepComplete (its state was rolled back).
+
+Statuses.  pythonfmu3's wrapper returns fmi3OK after every other call that does not raise (an
+exception is fmi3Fatal).  Behind the project's FMI 3.0 loader (``fmu_src/loader/fmi3_loader.c``, what
+the build puts in the FMU's binary on Linux) the core hands its state and the status of each call
+over in log category :data:`fmu_src.fmi_states.HAND_OFF_CATEGORY` (passed through here, consumed by
+the loader, never shown to the host): a set or get the core refuses, an unknown value reference and
+a refused exitInitializationMode return fmi3Error.  Without the loader (no C compiler at build time)
+such a call changes nothing and is logged with status fmi3Error, but returns fmi3OK.
 """
 from __future__ import annotations
 
@@ -37,10 +48,23 @@ from pythonfmu3.enums import Fmi3Causality, Fmi3Initial, Fmi3Status, Fmi3Variabi
 from pythonfmu3.fmi3slave import Fmi3StepResult
 from pythonfmu3.variables import Dimension
 
+from .fmi_states import (ERROR, HAND_OFF_CATEGORY, INITIALIZATION_MODE, INSTANTIATED, STEP_COMPLETE, STEP_FAILED,
+                         TERMINATED)
+
 __all__ = ["Row3", "Fmi3Adapter", "Fmi3TableError"]
 
 _CORE_TYPE = {"Float64": "Real", "Int32": "Integer", "Boolean": "Boolean"}
 _CLASS = {"Float64": Float64, "Int32": Int32, "Boolean": Boolean}
+#: FMI 3.0's names of the core's states, and what FMI 3.0 sets in them (the state table's footnotes)
+_STATE3 = {INSTANTIATED: "Instantiated", INITIALIZATION_MODE: "InitializationMode", STEP_COMPLETE: "StepMode",
+           TERMINATED: "Terminated", ERROR: "Terminated"}
+_SETTABLE3 = {"Instantiated": "the variables with initial exact or approx",
+              "InitializationMode": "the variables with initial exact and the inputs",
+              "StepMode": "the inputs and the tunable parameters"}
+#: the core's words for a discarded step (fmu_src.table_slave.TableSlave._refuse), and FMI 3.0's
+_DISCARD2 = ("(fmi2Discard,", "now in state stepFailed: fmi2SetFMUstate, fmi2Reset or fmi2Terminate)")
+_DISCARD3 = ("(fmi3Discard,", "still in StepMode: set valid inputs and step again, fmi3SetFMUState, fmi3Reset "
+             "or fmi3Terminate)")
 _OK, _DISCARD, _ERROR = (Fmi3StepResult(status=s) for s in (Fmi3Status.ok, Fmi3Status.discard, Fmi3Status.error))
 
 
@@ -173,12 +197,27 @@ class Fmi3Adapter:
 
     def _refuse_vrs(self, call: str, kind: str, vrs) -> None:
         valid = sorted(vr for vr, k in self._kind_of.items() if k == kind)
-        msg = (f"{type(self).__name__} instance {self.core.instance_name!r}: {call}: value references "
-               f"{list(vrs)} are not all {kind} variables (valid: {valid}); nothing done")
+        self._refuse(f"{type(self).__name__} instance {self.core.instance_name!r}: {call}: value references "
+                     f"{list(vrs)} are not all {kind} variables (valid: {valid}); nothing done")
+
+    def _refuse_set(self, kind: str, vrs, settable) -> None:
+        """fmi3Set<kind> of variables not settable in the state, refused in FMI 3.0's terms (the core's
+        check, its FMI 2.0 message not sent)."""
+        core = self.core
+        names = ", ".join(repr(self.ROWS[vr].name) for vr in vrs if not settable.issuperset(self._core_vrs[vr]))
+        state = _STATE3.get(core._fmi_state, core._fmi_state)
+        status = "fmi3Error" if core._loader else "fmi3Error by the standard; pythonfmu3 returns fmi3OK"
+        self._refuse(f"{type(self).__name__} instance {core.instance_name!r}: fmi3Set{kind} refused in state {state}: "
+                     f"variable(s) {names} not settable in this state (FMI 3.0 sets in {state} "
+                     f"{_SETTABLE3.get(state, 'no variable')}); nothing changed ({status})")
+
+    def _refuse(self, msg: str) -> None:
         self.core.refused_calls += 1
         self.core.last_call_refusal = msg
         self.log(msg, Fmi3Status.error)
         self.core._pylog.error("%s", msg)
+        self.core._hand_off(Fmi3Status.error)        # behind the C loader: the call returns fmi3Error
+        self._relay()
 
     def _set(self, kind: str, vrs, values) -> None:
         flat = self._flat(kind, vrs)
@@ -186,6 +225,10 @@ class Fmi3Adapter:
             self._refuse_vrs(f"fmi3Set{kind}", kind, vrs)
             return
         core = self.core
+        settable = core._settable_now[_CORE_TYPE[kind]]
+        if not settable.issuperset(flat) and core._fmi_strict:
+            self._refuse_set(kind, vrs, settable)
+            return
         (core.set_real if kind == "Float64" else core.set_integer if kind == "Int32" else core.set_boolean)(
             flat, list(values))
         self._relay()
@@ -200,7 +243,18 @@ class Fmi3Adapter:
             self._refuse_vrs(f"fmi3Get{kind}", kind, vrs)
             return []
         core = self.core
-        out = (core.get_real if kind == "Float64" else core.get_integer if kind == "Int32" else core.get_boolean)(flat)
+        get = core.get_real if kind == "Float64" else core.get_integer if kind == "Int32" else core.get_boolean
+        if not core._can_get and core._fmi_state == INSTANTIATED:
+            # FMI 3.0 reads the start values (or the values set) in Instantiated, FMI 2.0 does not: the
+            # core answers with its current values, nothing computed
+            saved = core._can_get, core._dirty
+            core._can_get, core._dirty = True, False
+            try:
+                out = get(flat)
+            finally:
+                core._can_get, core._dirty = saved
+        else:
+            out = get(flat)
         if core.log_queue:
             self._relay()
         return out
@@ -234,8 +288,15 @@ class Fmi3Adapter:
 
     def do_step(self, current_time: float, step_size: float):
         core = self.core
-        forbidden = core.refused_calls
+        forbidden, stepping = core.refused_calls, core._fmi_state == STEP_COMPLETE
         done = core.do_step(current_time, step_size)
+        if not done and stepping and core._fmi_state == STEP_FAILED:
+            # FMI 3.0: a doStep that returns fmi3Discard leaves the FMU in the state before the call
+            # (StepMode: set inputs, step again, get, set the FMU state, terminate); FMI 2.0's core went
+            # to stepFailed after rolling the step back, and its message says so: FMI 3.0's words
+            core._enter_state(STEP_COMPLETE)
+            for m in core.log_queue:
+                m.msg = m.msg.replace(_DISCARD2[0], _DISCARD3[0]).replace(_DISCARD2[1], _DISCARD3[1])
         if core.log_queue:
             self._relay()
         if done:
@@ -270,6 +331,9 @@ class Fmi3Adapter:
         the core escapes '%' for FMI 2.0's printf-style logger, FMI 3.0's takes the text as it is)."""
         queue = self.core.log_queue
         for m in queue:
+            if m.category == HAND_OFF_CATEGORY:          # the core's hand-off, for the C loader only
+                self.log(m.msg.replace("%%", "%"), Fmi3Status(int(m.status)), HAND_OFF_CATEGORY)
+                continue
             category = m.category if m.category in self.log_categories else None
             self.log(m.msg.replace("%%", "%"), Fmi3Status(int(m.status)), category)
         queue.clear()

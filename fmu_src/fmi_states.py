@@ -1,4 +1,5 @@
-"""The FMI 2.0 Co-Simulation state machine of a table slave: the mixin :class:`FmiStates`.
+"""The FMI 2.0 Co-Simulation state machine of a table slave: the mixin :class:`FmiStates`; FMI 3.0's
+table of the FMI 3.0 DK FMU where it differs (:data:`ALLOWED3`).
 
 Part of the FMU runtime (bundled into every FMU): it imports the standard library and pythonfmu
 only.  One table, :data:`ALLOWED`, says in which states each FMI function that reaches the Python
@@ -62,7 +63,8 @@ from pathlib import Path
 from pythonfmu.enums import Fmi2Status
 
 __all__ = ["FmiStates", "ALLOWED", "STATES", "INSTANTIATED", "INITIALIZATION_MODE", "STEP_COMPLETE",
-           "STEP_FAILED", "TERMINATED", "ERROR", "settable", "REFUSED_STATUS", "HAND_OFF_CATEGORY", "behind_loader"]
+           "STEP_FAILED", "TERMINATED", "ERROR", "settable", "REFUSED_STATUS", "HAND_OFF_CATEGORY", "behind_loader",
+           "ALLOWED3", "STATE_NAMES3"]
 
 INSTANTIATED = "instantiated"
 INITIALIZATION_MODE = "initializationMode"
@@ -92,10 +94,32 @@ ALLOWED: dict[str, frozenset] = {
     "fmi2Reset": _ALL, "fmi2FreeInstance": _ALL,
 }
 
+#: FMI 3.0 Co-Simulation (the FMI 3.0 DK FMU: no Event Mode, no Configuration Mode) in the core's FMI
+#: 2.0 states, as its C loader keeps it (``fmu_src/loader/fmi3_loader.c``): where the versions agree,
+#: the FMI 2.0 entry itself.  They differ in get (FMI 3.0 reads start values in Instantiated) and in
+#: stepFailed, which FMI 3.0 has not: a doStep that returns fmi3Discard leaves the FMU in StepMode
+#: (:class:`fmu_src.fmi3_adapter.Fmi3Adapter` moves its core back to stepComplete), so terminate is
+#: allowed in StepMode only.  Error is FMI 3.0's Terminated entered by an fmi3Error (a refused
+#: initialization), where FMI 3.0 allows what Terminated allows.
+ALLOWED3: dict[str, frozenset] = {
+    "fmi3EnterInitializationMode": ALLOWED["fmi2EnterInitializationMode"],
+    "fmi3ExitInitializationMode": ALLOWED["fmi2ExitInitializationMode"],
+    "fmi3DoStep": ALLOWED["fmi2DoStep"],
+    "fmi3Terminate": frozenset((STEP_COMPLETE,)),
+    **{f"fmi3Get{t}": (_GET - {STEP_FAILED}) | {INSTANTIATED} for t in ("Float64", "Int32", "Boolean")},
+    **{f"fmi3Set{t}": ALLOWED["fmi2SetReal"] for t in ("Float64", "Int32", "Boolean")},
+    "fmi3GetFMUState": _ALL - {STEP_FAILED}, "fmi3SetFMUState": _ALL - {STEP_FAILED},
+    "fmi3Reset": _ALL - {STEP_FAILED}, "fmi3FreeInstance": _ALL - {STEP_FAILED},
+}
+#: the FMI 3.0 name of each state of :data:`ALLOWED3` (the C loader's messages)
+STATE_NAMES3 = {INSTANTIATED: "Instantiated", INITIALIZATION_MODE: "InitializationMode", STEP_COMPLETE: "StepMode",
+                TERMINATED: "Terminated", ERROR: "Terminated after an fmi3Error"}
+
 #: the log category of the slave's hand-off to the C loader (the loader's ``STATUS_CATEGORY``)
 HAND_OFF_CATEGORY = "rrrdkCallStatus"
-#: pythonfmu's wrapper beside the loader in ``binaries/linux64/`` (:data:`cosim.fmus.native.WRAPPER_NAME`)
-_WRAPPER = "libpythonfmu-export.so"
+#: the Python wrapper beside the loader, by platform folder: pythonfmu's in an FMI 2.0 FMU, pythonfmu3's
+#: in the FMI 3.0 one (:data:`cosim.fmus.native.WRAPPER_NAME`, :data:`cosim.fmus.native.WRAPPER3_NAME`)
+_WRAPPERS = (("linux64", "libpythonfmu-export.so"), ("x86_64-linux", "libpythonfmu3-export.so"))
 
 #: what pythonfmu 0.7 returns for a refused call without the loader (FMI prescribes fmi2Error; the
 #: loader returns it)
@@ -104,11 +128,13 @@ REFUSED_STATUS = {name: (Fmi2Status.discard if name == "fmi2DoStep" else Fmi2Sta
 
 def behind_loader(resources) -> bool:
     """Whether an instance whose FMU's ``resources`` folder is ``resources`` runs behind the project's C
-    loader: on Linux, when pythonfmu's wrapper sits in ``binaries/linux64/`` beside the loader (the
-    build puts it there only with the loader; :mod:`cosim.fmus.native`)."""
+    loader: on Linux, when pythonfmu's wrapper sits in ``binaries/linux64/`` beside the loader, or
+    pythonfmu3's in ``binaries/x86_64-linux/`` (the FMI 3.0 FMU); the builds put them there only with
+    the loader (:mod:`cosim.fmus.native`)."""
     if not resources or not sys.platform.startswith("linux"):
         return False
-    return (Path(resources).parent / "binaries" / "linux64" / _WRAPPER).is_file()
+    binaries = Path(resources).parent / "binaries"
+    return any((binaries / platform / wrapper).is_file() for platform, wrapper in _WRAPPERS)
 
 
 def settable(var, state: str) -> bool:

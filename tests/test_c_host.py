@@ -126,11 +126,13 @@ def test_moved_environment_without_any_python_names_each_one_tried(fmus, host, t
         assert part in err, (part, err[-2000:])
 
 
-def test_the_loader_compiles_without_warnings(tmp_path):
-    """The loader's C files (cosim.fmus.native.LOADER_FILES) under -Wall -Wextra -Werror."""
-    from cosim.fmus.native import LOADER_FILES
+@pytest.mark.parametrize("files", ["LOADER_FILES", "LOADER3_FILES"])
+def test_the_loader_compiles_without_warnings(tmp_path, files):
+    """The loaders' C files (cosim.fmus.native.LOADER_FILES: FMI 2.0, LOADER3_FILES: FMI 3.0) under
+    -Wall -Wextra -Werror."""
+    from cosim.fmus import native
 
-    sources = [str(p) for p in LOADER_FILES if p.suffix == ".c"]
+    sources = [str(p) for p in getattr(native, files) if p.suffix == ".c"]
     proc = subprocess.run([CC, "-std=c11", "-O2", "-fPIC", "-shared", "-Wall", "-Wextra", "-Werror",
                            "-Wno-format-truncation", "-o", str(tmp_path / "loader.so"), *sources, "-ldl", "-lpthread"],
                           capture_output=True, text=True)

@@ -12,8 +12,8 @@ next free that walks that list, typically libgfortran's ``close_units`` ("corrup
 list", "corrupted unsorted chunks"); valgrind: "Invalid read of size 4 at finalizePythonInterpreter
 ... 8 bytes inside a block of size 128 free'd ... by __run_exit_handlers".  How often it aborted
 depended on the heap state (3/100 runs of the script below with all three FMUs, 37/100 with the
-plant alone).  The fix is in the FMU's loader (``fmu_src/loader/fmi2_loader.c``): it registers an
-atexit handler after the wrapper's statics that resets the shared_ptr first.
+plant alone).  The fix is in the FMU's loader (``fmu_src/loader/loader_common.c``; ``fmi2_loader.c`` explains it): it
+registers an atexit handler after the wrapper's statics that resets the shared_ptr first.
 
 :data:`SCRIPT` imports fmpy only.  It runs each of the three FMUs through ``fmpy.simulate_fmu``
 (extract, instantiate, simulate, free, unload) twice, then through ``FMU2Slave``: instantiate,

@@ -283,7 +283,7 @@ def test_the_loader_keeps_the_same_state_table():
 
     loader = Path(__file__).resolve().parents[1] / "fmu_src" / "loader"
     source = (loader / "fmi2_loader.c").read_text()
-    header = (loader / "fmi2_loader.h").read_text()
+    header = (loader / "loader_common.h").read_text() + (loader / "fmi2_loader.h").read_text()
     bits = {f"S_{m.group(1)}": m.group(2) for m in re.finditer(r"S_([A-Z_]+) = (\d+)", header)}
     names = {"S_INSTANTIATED": INSTANTIATED, "S_INITIALIZATION_MODE": INITIALIZATION_MODE,
              "S_STEP_COMPLETE": STEP_COMPLETE, "S_STEP_FAILED": STEP_FAILED, "S_TERMINATED": TERMINATED,

@@ -1,5 +1,6 @@
 """The FMI 3.0 DK FMU (``python build_fmu.py --fmi 3``): validation, arrays, identity with the FMI 2.0 FMU,
-FMU state, bad input.
+FMU state, bad input and the statuses of the FMI 3.0 loader (a C host without Python:
+tests/test_c_host3.py; forbidden and refused calls, random call sequences: tests/test_fmi3_states.py).
 
 Both FMUs are built into a temporary folder with the coarse reference map (40 mm / 6 deg, as
 tests/dk_fmu_support.py); the FMI 3.0 one runs through fmpy's ``FMU3Slave`` and ``simulate_fmu``,
@@ -15,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave
 from fmpy.fmi3 import FMU3Slave
 from fmpy.validation import validate_fmu
@@ -225,15 +227,23 @@ def test_fmu_state_round_trip(md3, dir3):
 
 
 def test_nan_input_is_discarded_with_status_3(md3, dir3):
+    """fmi3Discard, the state kept; FMI 3.0 leaves the FMU in StepMode after a discarded step: a valid
+    input steps again from the same point, and gives the pose an undisturbed instance gives."""
     m = Dk3(md3, dir3, "nan")
     for qk in Q[:5]:
         m.step(qk)
     held = m.get("pose", n=3)
     m.fmu.setFloat64([m.vr["q"]], [float(Q[5][0]), math.nan, float(Q[5][2])])
-    with pytest.raises(Exception, match="2|Discard|discard"):
+    with pytest.raises(FMICallException) as info:
         m.fmu.doStep(m.t, H)
+    assert info.value.status == 2
     assert m.get("status", "Int32") == [3] and m.get("pose", n=3) == held
-    assert any(s >= 2 and "'q2' = nan" in text for s, text in m.messages)
+    assert any(s >= 2 and "'q2' = nan" in text and "(fmi3Discard," in text and "still in StepMode" in text
+               for s, text in m.messages)
+    again = m.step(Q[5])                                  # StepMode: set a valid input, step again
+    twin = Dk3(md3, dir3, "nan-twin")
+    assert [twin.step(qk) for qk in Q[:6]][-1] == again and m.get("status", "Int32") == [0]
+    twin.close()
     m.close()
 
 
@@ -241,7 +251,9 @@ def test_wrong_q_length_is_refused_not_a_crash(md3, dir3):
     m = Dk3(md3, dir3, "short")
     m.step(Q[1])
     before = m.get("q", n=3)
-    m.fmu.setFloat64([m.vr["q"]], [0.1, 0.2])            # fmi3SetFloat64 with 2 values for Float64[3]
+    with pytest.raises(FMICallException) as info:        # fmi3SetFloat64 with 2 values for Float64[3]
+        m.fmu.setFloat64([m.vr["q"]], [0.1, 0.2])
+    assert info.value.status == 3                         # fmi3Error (the loader; pythonfmu3 alone: fmi3OK)
     assert m.get("q", n=3) == before
     assert any(s == 3 and "nothing done" in text for s, text in m.messages)
     pose = m.step(Q[2])                                   # the next valid step goes on
@@ -280,12 +292,32 @@ def test_array_set_does_not_use_pythonfmu3s_reshape(md3, dir3):
 
 
 def test_a_refused_initialization_makes_every_step_an_error(md3, dir3):
-    m = Dk3(md3, dir3, "no-map", posture=2)             # this FMU embeds the map of posture 1 only
-    assert any(s >= 3 and "posture" in text and "initialization failed" in text for s, text in m.messages)
-    with pytest.raises(Exception, match="3|Error|error"):
-        m.fmu.doStep(0.0, H)
-    assert m.get("status", "Int32") == [3]
-    m.fmu.freeInstance()
+    """fmi3ExitInitializationMode with a posture the FMU has no map of: fmi3Error with the reason; the
+    instance is in Terminated after an fmi3Error (FMI 3.0), where a doStep is refused with the reason
+    and get reads; fmi3Reset makes it usable again."""
+    with pytest.raises(FMICallException) as info:
+        Dk3(md3, dir3, "no-map", posture=2)              # this FMU embeds the map of posture 1 only
+    assert info.value.status == 3 and "fmi3ExitInitializationMode" in str(info.value)
+    fmu = FMU3Slave(guid=md3.guid, unzipDirectory=dir3, modelIdentifier="RRRDirectKinematics3", instanceName="no-map")
+    messages = []
+    fmu.instantiate(loggingOn=True, logMessage=lambda env, s, c, m: messages.append((int(s), m.decode())))
+    vr = {v.name: v.valueReference for v in md3.modelVariables}
+    fmu.setInt32([vr["posture"]], [2])
+    fmu.enterInitializationMode()
+    with pytest.raises(FMICallException) as info:
+        fmu.exitInitializationMode()
+    assert info.value.status == 3
+    assert any(s >= 3 and "posture" in text and "initialization failed" in text for s, text in messages)
+    with pytest.raises(FMICallException) as info:
+        fmu.doStep(0.0, H)
+    assert info.value.status == 3
+    assert "fmi3DoStep refused in state Terminated after an fmi3Error" in messages[-1][1] and "posture" in messages[-1][1]
+    assert fmu.getInt32([vr["status"]]) == [3]
+    fmu.reset()
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    fmu.doStep(0.0, H)
+    fmu.freeInstance()
 
 
 # ---------------------------------------------------------------------- other hosts' processes
@@ -341,43 +373,3 @@ def test_a_missing_package_is_named(built3, tmp_path):
     assert "fmpy:" in proc.stdout
     assert "No module named 'rrr_dk_absent' (the FMU needs rrr-dk-absent>=1.0)" in proc.stderr
     assert '-m pip install "rrr-dk-absent>=1.0"' in proc.stderr
-
-
-# ---------------------------------------------------------------------- a C host
-def test_a_c_host_without_python(md3, dir3, tmp_path):
-    """A C program (libc + libdl, tests/c_host/fmi3_host.c): pythonfmu3's wrapper does not load in a
-    process without Python (no loader for FMI 3.0); with libpython preloaded and an environment that
-    has the FMU's requirements on PYTHONPATH, it runs and gives fmpy's poses bit for bit."""
-    import os
-    import shutil
-    import subprocess
-    import sysconfig
-
-    cc = shutil.which("cc") or shutil.which("gcc")
-    assert cc, "no C compiler: the C host cannot be built"
-    exe = tmp_path / "fmi3_host"
-    source = Path(__file__).resolve().parent / "c_host" / "fmi3_host.c"
-    proc = subprocess.run([cc, "-std=c11", "-O1", "-Wall", "-o", str(exe), str(source), "-ldl"], capture_output=True,
-                          text=True)
-    assert proc.returncode == 0, proc.stderr
-    vr = {v.name: v.valueReference for v in md3.modelVariables}
-    args = [str(exe), str(dir3), "RRRDirectKinematics3", md3.guid, str(vr["q"]), str(vr["pose"]), "10", "1e-3"]
-    env = {k: v for k, v in os.environ.items() if k not in ("LD_PRELOAD", "PYTHONPATH", "PYTHONHOME")}
-    bare = subprocess.run(args, capture_output=True, text=True, env=env, timeout=300)
-    assert bare.returncode == 2 and "undefined symbol: _Py_NoneStruct" in bare.stdout
-    libpython = Path(sysconfig.get_config_var("LIBDIR")) / sysconfig.get_config_var("LDLIBRARY")
-    env.update(LD_PRELOAD=str(libpython), PYTHONPATH=sysconfig.get_paths()["purelib"])
-    run = subprocess.run(args, capture_output=True, text=True, env=env, timeout=600, cwd=str(tmp_path))
-    assert run.returncode == 0, run.stdout + run.stderr[-3000:]
-    pose = [float(v) for v in run.stdout.split("pose ")[1].split()]
-    m = FMU3Slave(guid=md3.guid, unzipDirectory=dir3, modelIdentifier="RRRDirectKinematics3", instanceName="same")
-    m.instantiate()
-    m.enterInitializationMode()
-    m.exitInitializationMode()
-    q = m.getFloat64([vr["q"]], nValues=3)
-    for k in range(10):
-        q[1] += 1e-3
-        m.setFloat64([vr["q"]], q)
-        m.doStep(k * H, H)
-    assert m.getFloat64([vr["pose"]], nValues=3) == pose
-    m.freeInstance()

@@ -20,9 +20,16 @@ The FMU's file is named like the FMI 2.0 one; its modelIdentifier (and slave mod
 ``RRRDirectKinematics3``: pythonfmu3's wrapper imports the slave module by name into the host's
 ``sys.modules``, shared with a pythonfmu FMU loaded in the same process.
 
-No loader for hosts without Python: pythonfmu3's wrapper, like pythonfmu's, calls the Python C API
-without being linked to libpython, and the project's loader (``fmu_src/loader/``) speaks FMI 2.0
-only.  The FMU runs in hosts that have Python (fmpy; see ``fmu_src/RRRDirectKinematics3.md``).
+Hosts without Python: pythonfmu3's wrapper, like pythonfmu's, calls the Python C API without being
+linked to libpython.  :func:`_archive` puts the project's FMI 3.0 loader in front of it
+(:func:`cosim.fmus.native.loader_entries` with ``fmi=3``): ``binaries/x86_64-linux/RRRDirectKinematics3.so``
+is ``fmu_src/loader/fmi3_loader.c`` compiled with the system C compiler, pythonfmu3's wrapper sits
+beside it as ``libpythonfmu3-export.so`` and ``resources/python_runtime.txt`` records the building
+interpreter.  The loader starts a Python in a C host as the FMI 2.0 FMUs' loader does, keeps FMI
+3.0's Co-Simulation state table per instance (fmi3Error for a forbidden or refused call, fmi3Discard
+for a refused step) and is otherwise transparent.  Without a C compiler the FMU keeps pythonfmu3's
+binary (a :class:`cosim.fmus.native.NativeBuildWarning`) and runs in hosts that have Python only
+(see ``fmu_src/RRRDirectKinematics3.md``).
 """
 from __future__ import annotations
 
@@ -39,7 +46,7 @@ from pathlib import Path
 from fmu_src import requirements
 from solver import DEFAULT_RULE, Manipulator
 
-from . import builds
+from . import builds, native
 from .builds import DEFAULT_RESOLUTION, MODES, BuildResult
 from .fmi3_description import model_description_xml
 from .kernels import Run, Scenario, warm_up
@@ -87,7 +94,8 @@ def _load_class(path: Path):
 
 def _archive(raw: Path, final: Path, cls, extra: dict | None = None) -> None:
     """The FMU from pythonfmu3's archive ``raw``: our modelDescription.xml, the binary of :data:`PLATFORM`
-    only, ``extra`` entries added, written deterministically (sorted, fixed times and modes)."""
+    only, behind the FMI 3.0 loader (module docstring), ``extra`` entries added, written
+    deterministically (sorted, fixed times and modes)."""
     with zipfile.ZipFile(raw) as z:
         entries = {i.filename: z.read(i) for i in z.infolist() if not i.is_dir()}
     if entries.get("resources/slavemodule.txt", b"").decode().strip() != DK3_NAME:
@@ -96,6 +104,7 @@ def _archive(raw: Path, final: Path, cls, extra: dict | None = None) -> None:
         raise BuildError(f"pythonfmu3 wrote no binaries/{PLATFORM}/{DK3_NAME}.so")
     entries = {n: b for n, b in entries.items()
                if not n.startswith("binaries/") or n.startswith(f"binaries/{PLATFORM}/")}
+    entries = native.loader_entries(entries, DK3_NAME, fmi=3)
     entries.update(extra or {})
     del entries["modelDescription.xml"]
     digest = hashlib.sha256(model_description_xml(cls, token=""))

@@ -9,7 +9,8 @@
  * fails with "undefined symbol: _Py_NoneStruct".  And pythonfmu 0.7 cannot return fmi2Error: a
  * normal Python return is fmi2OK, do_step returning False is fmi2Discard, an exception fmi2Fatal.
  *
- * Loading, once per process, in the first fmi2Instantiate (serialized by a mutex):
+ * Loading, once per process, in the first fmi2Instantiate (serialized by a mutex; loader_common.c,
+ * shared with the FMI 3.0 loader fmi3_loader.c):
  *  1. start_python (python_runtime.c): the process's Python if it has one, else the first
  *     interpreter that fits the FMU ($RRR_DK_PYTHON, the recorded one, python3 on PATH), started
  *     from its shared libpython and never finalized;
@@ -22,7 +23,7 @@
  *
  * The state table.  Each instance is a loader Instance around the wrapper's component.  A call FMI
  * 2.0 forbids in the instance's state (fmi2_states: the same table as fmu_src/fmi_states.py's
- * ALLOWED) returns fmi2Error and logs why, without reaching Python.  The slave (TableSlave) hands
+ * ALLOWED; the states and the masks FMI 3.0 shares: loader_common.h) returns fmi2Error and logs why, without reaching Python.  The slave (TableSlave) hands
  * its state and the status of the current call to the loader through the logger the loader gives
  * the wrapper: a message of category STATUS_CATEGORY, "<state> <status>[ <reason>]", which the
  * loader consumes (never shown to the host).  So an fmi2ExitInitializationMode that the slave
@@ -30,7 +31,7 @@
  * error, and an fmi2Set* of a variable not settable in the state returns fmi2Error.  A slave that
  * reports nothing (another pythonfmu slave) gets the standard transitions of the returned status.
  *
- * The exit crash ("corrupted double-linked list" at process exit).  The wrapper keeps a static
+ * The exit crash ("corrupted double-linked list" at process exit; the fix is in loader_common.c).  The wrapper keeps a static
  * std::shared_ptr<PyState> and resets it in a __attribute__((destructor)) function.  When the
  * wrapper is still loaded at exit, exit() runs the static's destructor first (__cxa_atexit, before
  * _dl_fini) and the destructor function then resets the destroyed shared_ptr: it decrements the
@@ -52,7 +53,6 @@
 #include "fmi2_loader.h"
 #include "python_runtime.h"
 
-#define EXPORT __attribute__((visibility("default")))
 #define WRAPPER_NAME "libpythonfmu-export.so"
 
 /* ---- the wrapper's functions: name, the states that allow it, the transition, parameters, arguments ---- */
@@ -107,67 +107,28 @@ FMI2_FUNCTIONS(DECLARE_POINTER)
 static fmi2Component (*real_fmi2Instantiate)(fmi2String, fmi2Type, fmi2String, fmi2String,
                                              const fmi2CallbackFunctions*, fmi2Boolean, fmi2Boolean);
 static void (*real_fmi2FreeInstance)(fmi2Component);
-static void (*release_py_state)(void);   /* the wrapper's finalizePythonInterpreter */
-
 static pthread_mutex_t load_lock = PTHREAD_MUTEX_INITIALIZER;
 static int loaded;                 /* the wrapper's functions are resolved */
 static char load_error[8192];      /* why loading failed (kept: every later instantiate reports it) */
 static char load_note[8192];       /* which interpreter was chosen, when not the recorded one (logged once) */
 static char model[256];            /* the modelIdentifier: this library's file name without ".so" */
 
-/* ---- loading ------------------------------------------------------------------------------------ */
-
-static int fail(const char* fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(load_error, sizeof load_error, fmt, ap);
-    va_end(ap);
-    return -1;
-}
-
-/* The folder of this library (binaries/linux64), without the trailing slash; pins the library. */
-static int own_folder(char* out, size_t size)
-{
-    Dl_info info;
-    if (!dladdr((void*)&own_folder, &info) || !info.dli_fname)
-        return fail("the FMU's binary cannot find its own path (dladdr failed)");
-    dlopen(info.dli_fname, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE);    /* never unmapped: see the top */
-    snprintf(out, size, "%s", info.dli_fname);
-    char* slash = strrchr(out, '/');
-    if (!slash)
-        return fail("the FMU's binary was loaded without a path (%s)", info.dli_fname);
-    *slash = '\0';
-    snprintf(model, sizeof model, "%s", slash + 1);
-    char* dot = strrchr(model, '.');
-    if (dot) *dot = '\0';
-    return 0;
-}
-
-/* see "The exit crash" above; runs at exit */
-static void release_wrapper_state(void)
-{
-    if (release_py_state) release_py_state();
-}
+/* ---- loading (loader_common.c: the runtime, the wrapper, the exit fix) -------------------------- */
 
 #define RESOLVE(name, allowed, transition, params, args) \
-    if (!(real_##name = (fmi2Status(*) params)dlsym(wrapper, #name))) return fail("%s lacks %s", path, #name);
+    if (!(real_##name = (fmi2Status(*) params)dlsym(wrapper, #name))) \
+        return snprintf(load_error, sizeof load_error, "%s lacks %s", WRAPPER_NAME, #name), -1;
 
 static int load(void)
 {
-    char binaries[PATH_MAX], path[PATH_MAX + 64];
-    if (own_folder(binaries, sizeof binaries)) return -1;
-    if (start_python(binaries, model, load_error, sizeof load_error, load_note, sizeof load_note)) return -1;
-    snprintf(path, sizeof path, "%s/%s", binaries, WRAPPER_NAME);
-    void* wrapper = dlopen(path, RTLD_NOW | RTLD_LOCAL | RTLD_NODELETE);
-    if (!wrapper) return fail("cannot open pythonfmu's wrapper %s: %s", path, dlerror());
+    void* wrapper = loader_open(WRAPPER_NAME, model, sizeof model, load_error, sizeof load_error, load_note,
+                                sizeof load_note);
+    if (!wrapper) return -1;
     FMI2_FUNCTIONS(RESOLVE)
     real_fmi2Instantiate = dlsym(wrapper, "fmi2Instantiate");
     real_fmi2FreeInstance = dlsym(wrapper, "fmi2FreeInstance");
     if (!real_fmi2Instantiate || !real_fmi2FreeInstance)
-        return fail("%s lacks fmi2Instantiate or fmi2FreeInstance", path);
-    release_py_state = (void (*)(void))dlsym(wrapper, "finalizePythonInterpreter");
-    if (release_py_state) atexit(release_wrapper_state);   /* after the wrapper's statics: runs first */
+        return snprintf(load_error, sizeof load_error, "%s lacks fmi2Instantiate or fmi2FreeInstance", WRAPPER_NAME), -1;
     return 0;
 }
 
@@ -198,7 +159,7 @@ EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, 
     in->mine.logger = fmi2_relay;
     in->mine.componentEnvironment = in;
     in->mine.stepFinished = NULL;                 /* no asynchronous steps */
-    in->state = S_INSTANTIATED;
+    in->cs.state = S_INSTANTIATED;
     in->log_mask = fmi2_log_mask(loggingOn);
     in->model = model;
     snprintf(in->name, sizeof in->name, "%s", name);

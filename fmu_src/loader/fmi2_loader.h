@@ -1,13 +1,14 @@
 /*
  * Shared by the FMU's loader (fmi2_loader.c) and its FMI 2.0 state table (fmi2_states.c): the FMI
- * 2.0 types ("default" platform), the states and the loader's instance.
+ * 2.0 types ("default" platform), the FMI 2.0 masks and the loader's instance (the states and what
+ * FMI 3.0 shares: loader_common.h).
  */
 #ifndef RRR_DK_FMI2_LOADER_H
 #define RRR_DK_FMI2_LOADER_H
 
 #include <stddef.h>
 
-#define EXPORT __attribute__((visibility("default")))
+#include "loader_common.h"
 
 /* FMI 2.0 types (fmi2TypesPlatform.h, fmi2FunctionTypes.h), "default" platform */
 typedef void* fmi2Component;
@@ -32,28 +33,14 @@ typedef struct {
     fmi2ComponentEnvironment componentEnvironment;
 } fmi2CallbackFunctions;
 
-/* FMI 2.0.5 Co-Simulation states (section 4.2.4), one bit each; "fatal" after an fmi2Fatal.
- * The slaves never return fmi2Pending: stepInProgress and stepCanceled never occur. */
-enum {
-    S_INSTANTIATED = 1, S_INITIALIZATION_MODE = 2, S_STEP_COMPLETE = 4, S_STEP_FAILED = 8,
-    S_TERMINATED = 16, S_ERROR = 32, S_FATAL = 64
-};
-#define S_ANY (S_INSTANTIATED | S_INITIALIZATION_MODE | S_STEP_COMPLETE | S_STEP_FAILED | S_TERMINATED | S_ERROR)
+/* FMI 2.0.5 Co-Simulation states (section 4.2.4): the bits of loader_common.h (S_ANY and S_SET are
+ * shared with FMI 3.0).  Get differs between the versions: FMI 2.0 allows it in stepFailed and error,
+ * not in instantiated (FMI 3.0 reads start values there). */
 #define S_GET (S_INITIALIZATION_MODE | S_STEP_COMPLETE | S_STEP_FAILED | S_TERMINATED | S_ERROR)
-#define S_SET (S_INSTANTIATED | S_INITIALIZATION_MODE | S_STEP_COMPLETE)
-
-/* the state a call leads to when the slave reports none (fmi2_settle) */
-typedef enum { T_NONE, T_ENTER, T_EXIT, T_STEP, T_TERMINATE, T_RESET } Transition;
-
-/* the logger category of the slave's hand-off: "<state> <status>[ <reason>]" (fmu_src/fmi_states.py) */
-#define STATUS_CATEGORY "rrrdkCallStatus"
 
 typedef struct {
     fmi2Component real;          /* the wrapper's component */
-    unsigned state;              /* one of the S_* bits */
-    unsigned reported;           /* the state the slave reported during the current call; 0: none */
-    fmi2Status call_status;      /* the worst status the slave reported for the current call */
-    char reason[2048];           /* why the instance is in state error (the slave's reason) */
+    CallState cs;                /* the state, what the slave reported in the current call, the reason of error */
     unsigned log_mask;           /* the log categories the host enabled (bits, fmi2_states.c) */
     fmi2CallbackFunctions host;  /* the host's callbacks */
     fmi2CallbackFunctions mine;  /* given to the wrapper: logger fmi2_relay, environment this Instance */

@@ -1,6 +1,7 @@
 /*
- * Interpreter discovery and start-up for the FMU's loader (fmi2_loader.c), in a host process that
- * has no Python (a C host: OMSimulator's command line, OpenModelica, Dymola, ...).
+ * Interpreter discovery and start-up for the FMUs' loaders (fmi2_loader.c, fmi3_loader.c, through
+ * loader_common.c), in a host process that has no Python (a C host: OMSimulator's command line,
+ * OpenModelica, Dymola, fmusim, ...).
  *
  * A process that already has an initialized Python (fmpy, libcosimpy, ecospy: Py_IsInitialized is
  * visible globally and true) keeps it: nothing is searched or started, and a missing package is
