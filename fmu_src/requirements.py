@@ -187,14 +187,17 @@ def install_command(requirements: list[Requirement]) -> str:
     return f"{python} -m pip install " + " ".join(f'"{r.spec}"' for r in requirements)
 
 
-def message(model: str, found: list[tuple[Requirement, str]]) -> str:
-    """The text of :class:`MissingRequirements` for the FMU ``model`` (one problem a line, then the fix)."""
+def message(model: str, found: list[tuple[Requirement, str]], path: str | Path | None = None) -> str:
+    """The text of :class:`MissingRequirements` for the FMU ``model`` (one problem a line, then the fix);
+    ``path``: its ``requirements.txt`` (named in the second fix, absolute)."""
     where = interpreter() or f"the host's embedded interpreter, prefix {sys.prefix}"
     reasons = "".join(f"\n  {why} (the FMU needs {req.spec})" for req, why in found)
+    listed = Path(path).resolve() if path else Path("resources") / FILE
+    pip = install_command([]).rstrip()
     return (f"{model}.fmu cannot run in this Python environment ({where}, Python "
             f"{sys.version.split()[0]}):{reasons}\nInstall what it needs into that environment:\n  "
-            f"{install_command([req for req, _ in found])}\nor everything the FMU lists in "
-            f"resources/{FILE}, with pythonfmu installed:\n  pythonfmu deploy -f {model}.fmu")
+            f"{install_command([req for req, _ in found])}\nor everything the FMU lists:\n  "
+            f"{pip} -r \"{listed}\"")
 
 
 def require(script: str) -> None:
@@ -217,7 +220,7 @@ def require(script: str) -> None:
         _CHECKED.add(text)
         return
     model = Path(script).stem
-    msg = message(model, found)
+    msg = message(model, found, path)
     try:
         logging.getLogger(f"fmu_src.{model}").error("%s", msg)
     except Exception:  # noqa: BLE001 - a broken logging setup must not hide the reason below

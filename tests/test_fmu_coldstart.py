@@ -63,16 +63,35 @@ CHILD = textwrap.dedent(r"""
     callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
     callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
     addLoggerProxy(byref(callbacks))
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
-                    instanceName="cold")
-    fmu.instantiate(callbacks=callbacks, loggingOn=True)
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
-    fmu.exitInitializationMode()
-    for k in range(10):
-        fmu.doStep(k * 1e-3, 1e-3)
+    outcome = {"outputs": [], "error": None}
+
+    def host():
+        fmu = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                        instanceName="cold")
+        try:
+            fmu.instantiate(callbacks=callbacks, loggingOn=True)
+        except Exception as exc:
+            outcome["error"] = str(exc)
+            return
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.exitInitializationMode()
+        reals = [v.valueReference for v in md.modelVariables if v.causality == "output" and v.type == "Real"]
+        for k in range(10):
+            fmu.doStep(k * 1e-3, 1e-3)
+            outcome["outputs"].append(fmu.getReal(reals))
+
+    stack = int(os.environ.get("COLD_STACK", "0"))
+    if stack:                                          # a host thread with a small C stack
+        import threading
+        threading.stack_size(stack)
+        thread = threading.Thread(target=host)
+        thread.start()
+        thread.join()
+    else:
+        host()
     solver = sys.modules.get("solver")
-    print("COLD " + json.dumps({"compiled": compiled, "messages": messages,
+    print("COLD " + json.dumps({"compiled": compiled, "messages": messages, **outcome,
                                 "solver": getattr(solver, "__file__", None)}))
     sys.stdout.flush()
     os._exit(0)
@@ -127,13 +146,59 @@ def test_another_cpu_and_an_unwritable_cache_still_load_the_shipped_kernels(fmus
 
 
 def test_kernels_the_fmu_cannot_serve_are_announced_in_the_hosts_log(fmus, tmp_path):
-    """Shipped kernels for another numba: the instance says so at instantiation, through the host's logger."""
+    """Shipped kernels for another numba: the instance says so at instantiation, through the host's logger,
+    and has them made in a child process (here it loads them: the numba is in fact the same)."""
     with zipfile.ZipFile(fmus["RRRPlant"]) as z:
         manifest = json.loads(z.read("resources/kernels/manifest.json"))
     report, _ = _cold(fmus["RRRPlant"], tmp_path, manifest=json.dumps({**manifest, "numba": "0.1.0"}))
     said = [m for m in report["messages"] if "compiling" in m]
-    assert len(said) == 1 and "numba 0.1.0" in said[0] and "about" in said[0] and " s " in said[0], report["messages"]
-    assert "compiling" in report["stderr"]                          # and on the Python logger
+    assert len(said) == 1 and "numba 0.1.0" in said[0] and "about" in said[0] and " s, " in said[0], report["messages"]
+    assert "in a child process" in said[0] and "compiling" in report["stderr"]     # and on the Python logger
+    assert report["compiled"] == [] and report["error"] is None and len(report["outputs"]) == 10
+
+
+def _without_kernels(fmu: Path, out: Path, drop=(".nbi", ".nbc")) -> Path:
+    """``fmu`` with the entries whose names end in ``drop`` left out (an empty kernel folder)."""
+    with zipfile.ZipFile(fmu) as z, zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as o:
+        for info in z.infolist():
+            if not info.filename.endswith(drop):
+                o.writestr(info, z.read(info))
+    return out
+
+
+def test_a_forced_compile_runs_in_a_child_process_not_on_a_small_host_stack(fmus, tmp_path):
+    """An empty kernel folder, a host thread with a 512 kB stack (numba's compiler overflows such stacks:
+    the 3-RPR FMU crashed fmpy): the FMU compiles in a child process, the host compiles nothing, and the
+    outputs are those of the shipped kernels; a second host finds them compiled (no child)."""
+    stripped = _without_kernels(fmus["RRRPlant"], tmp_path / "RRRPlant.fmu")
+    (tmp_path / "first").mkdir()
+    report, caches = _cold(stripped, tmp_path / "first", {"COLD_STACK": str(512 * 1024)})
+    assert report["error"] is None, report["stderr"][-3000:]
+    assert report["compiled"] == [], report["compiled"]                # nothing on the host's thread
+    said = " | ".join(report["messages"])
+    assert "its kernel folder holds no compiled kernel: compiling them in a child process" in said, said
+    assert "compiling dynamics._kernels" in said and "kernels compiled in a child process in" in said, said
+    (tmp_path / "shipped").mkdir()
+    shipped, _ = _cold(fmus["RRRPlant"], tmp_path / "shipped", {"COLD_STACK": str(512 * 1024)})
+    assert report["outputs"] == shipped["outputs"] and len(shipped["outputs"]) == 10
+    assert list(caches.rglob("warm.json")), "the child recorded no machine"
+    (tmp_path / "first" / "extracted").chmod(0o755)
+    import shutil
+
+    shutil.rmtree(tmp_path / "first" / "extracted", ignore_errors=True)
+    again, _ = _cold(stripped, tmp_path / "first", {"COLD_STACK": str(512 * 1024)})
+    assert again["error"] is None and again["compiled"] == [] and again["outputs"] == shipped["outputs"]
+    assert not any("child process" in m for m in again["messages"]), again["messages"]
+
+
+def test_a_failed_child_compile_fails_the_instantiation_with_the_reason(fmus, tmp_path):
+    """No kernels and no warm-up runs to compile them with: instantiation fails, the reason is on the host's
+    logger, and the host goes on (the child script exits normally)."""
+    stripped = _without_kernels(fmus["RRRPlant"], tmp_path / "RRRPlant.fmu", (".nbi", ".nbc", "kernel_runs.json"))
+    report, _ = _cold(stripped, tmp_path)
+    assert report["error"] == "Failed to instantiate model" and report["compiled"] == []
+    assert any("carries no warm-up runs (resources/kernel_runs.json)" in m for m in report["messages"]), \
+        report["messages"]
 
 
 def test_what_the_fmu_carries(fmus):
@@ -197,11 +262,12 @@ def test_a_generic_kernel_shipped_in_resources_is_loaded_and_a_missing_one_annou
     (res / "slavemodule.txt").write_text("Model")
     (res / "pkg" / "__init__.py").write_text("")
     (res / "pkg" / "kern.py").write_text(KERNEL)
-    first = _tiny(res, tmp_path / "build", NUMBA_CPU_NAME="generic")          # the build: a generic compile
+    # the build: a generic compile, in its own process (RRR_DK_KERNELS_IN_PROCESS)
+    first = _tiny(res, tmp_path / "build", NUMBA_CPU_NAME="generic", RRR_DK_KERNELS_IN_PROCESS="1")
     assert first["compiled"] == ["thrice"]
-    # announced at instantiation (attach) and when the kernel is compiled
-    assert len(first["said"]) == 2 and all("no compiled kernels" in m for m in first["said"]), first["said"]
-    assert "compiling them at first use" in first["said"][0] and "compiling pkg.kern.thrice" in first["said"][1]
+    # announced when the kernel is compiled
+    assert len(first["said"]) == 1 and "no compiled kernels" in first["said"][0], first["said"]
+    assert "compiling pkg.kern.thrice" in first["said"][0]
     key = kernel_cache.bundle_key(str(res))
     shipped = res / kernel_cache.SHIPPED / "pkg"
     shipped.mkdir(parents=True)
@@ -214,6 +280,6 @@ def test_a_generic_kernel_shipped_in_resources_is_loaded_and_a_missing_one_annou
     loaded = _tiny(res, tmp_path / "host")                                      # this CPU, empty caches
     assert loaded == {"compiled": [], "said": []}
     (res / "pkg" / "kern.py").write_text(KERNEL.replace("3.0 * x", "3.0 * x + 0.0"))   # other code, other key
-    again = _tiny(res, tmp_path / "changed")
+    again = _tiny(res, tmp_path / "changed", RRR_DK_KERNELS_IN_PROCESS="1")
     assert again["compiled"] == ["thrice"]
     assert any("compiling pkg.kern.thrice" in m and "about 7 s" in m for m in again["said"]), again["said"]

@@ -23,8 +23,9 @@ from host_support import REPO, run_python, session_fmus
 BARE = REPO / "build" / "bare-host-venv"
 FMPY = version("fmpy")
 #: what each FMU's code imports beyond the standard library, fmu_src, solver, dynamics and pythonfmu
-# llvmlite: the step budget's clock (solver/_kernels/clock.py, in every bundle of the solver's kernels)
-IMPORTS = {"RRRDirectKinematics": {"llvmlite", "numba", "numpy"},
+# llvmlite: the step budget's clock (solver/_kernels/clock.py, in every bundle of the solver's kernels);
+# scipy: numba's BLAS and LAPACK for ``@`` in compiled code (solver/_kernels/tube_chain.py), loaded at run time
+IMPORTS = {"RRRDirectKinematics": {"llvmlite", "numba", "numpy", "scipy"},
            "ComputedTorqueController": {"control", "llvmlite", "numba", "numpy", "scipy"},
            "RRRPlant": {"control", "llvmlite", "numba", "numpy", "scipy"}}
 
@@ -113,7 +114,17 @@ def test_require_names_missing_and_old_packages(tmp_path):
     assert "No module named 'rrr_dk_absent' (the FMU needs rrr-dk-absent>=1)" in text
     assert f"numpy {version('numpy')} is installed (the FMU needs numpy>=999)" in text
     assert f'{sys.executable} -m pip install "numpy>=999" "rrr-dk-absent>=1"' in text
-    assert "pythonfmu deploy -f Slave.fmu" in text
+    assert f'{sys.executable} -m pip install -r "{(tmp_path / req.FILE).resolve()}"' in text
+
+
+def test_an_embedded_interpreter_is_named_by_a_python_that_exists(monkeypatch):
+    """A host that started Python under a program name that is no file (pythonfmu's wrappers alone: ``<cwd>/
+    PythonFMU``): the fix names the environment's own python, never the made-up path."""
+    monkeypatch.setattr(sys, "executable", str(Path.cwd() / "PythonFMU"))
+    named = req.interpreter()
+    assert named and Path(named).is_file() and Path(named).name.startswith("python")
+    assert Path(named).parent.parent in (Path(sys.prefix), Path(sys.base_prefix))
+    assert "PythonFMU" not in req.install_command([req.Requirement("numpy", ((">=", "1"),), "numpy")])
 
 
 # ---------------------------------------------------------------------- a host without the packages
@@ -143,7 +154,7 @@ def test_a_host_without_the_packages_is_told_which_and_how(bare_host, fmus):
     for name, path in fmus.items():
         assert outcome[str(path)] == "Exception: Failed to instantiate model", name
         part = proc.stderr.split(f"{name}.fmu cannot run in this Python environment ({bare_host}, Python ")[1]
-        part = part.split("pythonfmu deploy -f")[0]
+        part = part.split("or everything the FMU lists")[0]
         for module in sorted(IMPORTS[name]):
             assert (f"No module named {module!r}" in part) == (module in missing), (name, module)
         assert f"{bare_host} -m pip install " in part and '"numba>=' in part

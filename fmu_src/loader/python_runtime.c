@@ -221,9 +221,10 @@ int start_python(const char* binaries, const char* model, char* error, size_t si
         add(tried, sizeof tried, "\n  %s %s: %s", label, candidate, why);
         ++failures;
     }
+    char folder[PATH_MAX];
+    if (!realpath(resources, folder)) snprintf(folder, sizeof folder, "%s", resources);
     snprintf(error, size, "no Python interpreter fits the FMU %s; tried:%s\nFix: set $%s to a python built "
              "with a shared libpython whose environment has the FMU's requirements (install them with "
-             "python -m pip install -r resources/requirements.txt, or pythonfmu deploy -f %s.fmu)",
-             model, tried, PYTHON_ENV, model);
+             "<that python> -m pip install -r %s/requirements.txt)", model, tried, PYTHON_ENV, folder);
     return -1;
 }
