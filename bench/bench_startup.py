@@ -21,8 +21,9 @@ measures that tree); each figure is the median over ``--repeat`` processes.  Pri
    task's ``load_seconds``), the first-run warm-up (its ``init_seconds`` minus the second task's,
    as ``bench/bench_batch.py`` counts it; target: a few tenths of a second) and the whole
    start-up;
-4. (unless ``--skip-compile``; ``--only-cold`` runs just this) the cold start of each FMU in a host
-   that has not imported ``solver`` (fmpy's ``FMU2Slave`` in a fresh process: extract into a new
+4. (unless ``--skip-compile``; ``--only-cold`` runs just this) the cold start of each FMU (the three
+   of the loop, the 3-RPR's DK and the FMI 3.0 DK FMU, built first if missing) in a host that has
+   not imported ``solver`` (fmpy's ``FMU2Slave``/``FMU3Slave`` in a fresh process: extract into a new
    folder, instantiate, initialize, 10 steps of 1 ms, timed inside): *cold* with empty caches
    (``NUMBA_CACHE_DIR`` and ``RRR_DK_CACHE`` = new empty folders: a machine that never ran it; the
    kernels come from the FMU's ``resources/kernels/``, :mod:`fmu_src.kernel_cache`), then *warm*
@@ -153,6 +154,17 @@ import os
 os._exit(0)
 """
 
+#: the same for an FMI 3.0 FMU (fmpy's FMU3Slave)
+COLD_FMU3 = COLD_FMU.replace("from fmpy.fmi2 import FMU2Slave", "from fmpy.fmi3 import FMU3Slave").replace(
+    "FMU2Slave(guid=md.guid", "FMU3Slave(guid=md.guid").replace(
+    "fmu.setupExperiment(startTime=0.0); fmu.enterInitializationMode()", "fmu.enterInitializationMode()")
+#: the FMUs of the cold start (4.): name, file under the build folder, probe
+COLD_FMUS = (("RRRDirectKinematics", "RRRDirectKinematics.fmu", COLD_FMU),
+             ("RRRPlant", "RRRPlant.fmu", COLD_FMU),
+             ("ComputedTorqueController", "ComputedTorqueController.fmu", COLD_FMU),
+             ("RPRDirectKinematics", "RPRDirectKinematics.fmu", COLD_FMU),
+             ("RRRDirectKinematics3 (FMI 3.0)", "fmi3/RRRDirectKinematics.fmu", COLD_FMU3))
+
 
 #: an FMU's instantiate + initialize in fmpy, timed inside (argv: the FMU)
 FMPY_START = r"""
@@ -252,6 +264,11 @@ def main(argv=None) -> int:
                            str(build)], cwd=_NEUTRAL)
     if proc.returncode:
         return proc.returncode
+    for file, flags in (("RPRDirectKinematics.fmu", ["--manipulator", "3rpr"]), ("fmi3/RRRDirectKinematics.fmu",
+                                                                                   ["--fmi", "3", "--out", str(build / "fmi3")])):
+        if not (args.only_hosts or args.skip_compile) and not (build / file).is_file():
+            subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), *flags, *([] if "--out" in flags else
+                                                                                   ["--out", str(build)])], check=True)
     print(f"python {platform.python_version()}, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}; "
           f"FMUs in {build}; {args.repeat} fresh processes per figure (medians)")
     tmp = Path(tempfile.mkdtemp(prefix="bench_startup_"))
@@ -321,14 +338,14 @@ def _cold_fmus(build: Path, tmp: Path) -> None:
     """4. Each FMU's instantiate + initialize + 10 steps in fmpy, empty caches (cold), then warm."""
     print("\n4. cold start of each FMU in fmpy, host without `solver` (extract + instantiate + initialize + "
           "10 steps, timed inside a fresh process; cold: NUMBA_CACHE_DIR and RRR_DK_CACHE new empty folders):")
-    for name in ("RRRDirectKinematics", "RRRPlant", "ComputedTorqueController"):
-        caches = tmp / f"cold-{name}"
+    for name, file, probe in COLD_FMUS:
+        caches = tmp / f"cold-{file.replace('/', '-')}"
         env = dict(os.environ, NUMBA_CACHE_DIR=str(caches / "numba"), RRR_DK_CACHE=str(caches / "rrr-dk"))
         env.pop("PYTHONPATH", None)                  # the FMU's own packages, as in a host without ours
         row = []
         for run, what in enumerate(("cold", "warm")):
             t0 = time.perf_counter()
-            proc = subprocess.run([sys.executable, "-c", COLD_FMU, str(build / f"{name}.fmu"),
+            proc = subprocess.run([sys.executable, "-c", probe, str(build / file),
                                    str(caches / f"x{run}")], capture_output=True, text=True, env=env, cwd=_NEUTRAL)
             wall = time.perf_counter() - t0
             line = next((x for x in proc.stdout.splitlines() if x.startswith("COLD ")), None)

@@ -1,5 +1,6 @@
 """The 3-RPR's DK FMU: build, validation, the reference run (a non-singular assembly-mode change), and
 the same outputs as the in-process tracker."""
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -78,3 +79,35 @@ def test_the_fmu_outputs_what_the_tracker_returns(built, loop_run):
         row = loop_run[k + 1]
         np.testing.assert_allclose([row["x"], row["y"], row["phi"]], X, atol=1e-12)
         assert bool(row["certain"]) == info.certain and int(row["status"]) == info.status
+
+
+#: argv: the FMU, an extraction folder; instantiates and frees it 5 times, collecting garbage each time
+REPEATED = r"""
+import gc, json, sys
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+md = read_model_description(sys.argv[1])
+folder = extract(sys.argv[1], unzipdir=sys.argv[2])
+counts, names = [], []
+for k in range(5):
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier="RPRDirectKinematics", instanceName=f"i{k}")
+    fmu.instantiate()
+    namespace = sys.modules["RPRDirectKinematics"].__dict__
+    counts.append(sys.getrefcount(namespace))
+    names.append("RPRDirectKinematics" in namespace and "instance_name" not in namespace)
+    gc.collect()
+    fmu.freeInstance()
+print("REPEATED " + json.dumps({"counts": counts, "names": names}), flush=True)
+"""
+
+
+def test_repeated_instantiations_keep_the_slave_modules_namespace(built, tmp_path):
+    """pythonfmu's wrapper releases a reference to the slave module's globals per instantiation that it
+    never took; without fmu_src.wrapper_refs the 3-RPR's namespace was freed at the first one and the
+    next garbage collection crashed the host.  Now its count stays level and the namespace intact."""
+    proc = subprocess.run([sys.executable, "-c", REPEATED, str(built.fmu), str(tmp_path / "x")], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, f"the host died ({proc.returncode}):\n{proc.stderr[-3000:]}"
+    out = json.loads(next(x for x in proc.stdout.splitlines() if x.startswith("REPEATED "))[9:])
+    assert all(out["names"]), out
+    assert min(out["counts"]) >= out["counts"][0] >= 2, out
