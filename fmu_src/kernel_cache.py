@@ -346,7 +346,9 @@ def attach(slave) -> None:
     _SLAVES[:] = [ref for ref in _SLAVES if ref() is not None] + [weakref.ref(slave)]
     problem = (shipped_problem(resources) if _has_kernel_packages(resources)
                and not _hosts_own_packages(resources) else None)
-    if problem:
+    # an instance an FMI host made (pythonfmu passes a logger), of an FMU's resources folder; one made in
+    # process (tests, the compiling child itself) compiles where it is
+    if problem and getattr(slave, "_fmi_strict", True) and os.path.isfile(os.path.join(resources, BUNDLE_MARK)):
         from .kernel_warmup import ensure
 
         ensure(slave, resources, problem)   # compiled in a child process, never on the host's thread
