@@ -33,22 +33,38 @@ from solver._kernels.clock import cycles_per_second
 from solver.tracker_state import TRUST
 TRUST_CERTAIN, TRUST_LOST = (next(k for k, v in TRUST.items() if v == name) for name in ("certain", "lost"))
 
-# Build constants: start values of the parameters ``posture`` and ``mode`` (build_fmu.py --posture/--mode).
+# Build constants: start values of the parameters ``posture`` and ``mode`` (build_fmu.py --posture/--mode)
+# and the robot (build_fmu.py --robot: name, description digest, geometry as Manipulator.to_dict(), the
+# start pose in BUILD_POSTURE; None: the paper's robot at HOME_POSE).  The tracker's model is the one
+# the embedded maps carry; these give the start values and the description only.
 BUILD_POSTURE = 1
 BUILD_MODE = "default"
+BUILD_ROBOT = None
+
+
+def _build_robot():
+    """The model and start pose (x, y in m, phi in rad) of this build's robot."""
+    if BUILD_ROBOT is None:
+        return Manipulator.paper(), tuple(float(v) for v in HOME_POSE)
+    return Manipulator.from_dict(BUILD_ROBOT["geometry"]), tuple(float(v) for v in BUILD_ROBOT["start"])
+
+
+_ROBOT, _START = _build_robot()
+_ABOUT = ("the paper's 3-RRR (Table 1)" if BUILD_ROBOT is None else
+          f"the 3-RRR {BUILD_ROBOT['name']!r} (robot description sha256 {BUILD_ROBOT['digest']})")
 
 
 def _home_joints(posture):
-    """Joints of HOME_POSE in ``posture`` (start values of q1..q3, consistent with x0, y0, phi0)."""
-    q = ik(Manipulator.paper(), np.array(HOME_POSE, dtype=float), posture)
+    """Joints of the start pose in ``posture`` (start values of q1..q3, consistent with x0, y0, phi0)."""
+    q = ik(_ROBOT, np.array(_START, dtype=float), posture)
     return [float(v) for v in q]
 
 
 class RRRDirectKinematics(TableSlave):
-    """Direct kinematics of the 3-RRR (paper Table 1) by the basic-regions tracker."""
+    """Direct kinematics of a 3-RRR (the paper's Table 1, or the robot of the build) by the basic-regions tracker."""
 
     description = ("Direct kinematics of the planar 3-RRR parallel manipulator with basic regions: "
-                   "joint angles -> platform pose (tracker + embedded map tensor)")
+                   f"joint angles -> platform pose (tracker + embedded map tensor); robot: {_ABOUT}")
     author = "rrr-dk"
     version = "0.1.0"
     license = "MIT"
@@ -67,7 +83,7 @@ class RRRDirectKinematics(TableSlave):
             description="motor angle theta_2 of leg 2 (from +x)"),
         Var("q3", "Real", "input", start=_HOME_Q[2], unit="rad",
             description="motor angle theta_3 of leg 3 (from +x)"),
-        *initial_pose(HOME_POSE),
+        *initial_pose(_START),
         Var("posture", "Integer", "parameter", "fixed", start=BUILD_POSTURE, min=1, max=8,
             description="IK branch 1..8 (CONVENTIONS.md); needs an embedded map of that posture"),
         Var("mode", "Integer", "parameter", "fixed", start=MODES.index(BUILD_MODE), min=0, max=1,

@@ -48,7 +48,7 @@ from .packaging import bundled_files, build_fmu
 
 __all__ = ["FMU_NAMES", "DK_NAME", "MODES", "DEFAULT_RESOLUTION", "BuildResult", "parse_resolution",
            "resolution_step", "map_cache_path", "stage_maps", "build_dk", "build_slave", "build_fmus", "slave_script",
-           "project_packages", "is_stale", "warm_up_scenario"]
+           "project_packages", "is_stale", "warm_up_scenario", "robot_circle", "robot_constant"]
 
 #: The three FMUs, in the order of the closed loop's data flow (DK -> controller -> plant).
 FMU_NAMES = ("RRRDirectKinematics", "ComputedTorqueController", "RRRPlant")
@@ -116,23 +116,49 @@ class BuildResult:
         return self.fmu.stat().st_size
 
 
-def with_build_constants(text: str, posture: int, mode: str, where) -> str:
+def with_build_constants(text: str, posture: int, mode: str, where, robot: dict | None = None) -> str:
     """The slave script ``text`` with its build constants ``BUILD_POSTURE`` and ``BUILD_MODE`` set to
-    ``posture`` and ``mode`` (the start values of its parameters); ``where`` names it in the error
-    when a constant is not there exactly once."""
-    for pattern, value in ((r"^BUILD_POSTURE = \d+$", f"BUILD_POSTURE = {int(posture):d}"),
-                           (r'^BUILD_MODE = "\w+"$', f'BUILD_MODE = "{mode}"')):
-        text, n = re.subn(pattern, value, text, flags=re.MULTILINE)
+    ``posture`` and ``mode`` (the start values of its parameters) and, when ``robot`` is given (the DK
+    FMU of a robot description: :func:`robot_constant`), ``BUILD_ROBOT``; ``where`` names it in the
+    error when a constant is not there exactly once."""
+    pairs = [(r"^BUILD_POSTURE = \d+$", f"BUILD_POSTURE = {int(posture):d}"),
+             (r'^BUILD_MODE = "\w+"$', f'BUILD_MODE = "{mode}"')]
+    if robot is not None:
+        pairs.append((r"^BUILD_ROBOT = None$", "BUILD_ROBOT = " + json.dumps(robot, sort_keys=True)))
+    for pattern, value in pairs:
+        text, n = re.subn(pattern, lambda _m: value, text, flags=re.MULTILINE)
         if n != 1:
             raise RuntimeError(f"{where}: expected one line matching {pattern!r}, found {n}")
     return text
 
 
-def _stage_script(dest: Path, posture: int, mode: str) -> Path:
+def robot_constant(robot, posture: int) -> dict:
+    """The DK slave's ``BUILD_ROBOT`` for ``robot`` (a :class:`solver.robot.Robot`) started in ``posture``:
+    its name, description digest, geometry and start pose (:func:`solver.robot.start_pose`)."""
+    from solver.robot import start_pose
+
+    return {"name": robot.name, "digest": robot.digest, "geometry": robot.model.to_dict(),
+            "start": [float(v) for v in start_pose(robot, posture)]}
+
+
+def _stage_script(dest: Path, posture: int, mode: str, robot=None) -> Path:
     source = slave_script(DK_NAME)
     script = dest / source.name
-    script.write_text(with_build_constants(source.read_text(), posture, mode, source))
+    constant = robot_constant(robot, posture) if robot is not None else None
+    script.write_text(with_build_constants(source.read_text(), posture, mode, source, constant))
     return script
+
+
+def _stage_robot(tmp: Path, robot) -> dict[str, Path]:
+    """The description the DK FMU of ``robot`` carries: ``resources/robot.json`` (as checked, JSON) and,
+    when it came from a file, that file as ``resources/robot.toml``."""
+    if robot is None:
+        return {}
+    (tmp / "robot.json").write_text(json.dumps(robot.description, indent=1, sort_keys=True) + "\n")
+    files = {"robot.json": tmp / "robot.json"}
+    if Path(robot.source).is_file():
+        files["robot.toml"] = Path(robot.source)
+    return files
 
 
 def _stage_documentation(dest: Path, name: str = DK_NAME) -> Path:
@@ -152,7 +178,7 @@ def _dk_maps(model, postures, resolution, map_files, rule, cache_dir, progress, 
     for f in map_files:
         mt = MapTensor.load(f)            # raises MapTensorFileError naming the problem
         if mt.model.digest() != model.digest():
-            raise ValueError(f"{f}: built for geometry {mt.model.name!r}; this FMU is the paper's 3-RRR (Table 1)")
+            raise ValueError(f"{f}: built for geometry {mt.model.name!r}; this FMU is the robot {model.name!r}")
         if mt.posture in maps:
             raise ValueError(f"{f}: a second map of posture {mt.posture}")
         maps[mt.posture] = Path(f)
@@ -183,10 +209,17 @@ def stage_maps(tmp: Path, maps: dict[int, Path]) -> dict[str, Path]:
     return data_files
 
 
-def build_dk(out_dir="build", postures=(1,), resolution=DEFAULT_RESOLUTION, map_files=(), mode: str = "default",
+def build_dk(out_dir="build", postures=(1,), resolution=None, map_files=(), mode: str = "default",
              rule: str = DEFAULT_RULE, cache_dir=None, check: bool = True, progress: bool | None = None,
-             log=print, kernels: bool = True) -> BuildResult:
+             log=print, kernels: bool = True, robot=None) -> BuildResult:
     """Build ``<out_dir>/RRRDirectKinematics.fmu`` (see the module docstring).
+
+    ``robot``: a :class:`solver.robot.Robot` (a 3-RRR description, :func:`solver.robot.load_robot`), or
+    None for the paper's robot: its geometry gives the maps, its home pose (or, in another posture, the
+    nearest well-conditioned pose) the start values, and the FMU carries its description
+    (``resources/robot.json``, ``robot.toml``) and digest (in the model description's ``description``).
+    ``resolution``: the maps' node spacing (m, rad); None: the robot's (:attr:`Robot.resolution`), for
+    the paper's robot :data:`DEFAULT_RESOLUTION`.
 
     ``postures``: postures to embed, the first one is the start value of the parameter ``posture``;
     ``map_files``: map files to embed (their postures are added; a posture given twice is an error);
@@ -200,7 +233,12 @@ def build_dk(out_dir="build", postures=(1,), resolution=DEFAULT_RESOLUTION, map_
         raise ValueError(f"mode: expected one of {MODES}, got {mode!r}")
     if rule not in ORDERING_RULES:
         raise ValueError(f"rule: expected one of {sorted(ORDERING_RULES)}, got {rule!r}")
-    model = Manipulator.paper()
+    if robot is not None and robot.kind != "3-RRR":
+        raise ValueError(f"robot: {robot.source} describes a {robot.kind}; the DK FMU of this build is a 3-RRR's "
+                         "(a 3-RPR: python build_fmu.py --manipulator 3rpr)")
+    model = robot.model if robot is not None else Manipulator.paper()
+    if resolution is None:
+        resolution = robot.resolution if robot is not None else DEFAULT_RESOLUTION
     out_dir = Path(out_dir)
     cache_dir = None if cache_dir is None else Path(cache_dir)
     t_map = time.perf_counter()
@@ -208,9 +246,9 @@ def build_dk(out_dir="build", postures=(1,), resolution=DEFAULT_RESOLUTION, map_
     map_seconds = time.perf_counter() - t_map
     with tempfile.TemporaryDirectory(prefix="build_fmu_") as tmp:
         tmp = Path(tmp)
-        script = _stage_script(tmp, postures[0], mode)
-        data_files = stage_maps(tmp, maps)
-        scenario = warm_up(warm_up_scenario(DK_NAME, postures[0], mode)) if kernels else None
+        script = _stage_script(tmp, postures[0], mode, robot)
+        data_files = {**stage_maps(tmp, maps), **_stage_robot(tmp, robot)}
+        scenario = warm_up(warm_up_scenario(DK_NAME, postures[0], mode, robot)) if kernels else None
         fmu = build_fmu(script, out_dir, project_packages=project_packages(), data_files=data_files,
                         documentation_dir=_stage_documentation(tmp), check=check, kernels=scenario)
     problems = validate(fmu) if check else []
@@ -228,12 +266,23 @@ def build_slave(name: str, out_dir="build", check: bool = True, kernels: bool = 
 
 
 # ---------------------------------------------------------------------- the warm-up of the shipped kernels
-def warm_up_scenario(name: str, posture: int = 1, mode: str = "default") -> Scenario:
+def warm_up_scenario(name: str, posture: int = 1, mode: str = "default", robot=None) -> Scenario:
     """The runs that compile the kernels FMU ``name`` ships: its reference run (:mod:`cosim.fmus.references`;
     the DK FMU's circle in ``posture``, in ``mode`` and a part of it in the other mode, or 10 steps from
-    its start values when the circle leaves that posture's tool space)."""
+    its start values when the circle leaves that posture's tool space).  For a ``robot``'s DK FMU, the
+    circle is one about its start pose (:func:`robot_circle`)."""
     from . import references
 
+    if robot is not None:
+        h, n = references.REFERENCE["h"], references.REFERENCE["n"]
+        modes = [MODES.index(mode), 1 - MODES.index(mode)]
+        X, q = robot_circle(robot, posture, n)
+        if q is None:
+            return Scenario([Run(10, h, {"mode": m}) for m in modes])
+        start = {"x0": X[0, 0], "y0": X[0, 1], "phi0": X[0, 2], "posture": posture}
+        inputs = {f"q{j + 1}": q[:, j] for j in range(3)}
+        return Scenario([Run(n, h, {**start, "mode": modes[0]}, inputs),
+                         Run(n // 5, h, {**start, "mode": modes[1]}, {k: v[:n // 5] for k, v in inputs.items()})])
     if name != DK_NAME:
         inputs, start, _ = references.RUNS[name]
         t, signals = inputs()
@@ -250,6 +299,25 @@ def warm_up_scenario(name: str, posture: int = 1, mode: str = "default") -> Scen
     inputs = {f"q{j + 1}": q[:, j] for j in range(3)}
     return Scenario([Run(n, h, {**start, "mode": modes[0]}, inputs),
                      Run(n // 5, h, {**start, "mode": modes[1]}, {k: v[:n // 5] for k, v in inputs.items()})])
+
+
+def robot_circle(robot, posture: int, n: int):
+    """Poses (n, 3) of a circle about ``robot``'s start pose in ``posture`` (radius a 40th of its longest
+    leg reach, phi swinging by 0.1 rad) and their joints (n, 3), or (poses, None) where the circle leaves
+    that posture's tool space or comes within 0.02 of a singularity."""
+    from solver import ik
+    from solver.kinematics import singularity_measures
+    from solver.robot import start_pose
+
+    X0 = np.array(start_pose(robot, posture))
+    r = float(np.max(robot.model.l1 + robot.model.l2)) / 40.0
+    a = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
+    X = X0 + np.stack([r * (np.cos(a) - 1.0), r * np.sin(a), 0.1 * np.sin(a)], axis=1)
+    q = ik(robot.model, X, posture)
+    if not np.all(np.isfinite(q)):
+        return X, None
+    m = singularity_measures(robot.model, X, q)
+    return (X, q) if float(np.min(np.minimum(m.type1, m.type2))) >= 0.02 else (X, None)
 
 
 # ---------------------------------------------------------------------- all three, as needed

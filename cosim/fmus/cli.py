@@ -6,6 +6,7 @@
     python build_fmu.py --write-reference      # regenerate fmu_src/reference/<FMU>.csv
     python build_fmu.py --manipulator 3rpr [--resolution 25mm,3deg] [--no-reference | --write-reference]
     python build_fmu.py --fmi 3 [--posture ...] [--resolution ...] [--mode ...] [--no-reference | --write-reference]
+    python build_fmu.py --robot FILE [--posture ...] [--resolution ...] [--mode ...] [--out DIR]
 
 1. The FMUs (:mod:`cosim.fmus.builds`) are built into ``--out`` and validated: ``RRRDirectKinematics``
    with the map tensor(s) of ``--posture`` at ``--resolution`` (cached in the project's map cache,
@@ -29,6 +30,13 @@ and its reference run (the loop around a cusp) against ``fmu_src/reference/RPRDi
 ``RRRDirectKinematics3``; :mod:`cosim.fmus.fmi3_build`, the same map options), and its reference run against
 ``fmu_src/reference/RRRDirectKinematics3.csv`` (:mod:`cosim.fmus.fmi3_reference`).
 
+``--robot FILE`` builds the DK FMU of the robot that ``FILE`` describes (a TOML file, docs/robots.md;
+:func:`solver.robot.load_robot` checks it before any work and a bad file ends the command with the
+reason, exit status 2): maps of its geometry (cached by its digest) at ``--resolution`` (default the
+robot's), start values from its home pose, its description in ``resources/``.  The plant and the
+controller of a robot description are not built yet: ``--robot`` builds the DK FMU alone, without
+reference runs (those are the paper's robot's).
+
 ``--write-reference`` does step 2 only and rewrites the kept CSVs.  Same options and the same map
 files give byte-identical FMUs.  ``--resolution`` accepts ``"10mm,2deg"``, ``"0.04m 6deg"``,
 ``"1cm,0.035rad"`` or two bare numbers (mm, deg): ``40 6``.
@@ -43,7 +51,7 @@ from pathlib import Path
 from solver import DEFAULT_RULE, ORDERING_RULES, MapTensorFileError
 
 from .sources import REFERENCE_DIR
-from .builds import DEFAULT_RESOLUTION, DK_NAME, FMU_NAMES, MODES, build_dk, build_slave, parse_resolution
+from .builds import DK_NAME, FMU_NAMES, MODES, build_dk, build_slave, parse_resolution
 from ..unit import exit_process
 
 __all__ = ["main"]
@@ -72,6 +80,8 @@ def _parser(default_out) -> argparse.ArgumentParser:
                     help="also write <out>/RRRClosedLoop.ssp, the closed loop of the three FMUs (SSP 1.0)")
     ap.add_argument("--manipulator", choices=("3rrr", "3rpr"), default="3rrr",
                     help="3rpr: build RPRDirectKinematics.fmu (the cuspidal 3-RPR's DK) instead of the three")
+    ap.add_argument("--robot", metavar="FILE", default=None,
+                    help="a robot description (TOML, docs/robots.md): build the DK FMU of that robot")
     ap.add_argument("--fmi", choices=("2", "3"), default="2",
                     help="3: build the DK FMU for FMI 3.0 instead, <out>/fmi3/RRRDirectKinematics.fmu (pythonfmu3)")
     return ap
@@ -112,15 +122,34 @@ def _rpr(args) -> int:
     return 0
 
 
-def _build(args) -> int:
+def _robot(args):
+    """``--robot FILE``: the checked description (None without it); refuses what it cannot build."""
+    if args.robot is None:
+        return None
+    from solver.robot import load_robot
+
+    robot = load_robot(args.robot)               # RobotDescriptionError (a ValueError): the reason, exit 2
+    others = [n for n in args.only if n != DK_NAME]
+    if list(args.only) != list(FMU_NAMES) and others:
+        raise ValueError(f"--robot: {', '.join(others)}: the plant and controller FMUs of a robot description are "
+                         "not built yet; --only RRRDirectKinematics")
+    if args.ssp or args.write_reference or args.fmi == "3" or args.manipulator != "3rrr":
+        raise ValueError("--robot: builds the 3-RRR's DK FMU (FMI 2.0) of the robot only: not with --ssp, "
+                         "--write-reference, --fmi 3 or --manipulator 3rpr")
+    args.only, args.no_reference = [DK_NAME], True
+    return robot
+
+
+def _build(args, robot=None) -> int:
     """Step 1 (see the module docstring); the exit status."""
     status = 0
     for name in args.only:
         if name == DK_NAME:
-            resolution = DEFAULT_RESOLUTION if args.resolution is None else parse_resolution(args.resolution)
-            postures = args.posture if args.posture is not None else ([] if args.map else [1])
+            resolution = None if args.resolution is None else parse_resolution(args.resolution)
+            postures = args.posture if args.posture is not None else ([] if args.map else
+                                                                       [robot.home_posture if robot else 1])
             result = build_dk(args.out, postures=postures, resolution=resolution, map_files=args.map,
-                              mode=args.mode, rule=args.rule, progress=None)
+                              mode=args.mode, rule=args.rule, progress=None, robot=robot)
             print(f"{result.fmu}: {result.size / 1e6:.3f} MB ({result.size:,} bytes), postures "
                   f"{sorted(result.maps)} (start {result.posture}), mode {result.mode}; built in "
                   f"{result.seconds:.1f} s (maps {result.map_seconds:.1f} s)")
@@ -179,6 +208,7 @@ def main(argv=None, default_out="build") -> int:
     """The command line (see the module docstring); returns the exit status."""
     args = _parser(default_out).parse_args(argv)
     try:
+        robot = _robot(args)                     # a bad description: refused before any work
         if args.fmi == "3":
             from .fmi3_reference import main3
 
@@ -189,7 +219,7 @@ def main(argv=None, default_out="build") -> int:
         if args.write_reference:
             _references(args.out, _KEPT)
             return 0
-        status = _build(args)
+        status = _build(args, robot)
         if status == 0 and not args.no_reference:
             _references(args.out, Path(args.out) / "reference")
         if status == 0 and args.ssp:
