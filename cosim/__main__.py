@@ -5,7 +5,8 @@ The first run builds the three FMUs (the DK's map tensor, then each FMU) and com
 take a few seconds.
 
 Runs the default scenario (the robot starts at rest on the circle and follows it for 2.5 s at a
-1 ms step, Gauss-Seidel master; options below change it), writes ``<out>/closed_loop.csv`` and the
+1 ms step, Gauss-Seidel master; options below change it); ``--robot FILE`` runs the loop of the robot
+that file describes (docs/robots.md) on its own reference circle, writes ``<out>/closed_loop.csv`` and the
 plots in ``<out>/figures/``, and prints the tracking metrics.  The FMUs are built into
 ``--build-dir`` by :func:`cosim.fmus.builds.build_fmus` when missing or stale, and packed with the
 closed loop's system structure into ``<build-dir>/RRRClosedLoop.ssp``.
@@ -13,6 +14,7 @@ closed loop's system structure into ``<build-dir>/RRRClosedLoop.ssp``.
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import asdict
 from pathlib import Path
 
@@ -22,7 +24,7 @@ from cosim.unit import exit_process
 
 from .loop.master import ClosedLoop
 from .loop.results import plot_closed_loop, write_csv
-from .loop.scenario import ORDERS, Scenario
+from .loop.scenario import ORDERS, Scenario, robot_scenario
 from .hosts.system_files import write_closed_loop_ssp
 
 
@@ -33,10 +35,14 @@ _COMPILED_AFTER = 10.0
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m cosim", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--build-dir", default="build", metavar="DIR",
-                    help="folder of the FMUs, built there when missing or stale (default: build)")
-    ap.add_argument("--out", default="results", metavar="DIR",
-                    help="folder of closed_loop.csv and figures/ (default: results)")
+    ap.add_argument("--robot", metavar="FILE", default=None,
+                    help="a robot description (TOML, docs/robots.md; with [dynamics]): the loop of that robot on "
+                         "its reference circle (default: the paper's robot, robots/paper-3rrr.toml)")
+    ap.add_argument("--build-dir", default=None, metavar="DIR",
+                    help="folder of the FMUs, built there when missing or stale (default: build, or "
+                         "build/robots/<name>-<digest> for --robot)")
+    ap.add_argument("--out", default=None, metavar="DIR",
+                    help="folder of closed_loop.csv and figures/ (default: results, or results/<name> for --robot)")
     ap.add_argument("--rebuild", action="store_true", help="rebuild the FMUs even if present")
     ap.add_argument("--h", type=float, default=Scenario.h, metavar="SECONDS",
                     help=f"communication step of the master, s (default {Scenario.h:g})")
@@ -50,14 +56,20 @@ def main(argv=None) -> int:
                          "keeps its own: a model error (default 1)")
     ap.add_argument("--no-plots", action="store_true", help="write the CSV only, no PNG plots")
     args = ap.parse_args(argv)
-    paths = build_fmus(args.build_dir, force=args.rebuild)
-    print(f"wrote {write_closed_loop_ssp(args.build_dir)} (the closed loop as SSP 1.0, for Ecos and SSP tools)")
-    sc = Scenario(h=args.h, t_end=args.t_end, order=args.order, plant_mass_scale=args.plant_mass_scale)
+    try:
+        robot = _robot(args.robot)
+    except ValueError as exc:                     # a bad description: the reason, no traceback, nothing built
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    build_dir = args.build_dir or ("build" if robot is None else f"build/robots/{robot.name}-{robot.digest}")
+    paths = build_fmus(build_dir, force=args.rebuild, robot=robot)
+    print(f"wrote {write_closed_loop_ssp(build_dir)} (the closed loop as SSP 1.0, for Ecos and SSP tools)")
+    sc = robot_scenario(robot, h=args.h, t_end=args.t_end, order=args.order, plant_mass_scale=args.plant_mass_scale)
     with phase(f"simulating {sc.t_end:g} s of the closed loop", "the first run compiles the FMUs' kernels: "
                "about 1 min, once", after=2.0) as ran:
         with ClosedLoop(paths) as loop:
             res = loop.run(sc)
-    out = Path(args.out)
+    out = Path(args.out or ("results" if robot is None else f"results/{robot.name}"))
     csv_path = write_csv(res, out / "closed_loop.csv")
     print(f"wrote {csv_path} ({len(res.t)} rows)")
     if not args.no_plots:
@@ -73,6 +85,19 @@ def main(argv=None) -> int:
           f"({m['realtime_factor']:.1f}x real time" + ("; this run compiled the FMUs' kernels: run it again "
                                                         "for the steady speed)" if compiled else ")"))
     return 0
+
+
+def _robot(path):
+    """The robot description of ``--robot`` (None without it), with the dynamics the loop needs; raises
+    ``ValueError`` (``solver.robot.RobotDescriptionError``) naming the file and the field."""
+    if path is None:
+        return None
+    from dynamics import DynamicParameters
+    from solver.robot import load_robot
+
+    robot = load_robot(path)
+    DynamicParameters.from_robot(robot, "the closed loop (its plant and controller)")
+    return robot
 
 
 if __name__ == "__main__":

@@ -203,6 +203,30 @@ class DynamicParameters:
             raise ParameterError(f"parameters: unknown keys {unknown}, expected a subset of {sorted(names)}")
         return cls(**data)
 
+    @classmethod
+    def from_robot(cls, robot, what: str = "the plant and the controller") -> "DynamicParameters":
+        """The ``[dynamics]`` table of a robot description (:class:`solver.robot.Robot`), every key given
+        (the defaults are the paper's robot's, not yours).
+
+        Raises
+        ------
+        solver.robot.RobotDescriptionError
+            No ``[dynamics]`` (``what`` needs it), a key missing or unknown, a value refused (the file,
+            the key and the value named).
+        """
+        from solver.robot import RobotDescriptionError
+
+        table = robot.require_dynamics(what)
+        names = [f.name for f in fields(cls)]
+        missing = [n for n in names if n not in table]
+        if missing:
+            raise RobotDescriptionError(f"{robot.source}: [dynamics]: missing {', '.join(missing)} (give every key "
+                                        f"of DynamicParameters: {', '.join(names)}; docs/robots.md)")
+        try:
+            return cls.from_dict(table)
+        except (ParameterError, TypeError, ValueError) as exc:
+            raise RobotDescriptionError(f"{robot.source}: [dynamics]: {exc}") from None
+
     def __eq__(self, other):
         if not isinstance(other, DynamicParameters):
             return NotImplemented

@@ -33,9 +33,18 @@ import numpy as np
 
 from fmu_src.table_slave import StepRefused, TableSlave, Var
 
+# Build constant: the robot (build_fmu.py --robot: name, description digest, geometry, [dynamics], start
+# pose, posture and reference circle {"center", "radius", "phi"}; None: the paper's robot, its circle).
+BUILD_ROBOT = None
+_START = tuple(BUILD_ROBOT["start"]) if BUILD_ROBOT else (0.5, 0.28867513459481287, 0.0)
+_POSTURE = int(BUILD_ROBOT["posture"]) if BUILD_ROBOT else 1
+_CIRCLE = BUILD_ROBOT["circle"] if BUILD_ROBOT else {"center": (0.45, 0.30), "radius": 0.25,
+                                                     "phi": -0.7853981633974483}
+_ABOUT = "" if BUILD_ROBOT is None else f"; robot {BUILD_ROBOT['name']!r} (description sha256 {BUILD_ROBOT['digest']})"
+
 
 class ComputedTorqueController(TableSlave):
-    description = "Computed-torque control of the 3-RRR on a circle, model terms at the DK pose"
+    description = "Computed-torque control of the 3-RRR on a circle, model terms at the DK pose" + _ABOUT
     author = "rrr-dk"
 
     VARIABLES = (
@@ -45,20 +54,23 @@ class ComputedTorqueController(TableSlave):
         Var("dq1", "Real", "input", start=0.0, unit="rad/s", description="measured motor rate, leg 1"),
         Var("dq2", "Real", "input", start=0.0, unit="rad/s", description="measured motor rate, leg 2"),
         Var("dq3", "Real", "input", start=0.0, unit="rad/s", description="measured motor rate, leg 3"),
-        Var("x", "Real", "input", start=0.5, unit="m", description="platform x from the DK FMU"),
-        Var("y", "Real", "input", start=0.28867513459481287, unit="m", description="platform y from the DK FMU"),
-        Var("phi", "Real", "input", start=0.0, unit="rad", description="orientation from the DK FMU"),
+        Var("x", "Real", "input", start=_START[0], unit="m", description="platform x from the DK FMU"),
+        Var("y", "Real", "input", start=_START[1], unit="m", description="platform y from the DK FMU"),
+        Var("phi", "Real", "input", start=_START[2], unit="rad", description="orientation from the DK FMU"),
         Var("bandwidth", "Real", "parameter", "fixed", start=50.0, unit="rad/s", min=1e-3,
             description="closed-loop error bandwidth (natural frequency)"),
         Var("damping", "Real", "parameter", "fixed", start=1.0, unit="1", min=1e-3,
             description="closed-loop error damping ratio"),
         Var("mass_scale", "Real", "parameter", "fixed", start=1.0, unit="1", min=1e-3,
             description="the controller's belief of the masses (factor on the default model)"),
-        Var("posture", "Integer", "parameter", "fixed", start=1, min=1, max=8, description="posture"),
-        Var("center_x", "Real", "parameter", "fixed", start=0.45, unit="m", description="circle centre x"),
-        Var("center_y", "Real", "parameter", "fixed", start=0.30, unit="m", description="circle centre y"),
-        Var("radius", "Real", "parameter", "fixed", start=0.25, unit="m", min=1e-6, description="circle radius"),
-        Var("phi_ref", "Real", "parameter", "fixed", start=-0.7853981633974483, unit="rad",
+        Var("posture", "Integer", "parameter", "fixed", start=_POSTURE, min=1, max=8, description="posture"),
+        Var("center_x", "Real", "parameter", "fixed", start=_CIRCLE["center"][0], unit="m",
+            description="circle centre x"),
+        Var("center_y", "Real", "parameter", "fixed", start=_CIRCLE["center"][1], unit="m",
+            description="circle centre y"),
+        Var("radius", "Real", "parameter", "fixed", start=_CIRCLE["radius"], unit="m", min=1e-6,
+            description="circle radius"),
+        Var("phi_ref", "Real", "parameter", "fixed", start=_CIRCLE["phi"], unit="rad",
             description="platform orientation along the circle"),
         Var("period", "Real", "parameter", "fixed", start=2.0, unit="s", min=1e-3,
             description="time per revolution at cruise speed"),
@@ -89,8 +101,9 @@ class ComputedTorqueController(TableSlave):
         from dynamics import CircleTrajectory, ComputedTorqueGains, ControllerStepper, DynamicParameters
         from solver import Manipulator
 
-        self._model = Manipulator.paper()
-        self._params = DynamicParameters().with_scaled_masses(float(self.mass_scale))
+        self._model = Manipulator.from_dict(BUILD_ROBOT["geometry"]) if BUILD_ROBOT else Manipulator.paper()
+        base = DynamicParameters.from_dict(BUILD_ROBOT["dynamics"]) if BUILD_ROBOT else DynamicParameters()
+        self._params = base.with_scaled_masses(float(self.mass_scale))
         self._gains = ComputedTorqueGains.design(float(self.bandwidth), float(self.damping))
         self._traj = CircleTrajectory(center=(float(self.center_x), float(self.center_y)),
                                       radius=float(self.radius), phi=float(self.phi_ref),

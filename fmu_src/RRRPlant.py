@@ -30,20 +30,28 @@ import numpy as np
 
 from fmu_src.table_slave import StepRefused, TableSlave, Var
 
+# Build constant: the robot (build_fmu.py --robot: name, description digest, geometry as
+# Manipulator.to_dict(), [dynamics] as DynamicParameters.to_dict(), start pose and posture; None: the
+# paper's robot with the default DynamicParameters).
+BUILD_ROBOT = None
+_START = tuple(BUILD_ROBOT["start"]) if BUILD_ROBOT else (0.5, 0.28867513459481287, 0.0)
+_POSTURE = int(BUILD_ROBOT["posture"]) if BUILD_ROBOT else 1
+_ABOUT = "" if BUILD_ROBOT is None else f"; robot {BUILD_ROBOT['name']!r} (description sha256 {BUILD_ROBOT['digest']})"
+
 
 class RRRPlant(TableSlave):
-    description = "Planar 3-RRR rigid-body dynamics (task-space form, RK4), motor torques in, joints out"
+    description = "Planar 3-RRR rigid-body dynamics (task-space form, RK4), motor torques in, joints out" + _ABOUT
     author = "rrr-dk"
 
     VARIABLES = (
         Var("tau1", "Real", "input", start=0.0, unit="N.m", description="motor torque, leg 1"),
         Var("tau2", "Real", "input", start=0.0, unit="N.m", description="motor torque, leg 2"),
         Var("tau3", "Real", "input", start=0.0, unit="N.m", description="motor torque, leg 3"),
-        Var("x0", "Real", "parameter", "fixed", start=0.5, unit="m", description="initial platform x"),
-        Var("y0", "Real", "parameter", "fixed", start=0.28867513459481287, unit="m",
+        Var("x0", "Real", "parameter", "fixed", start=_START[0], unit="m", description="initial platform x"),
+        Var("y0", "Real", "parameter", "fixed", start=_START[1], unit="m",
             description="initial platform y"),
-        Var("phi0", "Real", "parameter", "fixed", start=0.0, unit="rad", description="initial orientation"),
-        Var("posture", "Integer", "parameter", "fixed", start=1, min=1, max=8,
+        Var("phi0", "Real", "parameter", "fixed", start=_START[2], unit="rad", description="initial orientation"),
+        Var("posture", "Integer", "parameter", "fixed", start=_POSTURE, min=1, max=8,
             description="posture (inverse-kinematics branch) of the robot"),
         Var("mass_scale", "Real", "parameter", "fixed", start=1.0, unit="1", min=1e-3,
             description="factor on every link and platform mass and inertia (model error studies)"),
@@ -83,8 +91,9 @@ class RRRPlant(TableSlave):
         from dynamics import DynamicParameters, PlantStepper
         from solver import Manipulator
 
-        self._model = Manipulator.paper()
-        params = DynamicParameters().with_scaled_masses(float(self.mass_scale))
+        self._model = Manipulator.from_dict(BUILD_ROBOT["geometry"]) if BUILD_ROBOT else Manipulator.paper()
+        base = DynamicParameters.from_dict(BUILD_ROBOT["dynamics"]) if BUILD_ROBOT else DynamicParameters()
+        params = base.with_scaled_masses(float(self.mass_scale))
         changes = {"gravity": (float(self.gravity_x), float(self.gravity_y))}
         if not self.friction:
             changes.update(friction_active=0.0, friction_elbow=0.0, friction_platform=0.0)

@@ -37,7 +37,7 @@ from .kinematics import ik, singularity_measures
 from .manipulator import Manipulator
 from .rpr import RPRManipulator
 
-__all__ = ["Robot", "RobotDescriptionError", "load_robot", "robot_from_dict", "start_pose", "ROBOTS", "KINDS", "SINGULAR_MEASURE",
+__all__ = ["Robot", "RobotDescriptionError", "load_robot", "robot_from_dict", "start_pose", "default_circle", "ROBOTS", "KINDS", "SINGULAR_MEASURE",
            "MAP_NODES_PER_REACH"]
 
 #: the folder of the robot descriptions that ship with the repository (the paper's robot, an irregular example)
@@ -155,6 +155,36 @@ def start_pose(robot: Robot, posture: int) -> tuple:
     dphi = np.angle(np.exp(1j * (X[:, 2] - home[2])))
     best = X[np.argmin(np.hypot(X[:, 0] - home[0], X[:, 1] - home[1]) ** 2 + (radius * dphi) ** 2)]
     return tuple(float(v) for v in best)
+
+
+def default_circle(robot: Robot, posture: int | None = None) -> dict:
+    """The robot's default reference circle (the closed loop's scenario): ``{"center": (x, y), "radius",
+    "phi"}`` (m, m, rad), starting at :func:`start_pose` (its first point, polar angle 0) with the
+    orientation held.  The radius is a 24th of the longest leg reach (the paper's robot: 50 mm), halved
+    until the whole circle is reachable in ``posture`` (default the home posture) with both singularity
+    measures at least 0.05.
+
+    Raises
+    ------
+    RobotDescriptionError
+        No circle of at least a 1000th of the reach fits.
+    """
+    posture = robot.home_posture if posture is None else int(posture)
+    X0 = np.array(start_pose(robot, posture))
+    reach = float(np.max(robot.model.l1 + robot.model.l2))
+    a = np.linspace(0.0, 2.0 * np.pi, 181)
+    radius = reach / 24.0
+    while radius >= reach / 1000.0:
+        center = X0[:2] - (radius, 0.0)
+        X = np.stack([center[0] + radius * np.cos(a), center[1] + radius * np.sin(a), np.full_like(a, X0[2])], axis=1)
+        q = ik(robot.model, X, posture)
+        if np.all(np.isfinite(q)):
+            m = singularity_measures(robot.model, X, q)
+            if float(np.min(np.minimum(m.type1, m.type2))) >= 0.05:
+                return {"center": (float(center[0]), float(center[1])), "radius": float(radius), "phi": float(X0[2])}
+        radius /= 2.0
+    raise RobotDescriptionError(f"{robot.source}: home.pose: no reference circle about it fits posture {posture} "
+                                "away from singularities; choose another home pose")
 
 
 def load_robot(path) -> Robot:

@@ -18,6 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cosim.fmus import builds
+from cosim.fmus.robot_build import robot_circle
 from solver import Manipulator, MapTensor, Tracker, default_bounds, ik
 from solver.robot import Robot, RobotDescriptionError, load_robot, robot_from_dict, start_pose
 
@@ -154,7 +155,7 @@ def test_the_dk_fmu_of_a_robot_file_carries_it_and_starts_at_its_home(irregular_
 
 def test_the_dk_fmu_of_a_robot_file_tracks_that_robot(irregular_fmu, tmp_path):
     robot, result = irregular_fmu
-    X, q = builds.robot_circle(robot, 3, 300)
+    X, q = robot_circle(robot, 3, 300)
     assert q is not None
     (tmp_path / "X.json").write_text(json.dumps(X.tolist()))
     (tmp_path / "q.json").write_text(json.dumps(q.tolist()))
@@ -194,7 +195,7 @@ def test_random_robots_at_several_scales_track_a_circle_without_error(seed, scal
     """IK and DK agree, a coarse map builds and the tracker follows a circle about the start pose of
     ``posture`` (away from singularities) with 0 errors, certain all the way."""
     robot = robot_from_dict(_random_robot(seed, scale))
-    X, q = builds.robot_circle(robot, posture, 200)
+    X, q = robot_circle(robot, posture, 200)
     if q is None:
         return                                        # the circle meets a singularity: not this property's case
     step = (robot.resolution[0] * 4,) * 2 + (float(np.deg2rad(6.0)),)
@@ -207,3 +208,84 @@ def test_random_robots_at_several_scales_track_a_circle_without_error(seed, scal
         pose, info = tracker.step(q[k], 1e-3)
         assert np.max(np.abs(pose - X[k])) <= 1e-9 * max(scale, 1.0), (seed, scale, posture, k)
         assert info.certain, (seed, scale, posture, k)
+
+
+# ---------------------------------------------------------------------- the closed loop of the example robot
+@pytest.fixture(scope="module")
+def robot_loop(tmp_path_factory):
+    """``python -m cosim --robot robots/irregular-3rrr.toml``, its FMUs and results in a temporary folder."""
+    tmp = tmp_path_factory.mktemp("robot-loop")
+    proc = subprocess.run([sys.executable, "-m", "cosim", "--robot", str(IRREGULAR), "--build-dir", str(tmp / "build"),
+                           "--out", str(tmp / "results"), "--no-plots"], capture_output=True, text=True, timeout=1800,
+                          cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return tmp, proc.stdout
+
+
+def test_the_closed_loop_of_the_example_robot_tracks_its_circle(robot_loop):
+    tmp, stdout = robot_loop
+    rms = float(stdout.split("RMS joint tracking error after 0.5 s: ")[1].split()[0])
+    pose = float(stdout.split("largest |DK pose - true pose|: ")[1].split(";")[0])
+    assert rms <= 1e-4 and pose <= 1e-9, stdout
+    from cosim.fmus.robot_build import fmu_robot
+
+    robot = load_robot(IRREGULAR)
+    for name in ("RRRDirectKinematics", "RRRPlant", "ComputedTorqueController"):
+        carried = fmu_robot(tmp / "build" / f"{name}.fmu")
+        assert carried is not None and carried.digest == robot.digest, name
+    header = (tmp / "results" / "closed_loop.csv").read_text().splitlines()[0]
+    assert "x_true" in header
+
+
+ECOS_RUN = r"""
+import json, sys
+import numpy as np
+from ecospy import EcosSimulation
+sim = EcosSimulation(ssp_path=sys.argv[1], step_size=1e-3)
+sim.init(parameter_set="initial")
+names = [f"dk::{v}" for v in ("x", "y", "phi")] + [f"plant::{v}" for v in ("x_true", "y_true", "phi_true")] + \
+        [f"controller::{v}" for v in ("q1_ref",)] + [f"plant::q1"]
+rows = []
+for _ in range(int(sys.argv[2])):
+    sim.step()
+    rows.append([sim.get_real(v) for v in names])
+sim.terminate()
+sim.free()
+print("ECOS " + json.dumps(rows), flush=True)
+"""
+
+
+def test_the_example_robots_ssp_runs_in_ecos(robot_loop):
+    """The robot's SSP (its three FMUs, its start values) in Ecos: the DK pose is the true pose at every
+    step and the plant follows the reference after the ramp."""
+    tmp, _ = robot_loop
+    probe = subprocess.run([sys.executable, "-c", "import ecospy"], capture_output=True, text=True, cwd=tmp)
+    if probe.returncode != 0:
+        pytest.skip("Ecos unavailable (pip install ecospy; apt-get install libtbb12): "
+                    + probe.stderr.strip().splitlines()[-1])
+    proc = subprocess.run([sys.executable, "-c", ECOS_RUN, str(tmp / "build" / "RRRClosedLoop.ssp"), "1000"],
+                          capture_output=True, text=True, timeout=900, cwd=tmp)
+    line = next((x for x in proc.stdout.splitlines() if x.startswith("ECOS ")), None)
+    assert line is not None, proc.stderr[-3000:]
+    rows = np.array(json.loads(line[5:]))
+    dk, true = rows[:, 0:3], rows[:, 3:6]
+    assert np.all(np.isfinite(rows)) and float(np.max(np.abs(dk - true))) <= 1e-9
+    assert float(np.max(np.abs(rows[600:, 6] - rows[600:, 7]))) <= 1e-3     # q1 follows its reference (2.5e-4)
+
+
+def test_a_batch_runs_the_example_robot(robot_loop, tmp_path):
+    """``python -m cosim.batch --robot FILE``: every run starts on the robot's circle (its base), sweeps as usual."""
+    tmp, _ = robot_loop
+    proc = subprocess.run([sys.executable, "-m", "cosim.batch", "--robot", str(IRREGULAR), "--fmu-dir",
+                           str(tmp / "build"), "--serial", "--sweep", "bandwidth=30,60", "--t-end", "0.6", "--out",
+                           str(tmp_path), "--no-plot", "--strict"], capture_output=True, text=True, timeout=900,
+                          cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "2/2 runs ok" in proc.stdout
+    meta = json.loads((tmp_path / "batch_meta.json").read_text())
+    assert meta["robot"] == str(IRREGULAR) and meta["base"]["radius"] < 0.06       # the robot's circle, not 0.25 m
+    bad = tmp_path / "neg.toml"
+    bad.write_text(IRREGULAR.read_text().replace("mass_platform = 0.52", "mass_platform = -0.52"))
+    proc = subprocess.run([sys.executable, "-m", "cosim.batch", "--robot", str(bad), "--serial", "--out",
+                           str(tmp_path / "bad")], capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert proc.returncode == 2 and "mass_platform" in proc.stderr and "Traceback" not in proc.stderr

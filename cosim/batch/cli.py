@@ -43,7 +43,10 @@ def _build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--zip", action="append", default=[], metavar="KEY=V1,V2", help="keys that vary together")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=V", help="a fixed Scenario field")
     ap.add_argument("--t-end", type=float, help="simulated time of every run, s")
-    ap.add_argument("--fmu-dir", help="folder of the three FMUs (built there if missing)")
+    ap.add_argument("--robot", metavar="FILE", help="a robot description (TOML with [dynamics], docs/robots.md): "
+                    "its FMUs and its reference circle as the base of every run")
+    ap.add_argument("--fmu-dir", help="folder of the three FMUs (built there if missing; with --robot default "
+                                      "build/robots/<name>-<digest>)")
     ap.add_argument("--resolution", help="DK map resolution if the DK FMU must be built, e.g. 40mm,6deg")
     ap.add_argument("--out", help="output folder (default results/batch)")
     where = ap.add_mutually_exclusive_group()
@@ -74,7 +77,11 @@ def _plan(args) -> tuple[dict, list[dict]]:
             opts[name] = v
     if args.serial:
         opts["scheduler"] = None
-    base = dict(cfg["base"])
+    robot = _robot(args.robot)
+    if robot is not None and args.fmu_dir is None and "fmu_dir" not in cfg["batch"]:
+        opts["fmu_dir"] = f"build/robots/{robot.name}-{robot.digest}"
+    opts["robot"] = robot
+    base = dict(_robot_base(robot), **cfg["base"])
     for item in args.set:
         if "=" not in item:
             raise ConfigError(f"--set {item!r}: expected KEY=VALUE")
@@ -97,6 +104,32 @@ def _plan(args) -> tuple[dict, list[dict]]:
     params = expand(base, sweep, cfg["cases"])
     opts["base"], opts["sweep"], opts["cases"] = base, sweep, cfg["cases"]
     return opts, params
+
+
+def _robot(path):
+    """The robot description of ``--robot`` (None without it), with the dynamics the loop needs; a bad one
+    is a :class:`ConfigError` naming the file and the field."""
+    if path is None:
+        return None
+    from dynamics import DynamicParameters
+    from solver.robot import RobotDescriptionError, load_robot
+
+    try:
+        robot = load_robot(path)
+        DynamicParameters.from_robot(robot, "the batch's closed loop (its plant and controller)")
+    except RobotDescriptionError as exc:
+        raise ConfigError(str(exc)) from None
+    return robot
+
+
+def _robot_base(robot) -> dict:
+    """The Scenario fields a robot sets (its home posture and reference circle); {} for none."""
+    if robot is None:
+        return {}
+    from cosim.loop.scenario import robot_scenario
+
+    sc = robot_scenario(robot)
+    return {"posture": sc.posture, "center": tuple(sc.center), "radius": sc.radius, "phi": sc.phi}
 
 
 def _drop_key(sweep: dict, name: str):
@@ -132,7 +165,8 @@ def main(argv=None) -> int:
         return 0
     progress = True if args.progress is None else args.progress
     try:
-        fmus = build_fmus(opts["fmu_dir"], resolution=_parse_resolution(opts["resolution"]), progress=progress)
+        fmus = build_fmus(opts["fmu_dir"], resolution=_parse_resolution(opts["resolution"]), progress=progress,
+                          robot=opts["robot"])
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -143,7 +177,7 @@ def main(argv=None) -> int:
                        fmu_transfer=opts["fmu_transfer"], rms_from=float(opts["rms_from"]), progress=progress,
                        restart_workers=args.restart_workers)
     result.meta.update(base=opts["base"], sweep=opts["sweep"], cases=opts["cases"], argv=sys.argv[1:] if argv is None
-                       else list(argv))
+                       else list(argv), robot=None if opts["robot"] is None else opts["robot"].source)
     paths = write_table(result, opts["out"])
     if not args.no_plot:
         try:

@@ -43,12 +43,13 @@ from solver import DEFAULT_RULE, DEFAULT_STEP, ORDERING_RULES, Manipulator, MapT
 
 from .checks import validate
 from .kernels import Run, Scenario, warm_up
+from .robot_build import other_robot, robot_circle, robot_constant, robot_slave_scenario, stage_robot, with_robot_constant
 from .sources import LOADER_SOURCE, SLAVE_DIR, slave_readme, slave_script
 from .packaging import bundled_files, build_fmu
 
 __all__ = ["FMU_NAMES", "DK_NAME", "MODES", "DEFAULT_RESOLUTION", "BuildResult", "parse_resolution",
            "resolution_step", "map_cache_path", "stage_maps", "build_dk", "build_slave", "build_fmus", "slave_script",
-           "project_packages", "is_stale", "warm_up_scenario", "robot_circle", "robot_constant"]
+           "project_packages", "is_stale", "warm_up_scenario"]
 
 #: The three FMUs, in the order of the closed loop's data flow (DK -> controller -> plant).
 FMU_NAMES = ("RRRDirectKinematics", "ComputedTorqueController", "RRRPlant")
@@ -132,33 +133,12 @@ def with_build_constants(text: str, posture: int, mode: str, where, robot: dict 
     return text
 
 
-def robot_constant(robot, posture: int) -> dict:
-    """The DK slave's ``BUILD_ROBOT`` for ``robot`` (a :class:`solver.robot.Robot`) started in ``posture``:
-    its name, description digest, geometry and start pose (:func:`solver.robot.start_pose`)."""
-    from solver.robot import start_pose
-
-    return {"name": robot.name, "digest": robot.digest, "geometry": robot.model.to_dict(),
-            "start": [float(v) for v in start_pose(robot, posture)]}
-
-
 def _stage_script(dest: Path, posture: int, mode: str, robot=None) -> Path:
     source = slave_script(DK_NAME)
     script = dest / source.name
     constant = robot_constant(robot, posture) if robot is not None else None
     script.write_text(with_build_constants(source.read_text(), posture, mode, source, constant))
     return script
-
-
-def _stage_robot(tmp: Path, robot) -> dict[str, Path]:
-    """The description the DK FMU of ``robot`` carries: ``resources/robot.json`` (as checked, JSON) and,
-    when it came from a file, that file as ``resources/robot.toml``."""
-    if robot is None:
-        return {}
-    (tmp / "robot.json").write_text(json.dumps(robot.description, indent=1, sort_keys=True) + "\n")
-    files = {"robot.json": tmp / "robot.json"}
-    if Path(robot.source).is_file():
-        files["robot.toml"] = Path(robot.source)
-    return files
 
 
 def _stage_documentation(dest: Path, name: str = DK_NAME) -> Path:
@@ -247,7 +227,7 @@ def build_dk(out_dir="build", postures=(1,), resolution=None, map_files=(), mode
     with tempfile.TemporaryDirectory(prefix="build_fmu_") as tmp:
         tmp = Path(tmp)
         script = _stage_script(tmp, postures[0], mode, robot)
-        data_files = {**stage_maps(tmp, maps), **_stage_robot(tmp, robot)}
+        data_files = {**stage_maps(tmp, maps), **stage_robot(tmp, robot)}
         scenario = warm_up(warm_up_scenario(DK_NAME, postures[0], mode, robot)) if kernels else None
         fmu = build_fmu(script, out_dir, project_packages=project_packages(), data_files=data_files,
                         documentation_dir=_stage_documentation(tmp), check=check, kernels=scenario)
@@ -256,13 +236,24 @@ def build_dk(out_dir="build", postures=(1,), resolution=None, map_files=(), mode
 
 
 # ---------------------------------------------------------------------- the plant and the controller
-def build_slave(name: str, out_dir="build", check: bool = True, kernels: bool = True) -> Path:
+def build_slave(name: str, out_dir="build", check: bool = True, kernels: bool = True, robot=None) -> Path:
     """Build ``<out_dir>/<name>.fmu`` of the plant or the controller (see the module docstring);
-    ``kernels``: ship the compiled kernels (:mod:`cosim.fmus.kernels`)."""
+    ``kernels``: ship the compiled kernels (:mod:`cosim.fmus.kernels`); ``robot``: a
+    :class:`solver.robot.Robot` with ``[dynamics]`` (None: the paper's robot): its geometry, dynamics,
+    start pose and reference circle become the slave's (``BUILD_ROBOT``,
+    :func:`cosim.fmus.robot_build.robot_constant`)."""
     if name not in FMU_NAMES or name == DK_NAME:
         raise ValueError(f"name: expected one of {[n for n in FMU_NAMES if n != DK_NAME]}, got {name!r}")
-    return build_fmu(slave_script(name), out_dir, project_packages=project_packages(), check=check,
-                     kernels=warm_up(warm_up_scenario(name)) if kernels else None)
+    if robot is None:
+        return build_fmu(slave_script(name), out_dir, project_packages=project_packages(), check=check,
+                         kernels=warm_up(warm_up_scenario(name)) if kernels else None)
+    constant = robot_constant(robot, robot.home_posture, loop=True)
+    with tempfile.TemporaryDirectory(prefix="build_fmu_") as tmp:
+        script = Path(tmp) / slave_script(name).name
+        script.write_text(with_robot_constant(slave_script(name).read_text(), constant, slave_script(name)))
+        return build_fmu(script, out_dir, project_packages=project_packages(), check=check,
+                         data_files=stage_robot(Path(tmp), robot),
+                         kernels=warm_up(robot_slave_scenario(name, constant)) if kernels else None)
 
 
 # ---------------------------------------------------------------------- the warm-up of the shipped kernels
@@ -301,25 +292,6 @@ def warm_up_scenario(name: str, posture: int = 1, mode: str = "default", robot=N
                      Run(n // 5, h, {**start, "mode": modes[1]}, {k: v[:n // 5] for k, v in inputs.items()})])
 
 
-def robot_circle(robot, posture: int, n: int):
-    """Poses (n, 3) of a circle about ``robot``'s start pose in ``posture`` (radius a 40th of its longest
-    leg reach, phi swinging by 0.1 rad) and their joints (n, 3), or (poses, None) where the circle leaves
-    that posture's tool space or comes within 0.02 of a singularity."""
-    from solver import ik
-    from solver.kinematics import singularity_measures
-    from solver.robot import start_pose
-
-    X0 = np.array(start_pose(robot, posture))
-    r = float(np.max(robot.model.l1 + robot.model.l2)) / 40.0
-    a = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
-    X = X0 + np.stack([r * (np.cos(a) - 1.0), r * np.sin(a), 0.1 * np.sin(a)], axis=1)
-    q = ik(robot.model, X, posture)
-    if not np.all(np.isfinite(q)):
-        return X, None
-    m = singularity_measures(robot.model, X, q)
-    return (X, q) if float(np.min(np.minimum(m.type1, m.type2))) >= 0.02 else (X, None)
-
-
 # ---------------------------------------------------------------------- all three, as needed
 def is_stale(name: str, fmu: Path) -> bool:
     """Whether ``fmu`` is missing or older than any source it is made of: its slave script, every module
@@ -333,7 +305,8 @@ def is_stale(name: str, fmu: Path) -> bool:
     here = Path(__file__).resolve().parent
     build_code = (*LOADER_SOURCE.parent.glob("*.[ch]"), slave_readme(name), *(here / f for f in ("native.py", "packaging.py",
                                                                           "kernels.py",
-                                                                          "model_description.py", "builds.py")))
+                                                                          "model_description.py", "builds.py",
+                                                                          "robot_build.py")))
     return fmu.stat().st_mtime < max(p.stat().st_mtime for p in (script, *bundled, *build_code))
 
 
@@ -348,11 +321,15 @@ FIRST_BUILD = {
 }
 
 
-def build_fmus(out_dir="build", resolution=None, force: bool = False, progress: bool | None = None) -> dict:
+def build_fmus(out_dir="build", resolution=None, force: bool = False, progress: bool | None = None,
+               robot=None) -> dict:
     """Build (or reuse) the three FMUs in ``out_dir``; returns {name: path}.
 
     The DK FMU embeds the map tensor of posture 1 at the default resolution, or at ``resolution`` =
-    (m, rad), from the map cache.  An FMU is rebuilt when ``force`` or :func:`is_stale`.  Each build
+    (m, rad), from the map cache.  ``robot``: a :class:`solver.robot.Robot` loaded from a file, with
+    ``[dynamics]`` (None: the paper's robot): the three FMUs of that robot (the DK map of its home
+    posture), rebuilt when the description they carry differs.  An FMU is rebuilt when ``force`` or
+    :func:`is_stale`.  Each build
     runs in a child process, ``python -m cosim.fmus.cli`` (see the module docstring), and is a phase
     on stderr (what it builds, about how long, then its time; the child's own progress, e.g. of a
     map build, shows beneath); ``progress``: as in :func:`solver.progress.phase`.
@@ -361,10 +338,15 @@ def build_fmus(out_dir="build", resolution=None, force: bool = False, progress: 
     out.mkdir(parents=True, exist_ok=True)
     paths = {name: out / f"{name}.fmu" for name in FMU_NAMES}
     env = None if _progress.is_on(progress) else {**os.environ, _progress.PROGRESS_ENV: "0"}
+    if robot is not None and not Path(robot.source).is_file():
+        raise ValueError(f"robot: build_fmus needs a robot loaded from a file (solver.robot.load_robot), got "
+                         f"one from {robot.source}")
     for name in FMU_NAMES:
-        if not (force or is_stale(name, paths[name])):
+        if not (force or is_stale(name, paths[name]) or other_robot(paths[name], robot)):
             continue
         args = [sys.executable, "-m", "cosim.fmus.cli", "--out", str(out), "--only", name, "--no-reference"]
+        if robot is not None:
+            args += ["--robot", str(Path(robot.source).resolve())]
         if name == DK_NAME and resolution is not None:
             args += ["--resolution", "{!r}m,{!r}rad".format(*(float(v) for v in resolution))]
         with _progress.phase(f"building {paths[name]}", FIRST_BUILD[name], enabled=progress):

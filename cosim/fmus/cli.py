@@ -30,12 +30,13 @@ and its reference run (the loop around a cusp) against ``fmu_src/reference/RPRDi
 ``RRRDirectKinematics3``; :mod:`cosim.fmus.fmi3_build`, the same map options), and its reference run against
 ``fmu_src/reference/RRRDirectKinematics3.csv`` (:mod:`cosim.fmus.fmi3_reference`).
 
-``--robot FILE`` builds the DK FMU of the robot that ``FILE`` describes (a TOML file, docs/robots.md;
+``--robot FILE`` builds the FMUs of the robot that ``FILE`` describes (a TOML file, docs/robots.md;
 :func:`solver.robot.load_robot` checks it before any work and a bad file ends the command with the
-reason, exit status 2): maps of its geometry (cached by its digest) at ``--resolution`` (default the
-robot's), start values from its home pose, its description in ``resources/``.  The plant and the
-controller of a robot description are not built yet: ``--robot`` builds the DK FMU alone, without
-reference runs (those are the paper's robot's).
+reason, exit status 2): the DK FMU with maps of its geometry (cached by its digest) at
+``--resolution`` (default the robot's) and start values from its home pose; the plant and the
+controller with its ``[dynamics]`` (required for them) and its reference circle; each carries the
+description in ``resources/``.  No reference runs (those are the paper robot's); ``--ssp`` writes the
+loop of these FMUs.
 
 ``--write-reference`` does step 2 only and rewrites the kept CSVs.  Same options and the same map
 files give byte-identical FMUs.  ``--resolution`` accepts ``"10mm,2deg"``, ``"0.04m 6deg"``,
@@ -129,14 +130,15 @@ def _robot(args):
     from solver.robot import load_robot
 
     robot = load_robot(args.robot)               # RobotDescriptionError (a ValueError): the reason, exit 2
-    others = [n for n in args.only if n != DK_NAME]
-    if list(args.only) != list(FMU_NAMES) and others:
-        raise ValueError(f"--robot: {', '.join(others)}: the plant and controller FMUs of a robot description are "
-                         "not built yet; --only RRRDirectKinematics")
-    if args.ssp or args.write_reference or args.fmi == "3" or args.manipulator != "3rrr":
-        raise ValueError("--robot: builds the 3-RRR's DK FMU (FMI 2.0) of the robot only: not with --ssp, "
-                         "--write-reference, --fmi 3 or --manipulator 3rpr")
-    args.only, args.no_reference = [DK_NAME], True
+    if args.write_reference or args.fmi == "3" or args.manipulator != "3rrr":
+        raise ValueError("--robot: builds the 3-RRR FMUs (FMI 2.0) of the robot: not with --write-reference, "
+                         "--fmi 3 or --manipulator 3rpr")
+    if any(n != DK_NAME for n in args.only):     # the plant and the controller need [dynamics]: checked now
+        from dynamics import DynamicParameters
+
+        DynamicParameters.from_robot(robot, "the plant and the controller FMUs (--only RRRDirectKinematics "
+                                            "builds the DK FMU alone)")
+    args.no_reference = True                     # the reference runs are the paper robot's
     return robot
 
 
@@ -156,7 +158,7 @@ def _build(args, robot=None) -> int:
             problems = result.problems
         else:
             t0 = time.perf_counter()
-            fmu = build_slave(name, args.out)
+            fmu = build_slave(name, args.out, robot=robot)
             print(f"{fmu}: {fmu.stat().st_size / 1e6:.3f} MB; built in {time.perf_counter() - t0:.1f} s")
             problems = []                          # build_slave validates (BuildError on a problem)
         if problems:

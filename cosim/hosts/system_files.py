@@ -11,7 +11,8 @@ from cosim.fmus.builds import FMU_NAMES
 from cosim.hosts.libcosim import write_osp_system_structure
 from cosim.hosts.ssp import write_ssp
 
-from ..loop.scenario import Scenario
+from ..fmus.robot_build import fmu_model, fmu_robot
+from ..loop.scenario import Scenario, robot_scenario
 from ..loop.wiring import CONNECTIONS, INSTANCES, start_values
 
 __all__ = ["write_osp_system", "write_ssp_system", "write_closed_loop_ssp", "SSP_NAME"]
@@ -20,9 +21,11 @@ __all__ = ["write_osp_system", "write_ssp_system", "write_closed_loop_ssp", "SSP
 SSP_NAME = "RRRClosedLoop.ssp"
 
 
-def _values(sc: Scenario) -> dict:
+def _values(sc: Scenario, paths: dict) -> dict:
+    """The start values of ``sc`` for the robot the DK FMU of ``paths`` was built for."""
+    model = fmu_model(paths[INSTANCES["dk"]])
     return {k: {n: (int(v) if isinstance(v, (int, np.integer)) else float(v)) for n, v in d.items()}
-            for k, d in start_values(sc).items()}
+            for k, d in start_values(sc, model).items()}
 
 
 def write_osp_system(paths: dict, folder, scenario: Scenario | None = None) -> Path:
@@ -33,12 +36,12 @@ def write_osp_system(paths: dict, folder, scenario: Scenario | None = None) -> P
     steps all FMUs from the same inputs and then moves the outputs along the connections: the
     ``order="jacobi"`` scheme of :class:`cosim.ClosedLoop`.
     """
-    sc = Scenario() if scenario is None else scenario
+    sc = robot_scenario(fmu_robot(paths[INSTANCES["dk"]])) if scenario is None else scenario
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     return write_osp_system_structure(
         folder / "OspSystemStructure.xml", {inst: paths[name] for inst, name in INSTANCES.items()},
-        base_step_size=sc.h, connections=CONNECTIONS, initial_values=_values(sc))
+        base_step_size=sc.h, connections=CONNECTIONS, initial_values=_values(sc, paths))
 
 
 def write_ssp_system(paths: dict, path, scenario: Scenario | None = None) -> Path:
@@ -54,9 +57,9 @@ def write_ssp_system(paths: dict, path, scenario: Scenario | None = None) -> Pat
     scheme of :class:`cosim.ClosedLoop`; OMSimulator's command line (which needs the SSD's
     ``oms:FixedStepMaster`` annotation and ``--stopTime``) runs the ``order="omsimulator"`` one.
     """
-    sc = Scenario() if scenario is None else scenario
+    sc = robot_scenario(fmu_robot(paths[INSTANCES["dk"]])) if scenario is None else scenario
     return write_ssp(path, {inst: paths[name] for inst, name in INSTANCES.items()}, connections=CONNECTIONS,
-                     parameter_values=_values(sc), name=Path(path).stem, start_time=0.0, stop_time=sc.t_end,
+                     parameter_values=_values(sc, paths), name=Path(path).stem, start_time=0.0, stop_time=sc.t_end,
                      step_size=sc.h)
 
 

@@ -55,11 +55,12 @@ import time
 import numpy as np
 
 from dynamics import forward_dynamics, rk4_step
+from cosim.fmus.robot_build import fmu_robot
 from cosim.unit import FMUUnit
 from solver import Manipulator
 
 from .results import COLUMN_SOURCES, FLAG_COLUMNS, ClosedLoopResult
-from .scenario import Scenario
+from .scenario import Scenario, robot_scenario
 from .wiring import INSTANCES, copy_plan, inputs_of, outputs_of, sources_of, start_values
 
 __all__ = ["ClosedLoop", "Port", "SAMPLE_ROW", "simulate_fig3"]
@@ -165,6 +166,9 @@ class ClosedLoop:
             raise
         self.ports = {inst: Port(inst, self.units[name]) for inst, name in INSTANCES.items()}
         self._fresh = True
+        #: the robot description the DK FMU carries (None: the paper's robot) and its geometry
+        self.robot = fmu_robot(self.units[INSTANCES["dk"]].path)
+        self.model = self.robot.model if self.robot is not None else Manipulator.paper()
 
     def close(self):
         for unit in self.units.values():
@@ -180,7 +184,7 @@ class ClosedLoop:
     def initialize(self, sc: Scenario, t0: float) -> None:
         """Fresh instances (after the first run), initialized for ``sc`` at ``t0``; binds the ports
         to them."""
-        values = start_values(sc)
+        values = start_values(sc, self.model)
         if not self._fresh:
             for unit in self.units.values():
                 unit.reset()
@@ -198,7 +202,7 @@ class ClosedLoop:
         DK's Integer and Boolean outputs (status, region, n_real, near_border, ambiguous: two more
         calls per step); without it the result has no such columns (:data:`FLAG_COLUMNS`).
         """
-        sc = Scenario() if scenario is None else scenario
+        sc = robot_scenario(self.robot) if scenario is None else scenario
         self.initialize(sc, t0)
         n, h = sc.n_steps, sc.h
         ports = [self.ports[inst] for inst in INSTANCES]

@@ -7,7 +7,7 @@ import numpy as np
 
 from solver import PAPER_CIRCLE
 
-__all__ = ["ORDERS", "Scenario"]
+__all__ = ["ORDERS", "Scenario", "robot_scenario"]
 
 #: The master algorithms of :meth:`cosim.ClosedLoop.run` (see :mod:`cosim.loop.master`).
 ORDERS = ("gauss-seidel", "jacobi", "omsimulator")
@@ -79,3 +79,17 @@ class Scenario:
     def start_pose(self) -> np.ndarray:
         """The circle's first point (polar angle 0), m, m, rad."""
         return np.array([self.center[0] + self.radius, self.center[1], self.phi])
+
+
+def robot_scenario(robot, **changes) -> Scenario:
+    """The default scenario of a robot description (:class:`solver.robot.Robot`; None: the paper's,
+    :class:`Scenario`'s defaults): its home posture and reference circle (:func:`solver.robot.default_circle`:
+    about its home pose, the orientation held), the other fields as ``changes`` or the defaults."""
+    if robot is None:
+        return Scenario(**changes)
+    from solver.robot import default_circle
+
+    circle = default_circle(robot)
+    fields = {"posture": robot.home_posture, "center": tuple(circle["center"]), "radius": circle["radius"],
+              "phi": circle["phi"]}
+    return Scenario(**{**fields, **changes})

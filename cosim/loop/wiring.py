@@ -82,10 +82,13 @@ def copy_plan(targets, where: dict) -> tuple[tuple[int, int, object, int, int], 
     return tuple(tuple(r) for r in runs)
 
 
-def start_values(sc: Scenario) -> dict:
-    """Parameters and initial inputs of the three instances for a scenario: {instance: {variable: value}}."""
+def start_values(sc: Scenario, model: Manipulator | None = None) -> dict:
+    """Parameters and initial inputs of the three instances for a scenario: {instance: {variable: value}}.
+
+    ``model``: the robot's geometry (the FMUs': :func:`cosim.fmus.robot_build.fmu_model`); None: the
+    paper's robot."""
     X0 = sc.start_pose
-    q0 = ik(Manipulator.paper(), X0, sc.posture)
+    q0 = ik(Manipulator.paper() if model is None else model, X0, sc.posture)
     if np.isnan(q0[0]):
         raise ValueError(f"scenario: the start pose {X0.tolist()} is outside posture {sc.posture}")
     return {
