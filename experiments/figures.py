@@ -183,7 +183,7 @@ def plot_map_slice(mt, phi_deg: float, out_dir="results/figures"):
 
 
 def plot_circle_experiment(model: Manipulator, map_tensor, out_dir="results/figures", n: int = 1000,
-                           hard_path=None, hard_map=None):
+                           hard_path=None, hard_map=None, circle: dict | None = None):
     """Figs 16-18: the discretised circle, all DK branches of its joint path, the tracked result.
 
     Parameters
@@ -198,6 +198,9 @@ def plot_circle_experiment(model: Manipulator, map_tensor, out_dir="results/figu
         A second path for Fig. 18's right panel (near a singularity, where borders matter).
     hard_map : MapTensor, optional
         Map of ``hard_path``'s posture.
+    circle : dict, optional
+        Another robot's circle, ``{"center": (x, y), "radius", "phi", "posture"}`` (m, m, rad;
+        :func:`solver.robot.default_circle`); default the paper's (:data:`solver.PAPER_CIRCLE`).
 
     Returns
     -------
@@ -206,9 +209,13 @@ def plot_circle_experiment(model: Manipulator, map_tensor, out_dir="results/figu
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    X = circle_path(n)
-    q = ik(model, X, PAPER_CIRCLE["posture"])
-    panels = [("paper circle", X, q, map_tensor)]
+    if circle is None:
+        X, posture, label = circle_path(n), PAPER_CIRCLE["posture"], "paper circle"
+    else:
+        X = circle_path(n, circle["center"], circle["radius"], circle["phi"])
+        posture, label = circle["posture"], f"{model.name} circle"
+    q = ik(model, X, posture)
+    panels = [(label, X, q, map_tensor)]
     if hard_path is not None:
         panels.append((hard_path.name, hard_path.X, hard_path.q, hard_map))
     return [_fig16(model, X, map_tensor.rule, out / "fig16_circle.png"),

@@ -289,3 +289,13 @@ def test_a_batch_runs_the_example_robot(robot_loop, tmp_path):
     proc = subprocess.run([sys.executable, "-m", "cosim.batch", "--robot", str(bad), "--serial", "--out",
                            str(tmp_path / "bad")], capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert proc.returncode == 2 and "mass_platform" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_the_figures_of_the_example_robot(robot_loop, tmp_path):
+    """``python -m experiments --robot FILE figures``: the cross-sections (Figs 13-15) and the robot's own
+    circle tracked (Figs 16-18) from its map (the one the loop's DK FMU embeds, from the map cache)."""
+    proc = subprocess.run([sys.executable, "-m", "experiments", "--robot", str(IRREGULAR), "figures", "--out",
+                           str(tmp_path)], capture_output=True, text=True, timeout=900, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    made = sorted(p.name for p in tmp_path.glob("*.png"))
+    assert len(made) == 6 and {"fig16_circle.png", "fig17_all_branches.png", "fig18_tracked.png"} <= set(made), made
