@@ -27,7 +27,7 @@ from pythonfmu.enums import Fmi2Status
 
 from fmu_src.dk_variables import NO_BOUND, dk_outputs, initial_pose, sensor_parameters
 from fmu_src.table_slave import TableSlave, Var
-from solver import (HOME_POSE, STATUS, Manipulator, MapTensor, MapTensorFileError, Tracker, TrackerState, dk_all,
+from solver import (HOME_POSE, START_TOLERANCE, STATUS, Manipulator, MapTensor, MapTensorFileError, Tracker, TrackerState, dk_all,
                     ik, jacobians, wrap_angle)
 from solver._kernels.clock import cycles_per_second
 from solver.tracker_state import TRUST
@@ -50,6 +50,8 @@ def _build_robot():
 
 
 _ROBOT, _START = _build_robot()
+# the start tolerance's start values: the tracker's default, or a robot's scaled with its size
+_START_TOLERANCE = tuple(BUILD_ROBOT.get("start_tolerance", START_TOLERANCE)) if BUILD_ROBOT else START_TOLERANCE
 _ABOUT = ("the paper's 3-RRR (Table 1)" if BUILD_ROBOT is None else
           f"the 3-RRR {BUILD_ROBOT['name']!r} (robot description sha256 {BUILD_ROBOT['digest']})")
 
@@ -89,7 +91,7 @@ class RRRDirectKinematics(TableSlave):
         Var("mode", "Integer", "parameter", "fixed", start=MODES.index(BUILD_MODE), min=0, max=1,
             description="tracker mode: 0 default (RK4 continuation + map), 1 paper (procedures 2-3 as written)"),
         *sensor_parameters("rad"),
-        *dk_outputs(("q1", "q2", "q3")),
+        *dk_outputs(("q1", "q2", "q3"), start_tolerance=_START_TOLERANCE),
     )
     # _track: the TrackerState (the tracker's whole mutable data: previous pose and joints, the pose
     # before, the joint-step scale, the step count); _committed: (q, outputs) of the last doStep (or of

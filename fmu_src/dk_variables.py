@@ -41,9 +41,10 @@ def sensor_parameters(joint_unit: str) -> tuple:
     )
 
 
-def dk_outputs(deps: tuple, point: str = "platform centre") -> tuple:
+def dk_outputs(deps: tuple, point: str = "platform centre", start_tolerance=START_TOLERANCE) -> tuple:
     """The table rows of the DK outputs, each depending on the joint inputs ``deps``, then
-    ``stuck_after`` and :func:`bound_rows` (added last: the other rows keep their value references)."""
+    ``stuck_after`` and :func:`bound_rows` (added last: the other rows keep their value references);
+    ``start_tolerance``: the start values (m, m, rad) of the start tolerance parameters."""
     return (
         Var("x", "Real", "output", unit="m", depends_on=deps, description=f"{point} x"),
         Var("y", "Real", "output", unit="m", depends_on=deps, description=f"{point} y"),
@@ -70,11 +71,11 @@ def dk_outputs(deps: tuple, point: str = "platform centre") -> tuple:
         Var("stuck_after", "Integer", "parameter", "fixed", start=0, min=0,
             description="with joint_tolerance: identical readings in a row that mark a joint stuck (refused, "
                         "state rolled back to before them); 0: off, for noisy encoders see the readme"),
-        *bound_rows(deps),
+        *bound_rows(deps, start_tolerance),
     )
 
 
-def bound_rows(deps: tuple) -> tuple:
+def bound_rows(deps: tuple, start_tolerance=START_TOLERANCE) -> tuple:
     """The rows of the pose bound, ``trust``, the start tolerance and the step budget (after
     ``stuck_after``: the rows before keep their value references)."""
     no = f"; {NO_BOUND:g}: no bound (not certain)"
@@ -89,10 +90,10 @@ def bound_rows(deps: tuple) -> tuple:
         Var("trust", "Integer", "output", depends_on=deps,
             description="what a controller can act on: 2 certain (the pose within the bounds), 1 possible (the "
                         "branch along the measured joints known, not proved over joint_tolerance), 0 lost"),
-        Var("start_tolerance_linear", "Real", "parameter", "fixed", start=float(START_TOLERANCE[0]), unit="m",
+        Var("start_tolerance_linear", "Real", "parameter", "fixed", start=float(start_tolerance[0]), unit="m",
             description="> 0: how far x0 and y0 may be from the robot's position; the start is the DK solution "
                         "of the joints at t0 within it, certain when proved the only one"),
-        Var("start_tolerance_angular", "Real", "parameter", "fixed", start=float(START_TOLERANCE[2]), unit="rad",
+        Var("start_tolerance_angular", "Real", "parameter", "fixed", start=float(start_tolerance[2]), unit="rad",
             description="> 0: how far phi0 may be from the robot's orientation"),
         Var("step_budget_share", "Real", "parameter", "fixed", start=0.0, unit="1", min=0.0, max=1.0,
             description="share of each doStep's communication step the tracker may spend (e.g. 0.5 for a real-time "

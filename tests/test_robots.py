@@ -170,6 +170,16 @@ def test_the_dk_fmu_of_a_robot_file_tracks_that_robot(irregular_fmu, tmp_path):
     # is the pose of q[k]
     assert float(np.max(np.abs(got[0] - X[0]))) <= 1e-9 and float(np.max(np.abs(got[1:] - X[:-1]))) <= 1e-9
     assert all(out["certain"]) and set(out["status"]) == {0}
+    # bit for bit the in-process tracker on the map the FMU embeds, with the FMU's options
+    with zipfile.ZipFile(result.fmu) as z:
+        (tmp_path / "map.npz").write_bytes(z.read("resources/maps/posture3.npz"))
+        md = read_model_description(str(result.fmu))
+    start = {v.name: float(v.start) for v in md.modelVariables if v.name.startswith("start_tolerance")}
+    tracker = Tracker(robot.model, MapTensor.load(tmp_path / "map.npz"), singular_tol=1e-4,
+                      start_tolerance=(start["start_tolerance_linear"],) * 2 + (start["start_tolerance_angular"],))
+    tracker.reset(X[0], q[0])
+    ours = np.array([tracker.step(q[k], 1e-3)[0] for k in range(1, len(q) - 1)])
+    assert np.array_equal(ours, got[2:]), float(np.max(np.abs(ours - got[2:])))
 
 
 # ---------------------------------------------------------------------- any robot, any scale

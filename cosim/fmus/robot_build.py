@@ -23,14 +23,21 @@ __all__ = ["robot_constant", "with_robot_constant", "stage_robot", "robot_circle
 
 def robot_constant(robot, posture: int, loop: bool = False) -> dict:
     """The slaves' ``BUILD_ROBOT`` for ``robot`` started in ``posture``: its name, description digest,
-    geometry (``Manipulator.to_dict()``), posture and start pose (:func:`solver.robot.start_pose`); with
+    geometry (``Manipulator.to_dict()``), posture, start pose (:func:`solver.robot.start_pose`) and the DK
+    FMU's start tolerance (the tracker's default scaled by the robot's reach over the paper's); with
     ``loop`` (the plant and the controller) also its ``[dynamics]``, checked
     (:meth:`dynamics.DynamicParameters.from_robot`), and its reference circle
     (:func:`solver.robot.default_circle`), whose first point is the start pose."""
     from solver.robot import default_circle, start_pose
 
+    from solver import START_TOLERANCE
+
+    # the DK FMU's default start tolerance scaled with the robot: the tracker's default (m, m, rad) times the
+    # robot's longest leg reach over the paper robot's 1.2 m (the paper's robot: the same numbers)
+    scale = float(np.max(robot.model.l1 + robot.model.l2)) / 1.2
     out = {"name": robot.name, "digest": robot.digest, "geometry": robot.model.to_dict(), "posture": int(posture),
-           "start": [float(v) for v in start_pose(robot, posture)]}
+           "start": [float(v) for v in start_pose(robot, posture)],
+           "start_tolerance": [START_TOLERANCE[0] * scale, START_TOLERANCE[1] * scale, START_TOLERANCE[2]]}
     if loop:
         from dynamics import DynamicParameters
 
