@@ -1,7 +1,12 @@
 """The tracker benchmark: branch errors, certainty and per-step time of every method on the suites.
 
     python bench/bench_tracker.py [--suite all|default|hard] [--rule aspect] [--step-mm 10 --step-deg 2]
-                                  [--out results]
+                                  [--out results] [--robot FILE]
+
+``--robot FILE`` (a robot description, docs/robots.md) runs the hard suite on that robot (the default
+suite's paper circle and near-singular seeds are the paper robot's), with maps at its resolution, and
+times the steps on its own circle (:func:`solver.robot.default_circle`, 1000 points); its section of
+docs/benchmarks.md is ``tracker-<robot name>``, beside the paper robot's.
 
 Suites (:mod:`experiments.suite`): ``default``, the paper circle and circles passing 20,
 5 and 1 mm from a type-1 singularity in postures 1, 3, 5, sampled at 1000, 300,
@@ -73,11 +78,15 @@ def run_suite(model, maps, suite):
     return table
 
 
-def time_steps(model, maps, n_repeat=5):
-    """Median single-step time (us) of every method on the paper circle (1000 points)."""
-    X = circle_path(1000)
-    q = ik(model, X, 1)
-    trackers = {name: make(1) for name, make in methods(model, maps).items()}
+def time_steps(model, maps, n_repeat=5, circle=None):
+    """Median single-step time (us) of every method on the paper circle (1000 points), or on ``circle``
+    (``{"center", "radius", "phi", "posture"}``: another robot's, :func:`solver.robot.default_circle`)."""
+    if circle is None:
+        X, posture = circle_path(1000), 1
+    else:
+        X, posture = circle_path(1000, circle["center"], circle["radius"], circle["phi"]), circle["posture"]
+    q = ik(model, X, posture)
+    trackers = {name: make(posture) for name, make in methods(model, maps).items()}
     samples = {name: [] for name in trackers}
     for _ in range(n_repeat):
         for name, tr in trackers.items():                   # interleaved: same conditions for all
@@ -125,13 +134,26 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--suite", choices=("all", "default", "hard"), default="all", help="which paths (default all)")
     ap.add_argument("--rule", default=DEFAULT_RULE, help="ordering rule of the maps (default %(default)s)")
-    ap.add_argument("--step-mm", type=float, default=DEFAULT_STEP[0] * 1e3, help="map node spacing in x, y, mm")
-    ap.add_argument("--step-deg", type=float, default=float(np.rad2deg(DEFAULT_STEP[2])),
-                    help="map node spacing in phi, degrees")
+    ap.add_argument("--step-mm", type=float, default=None,
+                    help="map node spacing in x, y, mm (default 10, or the robot's resolution)")
+    ap.add_argument("--step-deg", type=float, default=None,
+                    help="map node spacing in phi, degrees (default 2, or the robot's resolution)")
     ap.add_argument("--out", default="results", help="folder of tracker_suite.csv and figures/ (default results)")
     ap.add_argument("--no-plot", action="store_true", help="no tracker_errors.png")
+    ap.add_argument("--robot", metavar="FILE", help="a robot description (docs/robots.md): the hard suite on it")
     args = ap.parse_args(argv)
-    model = Manipulator.paper()
+    robot, circle = None, None
+    if args.robot:
+        from solver.robot import default_circle, load_robot
+
+        robot = load_robot(args.robot)
+        model, circle = robot.model, {**default_circle(robot), "posture": robot.home_posture}
+        default = (robot.resolution[0], robot.resolution[0], robot.resolution[1])
+        args.suite = "hard"
+    else:
+        model, default = Manipulator.paper(), DEFAULT_STEP
+    args.step_mm = default[0] * 1e3 if args.step_mm is None else args.step_mm
+    args.step_deg = float(np.rad2deg(default[2])) if args.step_deg is None else args.step_deg
     step = (args.step_mm / 1e3, args.step_mm / 1e3, np.deg2rad(args.step_deg))
     suites = {}
     if args.suite in ("all", "default"):
@@ -156,8 +178,9 @@ def main(argv=None):
         print_totals(f"suite {key!r}: {len(ps)} streams, {sum(p.resolvable for p in ps)} resolvable, "
                      f"{sum(len(p.X) - 1 for p in ps):,} steps", tot, names)
         all_tot[key] = tot
-    times = time_steps(model, maps)
-    print("\n| method | median step time (us), paper circle, 1000 points |")
+    times = time_steps(model, maps, circle=circle)
+    where = "paper circle" if robot is None else f"{robot.name}'s circle"
+    print(f"\n| method | median step time (us), {where}, 1000 points |")
     print("|---|---|")
     for n in names:
         print(f"| {n} | {times[n]:.1f} |")
@@ -170,8 +193,8 @@ def main(argv=None):
     print(f"\ntargets, default mode: errors on resolvable paths {d_res} (0); errors {d_err} vs best baseline "
           f"{best} {b_err} (<= half); silent errors {d_silent} (0); false alarms {100 * d_alarm:.2f} % of steps "
           f"(<= 3 %); step time {times['default'] / times['newton']:.2f}x newton (<= 3x)")
-    _report(suites, all_tot, names, times, args)
-    out = Path(args.out)
+    _report(suites, all_tot, names, times, args, robot)
+    out = Path(args.out) if robot is None else Path(args.out) / robot.name
     write_table(suite, table, names, out / "tracker_suite.csv")
     if not args.no_plot:
         plot(suite, table, names, out / "figures" / "tracker_errors.png", args.rule)
@@ -191,20 +214,24 @@ def write_table(suite, table, names, path: Path) -> None:
                             f"{big:.6g}", steps])
 
 
-def _report(suites, all_tot, names, times, args):
-    """The totals per suite and the step times into docs/benchmarks.md (bench/report.py)."""
+def _report(suites, all_tot, names, times, args, robot=None):
+    """The totals per suite and the step times into docs/benchmarks.md (bench/report.py): section
+    ``tracker`` with the README's headline rows, or ``tracker-<name>`` for another robot (no headline)."""
     from report import publish, table
-    parts = []
+    parts = [] if robot is None else [f"Robot `{robot.name}` ({robot.source}, description sha256 {robot.digest}): "
+                                      "the hard suite on its geometry, steps timed on its own circle."]
+    where = "paper circle" if robot is None else f"{robot.name}'s circle"
     for key, ps in suites.items():
         parts.append(f"Suite `{key}`: {len(ps)} streams, {sum(p.resolvable for p in ps)} resolvable, "
                      f"{sum(len(p.X) - 1 for p in ps):,} steps; map rule `{args.rule}`, "
                      f"{args.step_mm:g} mm / {args.step_deg:g} deg.\n\n"
                      + table(TOTALS_HEADER, totals_rows(all_tot[key], names)))
     ratio = times["default"] / times["newton"]
-    parts.append(table(["method", "median step time, paper circle, 1000 points"],
+    parts.append(table(["method", f"median step time, {where}, 1000 points"],
                        [(n, f"{times[n]:.1f} us") for n in names])
                  + f"\n\nDefault mode / Newton: {ratio:.2f}x (target <= 3x; timed interleaved in one run).")
-    publish("tracker", "\n\n".join(parts), headline=_headline(suites, all_tot, names, ratio),
+    publish("tracker" if robot is None else f"tracker-{robot.name}", "\n\n".join(parts),
+            headline=_headline(suites, all_tot, names, ratio) if robot is None else None,
             note="Errors: steps more than 1e-6 from the true pose; silent: wrong and `certain`; false alarms: "
                  "right and not `certain`, share of the steps. Per-path counts: `results/tracker_suite.csv`.")
 
