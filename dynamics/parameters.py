@@ -223,9 +223,14 @@ class DynamicParameters:
             raise RobotDescriptionError(f"{robot.source}: [dynamics]: missing {', '.join(missing)} (give every key "
                                         f"of DynamicParameters: {', '.join(names)}; docs/robots.md)")
         try:
-            return cls.from_dict(table)
+            params = cls.from_dict(table)
         except (ParameterError, TypeError, ValueError) as exc:
             raise RobotDescriptionError(f"{robot.source}: [dynamics]: {exc}") from None
+        for name in ("inertia_proximal", "inertia_distal", "inertia_platform"):   # a real body's: positive
+            if np.any(np.asarray(getattr(params, name)) <= 0.0):
+                raise RobotDescriptionError(f"{robot.source}: [dynamics].{name} = {table[name]!r}: expected positive "
+                                            "inertias in kg m^2 (a link or plate of a real robot has one)")
+        return params
 
     def __eq__(self, other):
         if not isinstance(other, DynamicParameters):

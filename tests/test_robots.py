@@ -136,11 +136,13 @@ print("DRIVE " + json.dumps({k: res[k].tolist() for k in ("x", "y", "phi", "cert
 def irregular_fmu(tmp_path_factory):
     out = tmp_path_factory.mktemp("robot-fmu")
     robot = load_robot(IRREGULAR)
-    return robot, builds.build_dk(out, postures=(3,), resolution=COARSE, robot=robot, log=lambda *a: None)
+    logs: list = []
+    result = builds.build_dk(out, postures=(3,), resolution=COARSE, robot=robot, log=logs.append)
+    return robot, result, logs
 
 
 def test_the_dk_fmu_of_a_robot_file_carries_it_and_starts_at_its_home(irregular_fmu):
-    robot, result = irregular_fmu
+    robot, result, _ = irregular_fmu
     assert result.problems == [] and validate_fmu(str(result.fmu)) == []
     md = read_model_description(str(result.fmu))
     v = {x.name: x for x in md.modelVariables}
@@ -153,8 +155,21 @@ def test_the_dk_fmu_of_a_robot_file_carries_it_and_starts_at_its_home(irregular_
         assert z.read("resources/robot.toml") == IRREGULAR.read_bytes()
 
 
+def test_the_build_reports_the_border_volume_and_warns_when_the_map_is_coarse(irregular_fmu):
+    """A 40 mm / 6 deg map of the example robot: most of its reachable nodes lie near a border (warned);
+    the same robot at its default resolution (the loop's map, cached) stays under the bound."""
+    logs = " | ".join(map(str, irregular_fmu[2]))
+    share = float(logs.split("map posture 3: border volume ")[1].split(" %")[0])
+    assert share > 100 * builds.COARSE_BORDER and "warning: map posture 3 is coarse for 'irregular-3rrr'" in logs
+    from solver import cached_map
+
+    robot = load_robot(IRREGULAR)
+    fine = cached_map(robot.model, 1, step=(robot.resolution[0],) * 2 + (robot.resolution[1],))
+    assert fine.border_fraction() < builds.COARSE_BORDER
+
+
 def test_the_dk_fmu_of_a_robot_file_tracks_that_robot(irregular_fmu, tmp_path):
-    robot, result = irregular_fmu
+    robot, result, _ = irregular_fmu
     X, q = robot_circle(robot, 3, 300)
     assert q is not None
     (tmp_path / "X.json").write_text(json.dumps(X.tolist()))
@@ -309,3 +324,19 @@ def test_the_figures_of_the_example_robot(robot_loop, tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     made = sorted(p.name for p in tmp_path.glob("*.png"))
     assert len(made) == 6 and {"fig16_circle.png", "fig17_all_branches.png", "fig18_tracked.png"} <= set(made), made
+
+
+@pytest.mark.parametrize("key, value, expected", [
+    ("mass_platform", -0.5, "mass_platform"), ("inertia_distal", [0.006, 0.0, 0.007], "inertia_distal"),
+    ("com_platform", [0.0], "com_platform"), ("colour", 1, "colour"), ("gravity", KeyError, "missing gravity")])
+def test_bad_dynamics_are_refused_naming_the_key(key, value, expected):
+    from dynamics import DynamicParameters
+
+    data = _irregular()
+    _edit(f"dynamics.{key}", value)(data)
+    with pytest.raises(RobotDescriptionError) as info:
+        DynamicParameters.from_robot(robot_from_dict(data, source="my.toml"))
+    assert str(info.value).startswith("my.toml: [dynamics]") and expected in str(info.value)
+    del data["dynamics"]
+    with pytest.raises(RobotDescriptionError, match=r"\[dynamics\].*needs"):
+        DynamicParameters.from_robot(robot_from_dict(data, source="my.toml"))
