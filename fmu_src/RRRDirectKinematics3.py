@@ -41,7 +41,23 @@ else:
 # --posture/--mode rewrites them in the staged copy, as the FMI 2.0 build does in its script).
 BUILD_POSTURE = 1
 BUILD_MODE = "default"
+# the robot (build_fmu.py --fmi 3 --robot: as the FMI 2.0 DK slave's BUILD_ROBOT); None: the paper's
+BUILD_ROBOT = None
 _WHY = {v.name: v.description for v in RRRDirectKinematics._table} if RRRDirectKinematics else {}
+
+
+def _robot_start() -> dict:
+    """The core's start values of a robot build: its start pose, the joints there in BUILD_POSTURE and its
+    start tolerance ({} for the paper's robot: the core's own)."""
+    if BUILD_ROBOT is None or RRRDirectKinematics is None:
+        return {}
+    from solver import Manipulator, ik
+
+    pose = [float(v) for v in BUILD_ROBOT["start"]]
+    q = ik(Manipulator.from_dict(BUILD_ROBOT["geometry"]), pose, BUILD_POSTURE)
+    lin, _, ang = BUILD_ROBOT["start_tolerance"]
+    return {**dict(zip(("x0", "y0", "phi0"), pose)), **dict(zip(("q1", "q2", "q3"), (float(v) for v in q))),
+            "start_tolerance_linear": float(lin), "start_tolerance_angular": float(ang)}
 
 
 def _row(name, kind, causality, unit=None):
@@ -56,7 +72,11 @@ class RRRDirectKinematics3(Fmi3Adapter, Fmi3Slave):
     MISSING = _MISSING
     # the start values of this build (the FMI 2.0 slave's are those of its own build constants)
     START = {**dict(zip(("q1", "q2", "q3"), _home_joints(BUILD_POSTURE))), "posture": BUILD_POSTURE,
-             "mode": RRRDirectKinematics.MODES.index(BUILD_MODE)} if RRRDirectKinematics else {}
+             "mode": RRRDirectKinematics.MODES.index(BUILD_MODE), **_robot_start()} if RRRDirectKinematics else {}
+    if BUILD_ROBOT is not None:
+        description = (f"Direct kinematics of the planar 3-RRR parallel manipulator with basic regions: joint angles "
+                       f"-> platform pose (tracker + embedded map tensor); robot: the 3-RRR {BUILD_ROBOT['name']!r} "
+                       f"(robot description sha256 {BUILD_ROBOT['digest']})")
     ROWS = (
         Row3("time", "Float64", "independent", description="simulation time"),
         Row3("q", "Float64", "input", ("q1", "q2", "q3"), "rad",

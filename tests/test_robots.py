@@ -340,3 +340,54 @@ def test_bad_dynamics_are_refused_naming_the_key(key, value, expected):
     del data["dynamics"]
     with pytest.raises(RobotDescriptionError, match=r"\[dynamics\].*needs"):
         DynamicParameters.from_robot(robot_from_dict(data, source="my.toml"))
+
+
+#: argv: FMI 3.0 FMU, poses JSON, joints JSON, posture; the pose after each step through FMU3Slave
+DRIVE3 = r"""
+import json, sys
+import numpy as np
+from fmpy import extract, read_model_description
+from fmpy.fmi3 import FMU3Slave
+md = read_model_description(sys.argv[1])
+vr = {v.name: v.valueReference for v in md.modelVariables}
+X, q = np.array(json.load(open(sys.argv[2]))), np.array(json.load(open(sys.argv[3])))
+fmu = FMU3Slave(guid=md.guid, unzipDirectory=extract(sys.argv[1]), modelIdentifier="RRRDirectKinematics3",
+                instanceName="robot3")
+fmu.instantiate()
+fmu.setFloat64([vr["pose0"]], [float(v) for v in X[0]])
+fmu.setInt32([vr["posture"]], [int(sys.argv[4])])
+fmu.setFloat64([vr["q"]], [float(v) for v in q[0]])
+fmu.enterInitializationMode()
+fmu.exitInitializationMode()
+out = []
+for k in range(1, len(q)):
+    fmu.setFloat64([vr["q"]], [float(v) for v in q[k]])
+    fmu.doStep((k - 1) * 1e-3, 1e-3)
+    out.append(fmu.getFloat64([vr["pose"]], nValues=3))
+print("DRIVE3 " + json.dumps(out), flush=True)
+import os; os._exit(0)
+"""
+
+
+def test_the_fmi3_dk_fmu_of_a_robot_file(tmp_path):
+    """``build_fmu.py --fmi 3 --robot``: the FMI 3.0 DK FMU of the example robot validates, starts at the
+    robot's start pose and tracks its circle like the FMI 2.0 one."""
+    from cosim.fmus import fmi3_build
+
+    robot = load_robot(IRREGULAR)
+    result = fmi3_build.build_dk3(tmp_path / "fmu3", postures=(3,), resolution=COARSE, robot=robot,
+                                  log=lambda *a: None)
+    assert result.problems == []
+    md = read_model_description(str(result.fmu))
+    v = {x.name: x for x in md.modelVariables}
+    X0 = start_pose(robot, 3)
+    assert [float(x) for x in v["pose0"].start.split()] == list(X0) and robot.digest in md.description
+    assert np.allclose([float(x) for x in v["q"].start.split()], ik(robot.model, np.array(X0), 3), atol=1e-12)
+    X, q = robot_circle(robot, 3, 200)
+    (tmp_path / "X.json").write_text(json.dumps(X.tolist()))
+    (tmp_path / "q.json").write_text(json.dumps(q.tolist()))
+    proc = subprocess.run([sys.executable, "-c", DRIVE3, str(result.fmu), str(tmp_path / "X.json"),
+                           str(tmp_path / "q.json"), "3"], capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    line = next((x for x in proc.stdout.splitlines() if x.startswith("DRIVE3 ")), None)
+    assert line is not None, proc.stderr[-3000:]
+    assert float(np.max(np.abs(np.array(json.loads(line[7:])) - X[1:]))) <= 1e-9

@@ -130,9 +130,9 @@ def _robot(args):
     from solver.robot import load_robot
 
     robot = load_robot(args.robot)               # RobotDescriptionError (a ValueError): the reason, exit 2
-    if args.write_reference or args.fmi == "3" or args.manipulator != "3rrr":
-        raise ValueError("--robot: builds the 3-RRR FMUs (FMI 2.0) of the robot: not with --write-reference, "
-                         "--fmi 3 or --manipulator 3rpr")
+    if args.write_reference or args.manipulator != "3rrr":
+        raise ValueError("--robot: builds the 3-RRR FMUs of the robot: not with --write-reference or "
+                         "--manipulator 3rpr")
     if any(n != DK_NAME for n in args.only):     # the plant and the controller need [dynamics]: checked now
         from dynamics import DynamicParameters
 
@@ -214,8 +214,8 @@ def main(argv=None, default_out="build") -> int:
         if args.fmi == "3":
             from .fmi3_reference import main3
 
-            args.only_given = list(args.only) != list(FMU_NAMES)
-            return main3(args)
+            args.only_given = list(args.only) != list(FMU_NAMES) and list(args.only) != [DK_NAME]
+            return main3(args, robot)
         if args.manipulator == "3rpr":
             return _rpr(args)
         if args.write_reference:

@@ -50,6 +50,7 @@ from . import builds, native
 from .builds import DEFAULT_RESOLUTION, MODES, BuildResult
 from .fmi3_description import model_description_xml
 from .kernels import Run, Scenario, warm_up
+from .robot_build import robot_constant, stage_robot
 from .packaging import (BuildError, _check_module_name_is_free, _isolated_module, _stage_data_files, bundled_files,
                         declared_requirements, third_party_modules, write_zip)
 from .sources import SLAVE_DIR, slave_script
@@ -115,13 +116,14 @@ def _archive(raw: Path, final: Path, cls, extra: dict | None = None) -> None:
     write_zip(final, entries)
 
 
-def build_dk3(out_dir="build/fmi3", postures=(1,), resolution=DEFAULT_RESOLUTION, map_files=(), mode: str = "default",
+def build_dk3(out_dir="build/fmi3", postures=(1,), resolution=None, map_files=(), mode: str = "default",
               rule: str = DEFAULT_RULE, cache_dir=None, check: bool = True, progress: bool | None = None,
-              log=print, kernels: bool = True) -> BuildResult:
+              log=print, kernels: bool = True, robot=None) -> BuildResult:
     """Build ``<out_dir>/RRRDirectKinematics.fmu``, the FMI 3.0 DK FMU (the module docstring).
 
     The arguments are those of :func:`cosim.fmus.builds.build_dk` (the same maps, from the same map
-    cache); ``postures[0]`` and ``mode`` are the start values of the parameters ``posture`` and ``mode``.
+    cache; ``robot``: a robot description's FMU, its maps, start values and description, as there);
+    ``postures[0]`` and ``mode`` are the start values of the parameters ``posture`` and ``mode``.
     ``check``: fmpy's validation (the result's ``problems``).
     """
     from pythonfmu3 import FmuBuilder
@@ -135,16 +137,20 @@ def build_dk3(out_dir="build/fmi3", postures=(1,), resolution=DEFAULT_RESOLUTION
     out_dir.mkdir(parents=True, exist_ok=True)
     cache_dir = None if cache_dir is None else Path(cache_dir)
     t_map = time.perf_counter()
-    postures, maps = builds._dk_maps(Manipulator.paper(), postures, resolution, map_files, rule, cache_dir,
-                                     progress, log)
+    if robot is not None and robot.kind != "3-RRR":
+        raise ValueError(f"robot: {robot.source} describes a {robot.kind}; the FMI 3.0 DK FMU is a 3-RRR's")
+    model = robot.model if robot is not None else Manipulator.paper()
+    if resolution is None:
+        resolution = robot.resolution if robot is not None else DEFAULT_RESOLUTION
+    postures, maps = builds._dk_maps(model, postures, resolution, map_files, rule, cache_dir, progress, log)
     map_seconds = time.perf_counter() - t_map
     final = out_dir / DK3_FILE
     with tempfile.TemporaryDirectory(prefix="build_fmu3_") as tmp:
         tmp = Path(tmp)
         staging = tmp / "resources"
         staging.mkdir()
-        _stage(staging, script, builds.stage_maps(tmp, maps))
-        _set_start(staging / script.name, postures[0], mode)
+        _stage(staging, script, {**builds.stage_maps(tmp, maps), **stage_robot(tmp, robot)})
+        _set_start(staging / script.name, postures[0], mode, robot)
         with _isolated_module(DK3_NAME):
             cls = _load_class(staging / script.name)
             entries = sorted(p for p in staging.iterdir() if p.name != script.name)
@@ -152,15 +158,16 @@ def build_dk3(out_dir="build/fmi3", postures=(1,), resolution=DEFAULT_RESOLUTION
                                        documentation_folder=builds._stage_documentation(tmp, DK3_NAME))
         _archive(Path(raw), final, cls)
         if kernels:
-            _archive(Path(raw), final, cls, warm_up(warm_up_scenario3(postures[0], mode))(final))
+            _archive(Path(raw), final, cls, warm_up(warm_up_scenario3(postures[0], mode, robot))(final))
     problems = _validate(final) if check else []
     return BuildResult(final, maps, postures[0], mode, time.perf_counter() - t0, map_seconds, problems)
 
 
-def _set_start(script: Path, posture: int, mode: str) -> None:
-    """The start values of ``posture`` and ``mode``: the build constants of the staged script, rewritten
-    as the FMI 2.0 build rewrites its own."""
-    script.write_text(builds.with_build_constants(script.read_text(), posture, mode, script))
+def _set_start(script: Path, posture: int, mode: str, robot=None) -> None:
+    """The start values of ``posture`` and ``mode`` (and the robot's): the build constants of the staged
+    script, rewritten as the FMI 2.0 build rewrites its own."""
+    constant = robot_constant(robot, posture) if robot is not None else None
+    script.write_text(builds.with_build_constants(script.read_text(), posture, mode, script, constant))
 
 
 def _validate(fmu: Path) -> list[str]:
@@ -178,11 +185,11 @@ def _validate(fmu: Path) -> list[str]:
     return problems
 
 
-def warm_up_scenario3(posture: int = 1, mode: str = "default") -> Scenario:
+def warm_up_scenario3(posture: int = 1, mode: str = "default", robot=None) -> Scenario:
     """The runs that compile the kernels the FMI 3.0 FMU ships: the FMI 2.0 DK FMU's
-    (:func:`cosim.fmus.builds.warm_up_scenario`), with ``q`` and ``pose0`` as arrays."""
+    (:func:`cosim.fmus.builds.warm_up_scenario`, of ``robot`` if given), with ``q`` and ``pose0`` as arrays."""
     runs = []
-    for run in builds.warm_up_scenario(builds.DK_NAME, posture, mode).runs:
+    for run in builds.warm_up_scenario(builds.DK_NAME, posture, mode, robot).runs:
         start = {k: v for k, v in run.start.items() if k not in ("x0", "y0", "phi0")}
         if "x0" in run.start:
             start["pose0"] = [float(run.start[k]) for k in ("x0", "y0", "phi0")]

@@ -33,7 +33,7 @@ def _header(cls, token: str) -> dict[str, str]:
     attrib = {"fmiVersion": "3.0", "modelName": cls.__name__, "instantiationToken": token}
     core = cls.CORE
     for key in ("description", "author", "version", "copyright", "license"):
-        value = getattr(core, key, None)
+        value = cls.__dict__.get(key) or getattr(core, key, None)      # the adapter's own, else its core's
         if isinstance(value, str) and value:
             attrib[key] = value
     attrib.update(generationTool=f"PythonFMU3 {pythonfmu3_version} + cosim.fmus.fmi3_build",

@@ -17,7 +17,7 @@ import numpy as np
 from solver import circle_path
 
 from ..unit import import_hygiene
-from .builds import DEFAULT_RESOLUTION, parse_resolution
+from .builds import parse_resolution
 from .fmi3_build import DK3_NAME, build_dk3
 from .references import INT_COLUMNS, OUTPUTS, REFERENCE, circle_joints, write_csv
 from .sources import REFERENCE_DIR
@@ -73,7 +73,7 @@ def write_reference3(result: np.ndarray, path=None) -> Path:
     return write_csv(path, _flat(result), COLUMNS, header, INT_COLUMNS["RRRDirectKinematics"])
 
 
-def main3(args) -> int:
+def main3(args, robot=None) -> int:
     """``python build_fmu.py --fmi 3 [...]``: build ``<out>/fmi3/RRRDirectKinematics.fmu``, validate it and
     run the reference (``--no-reference`` skips it; ``--write-reference`` rewrites the kept CSV only)."""
     unsupported = [o for o, used in (("--only", args.only_given), ("--ssp", args.ssp),
@@ -82,10 +82,11 @@ def main3(args) -> int:
         raise ValueError(f"--fmi 3: {', '.join(unsupported)}: the FMI 3.0 build is the 3-RRR's DK FMU alone")
     out = Path(args.out) / "fmi3"
     if not args.write_reference:
-        resolution = DEFAULT_RESOLUTION if args.resolution is None else parse_resolution(args.resolution)
-        postures = args.posture if args.posture is not None else ([] if args.map else [1])
+        resolution = None if args.resolution is None else parse_resolution(args.resolution)
+        postures = args.posture if args.posture is not None else ([] if args.map else
+                                                                   [robot.home_posture if robot else 1])
         result = build_dk3(out, postures=postures, resolution=resolution, map_files=args.map, mode=args.mode,
-                           rule=args.rule, progress=None)
+                           rule=args.rule, progress=None, robot=robot)
         print(f"{result.fmu}: {result.size / 1e6:.3f} MB ({result.size:,} bytes), FMI 3.0, postures "
               f"{sorted(result.maps)} (start {result.posture}), mode {result.mode}; built in {result.seconds:.1f} s")
         if result.problems:
