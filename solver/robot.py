@@ -96,6 +96,11 @@ class Robot:
     description: dict = field(repr=False)
 
     @property
+    def reach(self) -> float:
+        """The longest leg reach (m): ``max(l1 + l2)`` of a 3-RRR, ``rho_max`` of a 3-RPR; the robot's size."""
+        return _reach(self.model)
+
+    @property
     def digest(self) -> str:
         """SHA-256 (hex, 16 digits) of the description's canonical JSON: what an FMU's build records."""
         text = json.dumps(self.description, sort_keys=True, separators=(",", ":"))
@@ -171,7 +176,7 @@ def default_circle(robot: Robot, posture: int | None = None) -> dict:
     """
     posture = robot.home_posture if posture is None else int(posture)
     X0 = np.array(start_pose(robot, posture))
-    reach = float(np.max(robot.model.l1 + robot.model.l2))
+    reach = robot.reach
     a = np.linspace(0.0, 2.0 * np.pi, 181)
     radius = reach / 24.0
     while radius >= reach / 1000.0:
@@ -206,6 +211,10 @@ def load_robot(path) -> Robot:
     except tomllib.TOMLDecodeError as exc:
         raise RobotDescriptionError(f"{path}: not valid TOML: {exc}") from None
     return robot_from_dict(data, source=str(path))
+
+
+def _reach(model) -> float:
+    return float(np.max(model.l1 + model.l2)) if hasattr(model, "l1") else float(model.rho_max)
 
 
 def _fail(source: str, where: str, value, expected: str):
@@ -288,8 +297,7 @@ def _resolution(source: str, model, table: dict | None) -> tuple:
         if step[0] <= 0 or not 0 < step[1] <= 30:
             _fail(source, "map.resolution", table["resolution"], "[m > 0, deg in (0, 30]]")
         return float(step[0]), math.radians(float(step[1]))
-    reach = float(np.max(model.l1 + model.l2)) if hasattr(model, "l1") else float(model.rho_max)
-    return reach / MAP_NODES_PER_REACH, math.radians(_DEFAULT_ANGLE_DEG)
+    return _reach(model) / MAP_NODES_PER_REACH, math.radians(_DEFAULT_ANGLE_DEG)
 
 
 def robot_from_dict(data: dict, source: str = "<dict>") -> Robot:

@@ -18,10 +18,23 @@ from ._kernels.tube_chain import MAX_COVER, pose_bound
 from .direct_kinematics import dk_all
 from .kinematics import wrap_angle
 
-__all__ = ["START_TOLERANCE", "StartInfo", "honest_start"]
+__all__ = ["START_TOLERANCE", "StartInfo", "honest_start", "start_tolerance_for"]
 
-#: How far the initial pose given to :meth:`solver.Tracker.reset` may be from the robot's (m, m, rad).
+#: How far the initial pose given to :meth:`solver.Tracker.reset` may be from the robot's (m, m, rad), for
+#: the paper's robot (a 1.2 m leg reach); :func:`start_tolerance_for` scales it to another 3-RRR.
 START_TOLERANCE = (0.01, 0.01, 0.05)
+#: The leg reach (m) :data:`START_TOLERANCE` is for: the paper's robot, l1 + l2 = 1.2 m
+_PAPER_REACH = 1.2
+
+
+def start_tolerance_for(model) -> tuple:
+    """The default start tolerance (m, m, rad) of ``model``: :data:`START_TOLERANCE` with its lengths
+    scaled by the 3-RRR's longest leg reach over the paper robot's 1.2 m (the paper's robot: exactly
+    :data:`START_TOLERANCE`; a robot ten times smaller: a tenth); other kinds: :data:`START_TOLERANCE`."""
+    if getattr(model, "kind", None) != "3-RRR":
+        return START_TOLERANCE
+    scale = float(np.max(model.l1 + model.l2)) / _PAPER_REACH
+    return (START_TOLERANCE[0] * scale, START_TOLERANCE[1] * scale, START_TOLERANCE[2])
 
 
 class StartInfo(NamedTuple):

@@ -144,7 +144,7 @@ from .manipulator import Manipulator
 from .maptensor import MapTensor
 from .ordering import rule_code
 from .encoder_grid import encoder_bits, encoder_note, grid_tolerance
-from .start import START_TOLERANCE, StartInfo, honest_start
+from .start import START_TOLERANCE, StartInfo, honest_start, start_tolerance_for
 from .tracker_state import TrackerError
 from .tracking import _TrackerBase
 
@@ -230,7 +230,8 @@ class Tracker(_TrackerBase):
     start_tolerance : array_like, shape (3,)
         How far (m, m, rad) the initial pose given to :meth:`reset` may be from the robot's: the
         tracker starts from the DK solution of the initial joints within it, certain when it is
-        proved the only pose there (see "An honest start").  Default :data:`START_TOLERANCE`.
+        proved the only pose there (see "An honest start").  Default (None): :data:`START_TOLERANCE`
+        scaled with the robot (:func:`solver.start.start_tolerance_for`; the paper's robot: as it is).
     step_budget : float or None
         Seconds one :meth:`step` may take (None: no budget, every search runs to its test
         limits).  When the budget runs out the step returns its choice, not certain, with
@@ -243,7 +244,7 @@ class Tracker(_TrackerBase):
                  singular_tol: float = 1e-4, use_map: bool = True, strategy: int = _lay.STRATEGY_SEGMENT,
                  segment_singular: float = 0.05, posture_certificate: bool = True, max_tests: int = MAX_TESTS,
                  joint_tolerance: float = 0.0, gate: float = GATE, speed_bound=None,
-                 reacquire_boxes: int = REACQUIRE_BOXES, stuck_after: int = 0, start_tolerance=START_TOLERANCE,
+                 reacquire_boxes: int = REACQUIRE_BOXES, stuck_after: int = 0, start_tolerance=None,
                  step_budget: float | None = None):
         super().__init__(model)
         if step_budget is not None and not (isinstance(step_budget, (int, float, np.floating, np.integer))
@@ -254,6 +255,8 @@ class Tracker(_TrackerBase):
         if step_budget is not None:
             cycles_per_second()                 # calibrated now, not in the first step's budget
         self._anytime = np.zeros(ANY_SIZE)
+        if start_tolerance is None:
+            start_tolerance = start_tolerance_for(model)
         r0 = as_array("start_tolerance", start_tolerance, (3,))
         if r0.shape != (3,) or not np.all(r0 > 0):
             raise TrackerError(f"start_tolerance: expected 3 half-widths > 0 (m, m, rad), got {start_tolerance!r}")

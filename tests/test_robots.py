@@ -391,3 +391,73 @@ def test_the_fmi3_dk_fmu_of_a_robot_file(tmp_path):
     line = next((x for x in proc.stdout.splitlines() if x.startswith("DRIVE3 ")), None)
     assert line is not None, proc.stderr[-3000:]
     assert float(np.max(np.abs(np.array(json.loads(line[7:])) - X[1:]))) <= 1e-9
+
+
+@settings(max_examples=3, deadline=None)
+@given(seed=st.integers(0, 10_000), scale=st.sampled_from([0.1, 1.0, 4.0]), posture=st.integers(1, 8))
+def test_the_dk_fmu_of_a_random_description_validates_and_equals_the_tracker(tmp_path_factory, seed, scale, posture):
+    """A random irregular description, written as TOML and built like a user's: the DK FMU validates with no
+    message and, along a circle of its robot, returns the in-process tracker's poses bit for bit."""
+    data = _random_robot(seed, scale)
+    robot = robot_from_dict(data)
+    X, q = robot_circle(robot, posture, 120)
+    if q is None:
+        return                                        # the circle meets a singularity: not this property's case
+    tmp = tmp_path_factory.mktemp("random-robot")
+    result = builds.build_dk(tmp / "fmu", postures=(posture,), resolution=(robot.resolution[0] * 4, COARSE[1]),
+                             robot=robot, log=lambda *a: None)
+    assert result.problems == [] and validate_fmu(str(result.fmu)) == []
+    (tmp / "X.json").write_text(json.dumps(X.tolist()))
+    (tmp / "q.json").write_text(json.dumps(q.tolist()))
+    proc = subprocess.run([sys.executable, "-c", DRIVE, str(result.fmu), str(tmp / "X.json"), str(tmp / "q.json"),
+                           str(posture)], capture_output=True, text=True, timeout=600, cwd=tmp)
+    line = next((x for x in proc.stdout.splitlines() if x.startswith("DRIVE ")), None)
+    assert line is not None, proc.stderr[-3000:]
+    out = json.loads(line[6:])
+    got = np.column_stack([out["x"], out["y"], out["phi"]])
+    with zipfile.ZipFile(result.fmu) as z:
+        (tmp / "map.npz").write_bytes(z.read(f"resources/maps/posture{posture}.npz"))
+    tracker = Tracker(robot.model, MapTensor.load(tmp / "map.npz"), singular_tol=1e-4)
+    tracker.reset(X[0], q[0])
+    ours = np.array([tracker.step(q[k], 1e-3)[0] for k in range(1, len(q) - 1)])
+    assert np.array_equal(ours, got[2:]), (seed, scale, posture)
+    assert float(np.max(np.abs(got[1:] - X[:-1]))) <= 1e-9 * max(scale, 1.0)
+
+
+def test_a_3rpr_description_builds_its_dk_fmu(tmp_path):
+    """``kind = "3-RPR"``: the description of the shipped 3-RPR, built with ``--robot`` like a user's (its map
+    over its whole tool space, coarse here): the FMU validates, starts at the home pose, carries the
+    description, and runs the cusp loop like the in-process tracker on its map, bit for bit."""
+    from cosim.fmus.rpr_build import build_rpr_dk
+    from experiments.rpr_suite import cusp_loop_path
+    from solver.rpr import RPR_HOME_POSE, RPRManipulator
+
+    shipped = RPRManipulator.zein_wenger_chablat().to_dict()
+    path = tmp_path / "zwc.toml"
+    geometry = "\n".join(f"{k} = {json.dumps(shipped[k])}" for k in ("base", "platform", "rho_min", "rho_max"))
+    path.write_text(f'name = "my-3rpr"\nkind = "3-RPR"\n[geometry]\n{geometry}\n[home]\npose = '
+                    f"{json.dumps(list(RPR_HOME_POSE))}\n")
+    proc = subprocess.run([sys.executable, str(ROOT / "build_fmu.py"), "--robot", str(path), "--resolution",
+                           "100mm,6deg", "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=900,
+                          cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    fmu = tmp_path / "out" / "RPRDirectKinematics.fmu"
+    assert validate_fmu(str(fmu)) == []
+    md = read_model_description(str(fmu))
+    v = {x.name: x for x in md.modelVariables}
+    robot = load_robot(path)
+    assert [float(v[n].start) for n in ("x0", "y0", "phi0")] == list(RPR_HOME_POSE) and robot.digest in md.description
+    code = ("import sys, numpy as np; from cosim.fmus.rpr_build import run_rpr_loop; "
+            "np.save(sys.argv[2], np.column_stack([run_rpr_loop(sys.argv[1])[k] for k in ('x', 'y', 'phi')])); "
+            "import os; os._exit(0)")
+    run = subprocess.run([sys.executable, "-c", code, str(fmu), str(tmp_path / "run.npy")], capture_output=True,
+                         text=True, timeout=600, cwd=ROOT)
+    assert run.returncode == 0, run.stderr[-3000:]
+    got = np.load(tmp_path / "run.npy")
+    with zipfile.ZipFile(fmu) as z:
+        (tmp_path / "map.npz").write_bytes(z.read("resources/maps/posture1.npz"))
+    loop = cusp_loop_path(robot.model, 1, 100)
+    tracker = Tracker(robot.model, MapTensor.load(tmp_path / "map.npz"), singular_tol=1e-4)
+    tracker.reset(loop.X[0], loop.q[0])
+    ours = np.array([tracker.step(loop.q[k], 1e-2)[0] for k in range(1, len(loop.q))])
+    assert np.array_equal(ours, got[2:len(loop.q) + 1]), float(np.max(np.abs(ours - got[2:len(loop.q) + 1])))

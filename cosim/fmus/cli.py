@@ -88,8 +88,9 @@ def _parser(default_out) -> argparse.ArgumentParser:
     return ap
 
 
-def _rpr(args) -> int:
-    """``--manipulator 3rpr``: the 3-RPR's DK FMU and its reference run; the exit status."""
+def _rpr(args, robot=None) -> int:
+    """``--manipulator 3rpr`` (or ``--robot`` of a 3-RPR): the 3-RPR's DK FMU and its reference run; the exit
+    status."""
     from .rpr_build import (RPR_NAME, RPR_REFERENCE_RESOLUTION, RPR_RESOLUTION, build_rpr_dk, run_rpr_loop,
                             write_rpr_reference)
 
@@ -101,8 +102,9 @@ def _rpr(args) -> int:
                          "DK FMU alone; the closed loop is the 3-RRR's)")
     out = Path(args.out)
     if not args.write_reference:
-        resolution = RPR_RESOLUTION if args.resolution is None else parse_resolution(args.resolution)
-        result = build_rpr_dk(out, resolution=resolution, rule=args.rule)
+        resolution = ((None if robot is not None else RPR_RESOLUTION) if args.resolution is None
+                      else parse_resolution(args.resolution))
+        result = build_rpr_dk(out, resolution=resolution, rule=args.rule, robot=robot)
         print(f"{result.fmu}: {result.size / 1e6:.3f} MB; built in {result.seconds:.1f} s "
               f"(map {result.map_seconds:.1f} s)")
         if result.problems:
@@ -130,9 +132,12 @@ def _robot(args):
     from solver.robot import load_robot
 
     robot = load_robot(args.robot)               # RobotDescriptionError (a ValueError): the reason, exit 2
-    if args.write_reference or args.manipulator != "3rrr":
-        raise ValueError("--robot: builds the 3-RRR FMUs of the robot: not with --write-reference or "
-                         "--manipulator 3rpr")
+    if args.write_reference:
+        raise ValueError("--robot: --write-reference rewrites the shipped robots' kept reference runs only")
+    args.manipulator = "3rpr" if robot.kind == "3-RPR" else "3rrr"      # the description says which
+    if robot.kind == "3-RPR":
+        args.no_reference = True
+        return robot
     if any(n != DK_NAME for n in args.only):     # the plant and the controller need [dynamics]: checked now
         from dynamics import DynamicParameters
 
@@ -217,7 +222,7 @@ def main(argv=None, default_out="build") -> int:
             args.only_given = list(args.only) != list(FMU_NAMES) and list(args.only) != [DK_NAME]
             return main3(args, robot)
         if args.manipulator == "3rpr":
-            return _rpr(args)
+            return _rpr(args, robot)
         if args.write_reference:
             _references(args.out, _KEPT)
             return 0

@@ -30,14 +30,12 @@ def robot_constant(robot, posture: int, loop: bool = False) -> dict:
     (:func:`solver.robot.default_circle`), whose first point is the start pose."""
     from solver.robot import default_circle, start_pose
 
-    from solver import START_TOLERANCE
+    from solver.start import start_tolerance_for
 
-    # the DK FMU's default start tolerance scaled with the robot: the tracker's default (m, m, rad) times the
-    # robot's longest leg reach over the paper robot's 1.2 m (the paper's robot: the same numbers)
-    scale = float(np.max(robot.model.l1 + robot.model.l2)) / 1.2
+    # the DK FMU's default start tolerance, the tracker's for this robot (scaled with its reach)
     out = {"name": robot.name, "digest": robot.digest, "geometry": robot.model.to_dict(), "posture": int(posture),
            "start": [float(v) for v in start_pose(robot, posture)],
-           "start_tolerance": [START_TOLERANCE[0] * scale, START_TOLERANCE[1] * scale, START_TOLERANCE[2]]}
+           "start_tolerance": [float(v) for v in start_tolerance_for(robot.model)]}
     if loop:
         from dynamics import DynamicParameters
 
@@ -78,7 +76,7 @@ def robot_circle(robot, posture: int, n: int):
     from solver.robot import start_pose
 
     X0 = np.array(start_pose(robot, posture))
-    r = float(np.max(robot.model.l1 + robot.model.l2)) / 40.0
+    r = robot.reach / 40.0
     a = np.linspace(0.0, 2.0 * np.pi, n, endpoint=False)
     X = X0 + np.stack([r * (np.cos(a) - 1.0), r * np.sin(a), 0.1 * np.sin(a)], axis=1)
     q = ik(robot.model, X, posture)

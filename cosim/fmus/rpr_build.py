@@ -31,6 +31,7 @@ from .builds import BuildResult, _stage_documentation, project_packages
 from .checks import validate
 from .kernels import Run, Scenario, warm_up
 from .packaging import build_fmu
+from .robot_build import robot_circle, robot_constant, stage_robot, with_robot_constant
 from .references import read_csv, write_csv
 from .sources import REFERENCE_DIR, slave_script
 from ..simulation import input_table, simulate
@@ -52,14 +53,15 @@ RPR_INTS = ("region", "n_real", "ambiguous", "status", "certain")
 
 
 def rpr_map(model: RPRManipulator, resolution=RPR_RESOLUTION, rule: str = DEFAULT_RULE, cache_dir=None,
-            log=print) -> Path:
-    """The 3-RPR's map over :data:`RPR_WORK_BOUNDS` at ``resolution`` (m, rad), from or into the map cache
-    ``cache_dir`` (None: the project's, ``solver.cache_dir("maps")``)."""
-    b = np.array(RPR_WORK_BOUNDS)
+            log=print, bounds=None) -> Path:
+    """The 3-RPR's map over ``bounds`` (default :data:`RPR_WORK_BOUNDS`) at ``resolution`` (m, rad), from or
+    into the map cache ``cache_dir`` (None: the project's, ``solver.cache_dir("maps")``)."""
+    b = np.array(RPR_WORK_BOUNDS if bounds is None else bounds, dtype=float)
     step = float(resolution[0])
     shape = (int(round((b[0, 1] - b[0, 0]) / step)) + 1, int(round((b[1, 1] - b[1, 0]) / step)) + 1,
              int(round(2 * np.pi / float(resolution[1]))))
-    key = hashlib.sha256(json.dumps([model.digest(), list(shape), rule, labelling_digest()]).encode()).hexdigest()[:12]
+    key = [model.digest(), list(shape), rule, labelling_digest()] + ([] if bounds is None else [b.tolist()])
+    key = hashlib.sha256(json.dumps(key).encode()).hexdigest()[:12]
     path = (default_cache_dir() if cache_dir is None else Path(cache_dir)) / f"rpr-posture1-{key}.npz"
     if path.is_file():
         try:
@@ -84,15 +86,27 @@ def rpr_warm_up_scenario(n: int = LOOP_N, h: float = LOOP_H, cusp: int = 1) -> S
                      Run(len(path.q) // 5, h, {**start, "mode": 1}, {k: v[:len(path.q) // 5] for k, v in inputs.items()})])
 
 
-def build_rpr_dk(out_dir="build", resolution=RPR_RESOLUTION, rule: str = DEFAULT_RULE, cache_dir=None,
-                 check: bool = True, log=print, kernels: bool = True) -> BuildResult:
+def build_rpr_dk(out_dir="build", resolution=None, rule: str = DEFAULT_RULE, cache_dir=None,
+                 check: bool = True, log=print, kernels: bool = True, robot=None) -> BuildResult:
     """Build ``<out_dir>/RPRDirectKinematics.fmu`` (see the module docstring); ``kernels``: ship the
     kernels compiled along :func:`rpr_warm_up_scenario` (:mod:`cosim.fmus.kernels`), so a host starts it
-    in seconds and compiles nothing."""
+    in seconds and compiles nothing.  ``robot``: a 3-RPR description (:class:`solver.robot.Robot`; None:
+    Zein, Wenger and Chablat's): its map over its whole tool space (:func:`solver.default_bounds`) at
+    ``resolution`` (None: the robot's, else :data:`RPR_RESOLUTION`), its start pose, its description
+    carried (``resources/robot.json``, ``robot.toml``), warmed up along a circle about its start."""
     t0 = time.perf_counter()
-    model = RPRManipulator.zein_wenger_chablat()
+    if robot is not None and robot.kind != "3-RPR":
+        raise ValueError(f"robot: {robot.source} describes a {robot.kind}; this is the 3-RPR's DK FMU")
+    model = RPRManipulator.zein_wenger_chablat() if robot is None else robot.model
+    if resolution is None:
+        resolution = RPR_RESOLUTION if robot is None else robot.resolution
     out_dir = Path(out_dir)
-    map_file = rpr_map(model, resolution, rule, cache_dir, log)
+    bounds = None
+    if robot is not None:
+        from solver import default_bounds
+
+        bounds = default_bounds(model, (resolution[0], resolution[0], resolution[1]))
+    map_file = rpr_map(model, resolution, rule, cache_dir, log, bounds)
     map_seconds = time.perf_counter() - t0
     with tempfile.TemporaryDirectory(prefix="build_fmu_") as tmp:
         tmp = Path(tmp)
@@ -101,12 +115,31 @@ def build_rpr_dk(out_dir="build", resolution=RPR_RESOLUTION, rule: str = DEFAULT
         manifest.write_text(json.dumps({"model": RPR_NAME, "maps": [
             {"posture": 1, "file": "maps/posture1.npz", "bytes": len(data),
              "sha256": hashlib.sha256(data).hexdigest()}]}, indent=1, sort_keys=True) + "\n")
-        fmu = build_fmu(slave_script(RPR_NAME), out_dir, project_packages=project_packages(),
-                        data_files={"maps/posture1.npz": map_file, "maps/manifest.json": manifest},
+        script = slave_script(RPR_NAME)
+        if robot is not None:
+            script = tmp / script.name
+            script.write_text(with_robot_constant(slave_script(RPR_NAME).read_text(), robot_constant(robot, 1),
+                                                  slave_script(RPR_NAME)))
+        scenario = rpr_warm_up_scenario() if robot is None else _robot_warm_up(robot)
+        fmu = build_fmu(script, out_dir, project_packages=project_packages(),
+                        data_files={"maps/posture1.npz": map_file, "maps/manifest.json": manifest,
+                                    **stage_robot(tmp, robot)},
                         documentation_dir=_stage_documentation(tmp, RPR_NAME), check=check,
-                        kernels=warm_up(rpr_warm_up_scenario()) if kernels else None)
+                        kernels=warm_up(scenario) if kernels else None)
     problems = validate(fmu) if check else []
     return BuildResult(fmu, {1: map_file}, 1, "default", time.perf_counter() - t0, map_seconds, problems)
+
+
+def _robot_warm_up(robot, n: int = LOOP_N, h: float = LOOP_H) -> Scenario:
+    """A 3-RPR robot's warm-up: a circle about its start pose (:func:`cosim.fmus.robot_build.robot_circle`),
+    or 10 steps at rest there when that circle meets a singularity."""
+    X, q = robot_circle(robot, 1, n)
+    start = dict(zip(("x0", "y0", "phi0"), (float(v) for v in X[0])))
+    if q is None:
+        return Scenario([Run(10, h, {**start, "mode": m}) for m in (0, 1)])
+    inputs = {f"rho{j + 1}": q[:, j] for j in range(3)}
+    return Scenario([Run(n, h, {**start, "mode": 0}, inputs),
+                     Run(n // 5, h, {**start, "mode": 1}, {k: v[:n // 5] for k, v in inputs.items()})])
 
 
 def run_rpr_loop(fmu, n: int = LOOP_N, h: float = LOOP_H, cusp: int = 1):
