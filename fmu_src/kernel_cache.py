@@ -335,23 +335,18 @@ def _hosts_own_packages(resources: str) -> bool:
                for name in ("solver", "dynamics") if name in sys.modules)
 
 
-def attach(slave) -> None:
-    """Send the compile announcements of ``slave``'s FMU to ``slave`` (a pythonfmu slave, weakly held);
-    if its shipped kernels cannot serve this process, have them compiled in a child process first
-    (:func:`fmu_src.kernel_warmup.ensure`, which says so and raises ``KernelCompileError`` if that
-    fails).  Called before ``setup()``."""
+def attach(slave) -> str | None:
+    """Send the compile announcements of ``slave``'s FMU to ``slave`` (a pythonfmu slave, weakly held) and
+    say why the kernels it ships cannot serve this process (None: they can, or the slave runs the host's
+    own packages, or none of an FMU).  Called before ``setup()``; the caller has them compiled in a child
+    process then (:func:`fmu_src.kernel_warmup.ensure`)."""
     resources = getattr(slave, "resources", None)
     if not resources or not os.path.isdir(resources):
-        return
+        return None
     _SLAVES[:] = [ref for ref in _SLAVES if ref() is not None] + [weakref.ref(slave)]
-    problem = (shipped_problem(resources) if _has_kernel_packages(resources)
-               and not _hosts_own_packages(resources) else None)
-    # an instance an FMI host made (pythonfmu passes a logger), of an FMU's resources folder; one made in
-    # process (tests, the compiling child itself) compiles where it is
-    if problem and getattr(slave, "_fmi_strict", True) and os.path.isfile(os.path.join(resources, BUNDLE_MARK)):
-        from .kernel_warmup import ensure
-
-        ensure(slave, resources, problem)   # compiled in a child process, never on the host's thread
+    if not _has_kernel_packages(resources) or _hosts_own_packages(resources):
+        return None
+    return shipped_problem(resources)
 
 
 class _PatchOnImport(importlib.abc.MetaPathFinder):

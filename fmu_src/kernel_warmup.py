@@ -7,7 +7,8 @@ hundred kB) it overflows and the host dies with a segmentation fault, inside an 
 has to compile when the kernels it ships cannot serve the process that runs it
 (:func:`fmu_src.kernel_cache.shipped_problem`: another numba or Python, none shipped, other code).
 
-What happens instead (:func:`ensure`, called at instantiation by :func:`fmu_src.kernel_cache.attach`):
+What happens instead (:func:`ensure`, called at instantiation by :class:`fmu_src.table_slave.TableSlave`
+when :func:`fmu_src.kernel_cache.attach` says the shipped kernels cannot serve):
 
 1. if this machine already compiled the bundle's kernels (``warm.json`` in the bundle's folder of
    the user cache names this numba, Python and CPU: :func:`machine_stamp`), nothing;
@@ -43,7 +44,7 @@ import threading
 import time
 from collections import deque
 
-from .kernel_cache import _send, bundle_key, cache_root, manifest
+from .kernel_cache import BUNDLE_MARK, _scratch_root, _send, bundle_key, cache_root, manifest
 
 try:
     import fcntl                      # POSIX: one child per machine compiles, the others wait
@@ -101,8 +102,6 @@ def is_warm(resources: str, root: str | None = None) -> bool:
 def _writable_root() -> str:
     """The cache root the child writes and the host reads (the locator's: the user cache, else this
     process's own folder under the temporary folder)."""
-    from .kernel_cache import _scratch_root
-
     root = str(cache_root())
     try:
         os.makedirs(root, exist_ok=True)
@@ -118,6 +117,10 @@ def ensure(slave, resources: str, problem: str) -> None:
     in a child process if they are not (module docstring); ``problem``: why the shipped ones do not
     serve.  Raises :class:`KernelCompileError`."""
     if resources in _DONE or "numba" not in sys.modules or os.environ.get(IN_PROCESS) == "1":
+        return
+    # an instance an FMI host made (pythonfmu passes a logger) of an FMU's resources folder; one made in
+    # process (tests, the compiling child itself) compiles where it is
+    if not getattr(slave, "_fmi_strict", True) or not os.path.isfile(os.path.join(resources, BUNDLE_MARK)):
         return
     root = _writable_root()
     folder = _key_folder(root, resources)

@@ -89,7 +89,7 @@ from typing import Any, ClassVar
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
 from pythonfmu.enums import Fmi2Status
 
-from . import kernel_cache
+from . import kernel_cache, kernel_warmup
 from .fmi_states import (ERROR, INITIALIZATION_MODE, INSTANTIATED, STEP_COMPLETE, STEP_FAILED, TERMINATED, FmiStates,
                          behind_loader)
 from .slave_state import StateHandling, values_getter
@@ -227,7 +227,9 @@ class TableSlave(FmiStates, StateHandling, ValueAccess, ValueChecks, Fmi2Slave):
         for v in cls._table:
             setattr(self, v.attr, _PY_TYPE[v.type](v.start) if v.start is not None else _PY_TYPE[v.type]())
             self.register_variable(self._make_variable(v), nested=False)
-        kernel_cache.attach(self)       # a kernel compiled now is announced in this instance's log
+        problem = kernel_cache.attach(self)     # a kernel compiled now is announced in this instance's log
+        if problem:                             # the shipped kernels cannot serve: compiled in a child process
+            kernel_warmup.ensure(self, self.resources, problem)
         self.setup()
 
     def _make_variable(self, v: Var):
