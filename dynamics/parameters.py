@@ -62,6 +62,13 @@ def _vector(name: str, value, shape: tuple[int, ...], *, lower: float | None = N
     return arr
 
 
+def _number_tree(value) -> bool:
+    """Whether ``value`` is an int or float (not a bool), or a list of such trees."""
+    if isinstance(value, list):
+        return all(_number_tree(v) for v in value)
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
 @dataclass(frozen=True, eq=False)
 class DynamicParameters:
     """Inertial, friction and gravity data of a 3-RRR (constant, like the geometry).
@@ -222,9 +229,13 @@ class DynamicParameters:
         if missing:
             raise RobotDescriptionError(f"{robot.source}: [dynamics]: missing {', '.join(missing)} (give every key "
                                         f"of DynamicParameters: {', '.join(names)}; docs/robots.md)")
+        for name in names:                      # numbers only: no boolean or string read as one
+            if not _number_tree(table[name]):
+                raise RobotDescriptionError(f"{robot.source}: [dynamics].{name} = {table[name]!r}: expected a number "
+                                            "or a list of numbers (no boolean, no string)")
         try:
             params = cls.from_dict(table)
-        except (ParameterError, TypeError, ValueError) as exc:
+        except (ParameterError, TypeError, ValueError, ArithmeticError) as exc:
             raise RobotDescriptionError(f"{robot.source}: [dynamics]: {exc}") from None
         for name in ("inertia_proximal", "inertia_distal", "inertia_platform"):   # a real body's: positive
             if np.any(np.asarray(getattr(params, name)) <= 0.0):

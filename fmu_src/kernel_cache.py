@@ -99,7 +99,7 @@ def cache_root() -> Path:
     module docstring; a test holds the root to :func:`solver.cache_dir`)."""
     explicit = os.environ.get("NUMBA_CACHE_DIR", "").strip()
     if explicit:
-        return Path(explicit)
+        return Path(os.path.abspath(explicit))      # the child compiling for this process runs elsewhere
     root = os.environ.get("RRR_DK_CACHE", "").strip()
     if root:
         return Path(root).expanduser().resolve() / "fmu-kernels"
@@ -169,8 +169,7 @@ def shipped_problem(resources: str) -> str | None:
     info = manifest(resources)
     if not info:
         return "the FMU carries no compiled kernels"
-    numba = sys.modules.get("numba")
-    here = {"numba": getattr(numba, "__version__", info.get("numba")),
+    here = {"numba": _numba_version() or info.get("numba"),
             "python": "%d.%d" % sys.version_info[:2], "machine": platform.machine().lower()}
     for what, value in here.items():
         if info.get(what) != value:
@@ -180,6 +179,22 @@ def shipped_problem(resources: str) -> str | None:
     if not any(f.endswith(".nbi") for _, _, files in os.walk(os.path.join(resources, SHIPPED)) for f in files):
         return "its kernel folder holds no compiled kernel"
     return None
+
+
+def _numba_version() -> str | None:
+    """The numba this process runs: the imported module's version, else the installed distribution's
+    (a slave may import its kernels only in ``setup()``, after this is asked); None if there is none."""
+    numba = sys.modules.get("numba")
+    if numba is not None:
+        return getattr(numba, "__version__", None)
+    try:
+        from importlib.metadata import PackageNotFoundError, version
+    except ImportError:                      # pragma: no cover - Python < 3.8
+        return None
+    try:
+        return version("numba")
+    except PackageNotFoundError:
+        return None
 
 
 def _scratch_root() -> str:

@@ -10,8 +10,9 @@ has to compile when the kernels it ships cannot serve the process that runs it
 What happens instead (:func:`ensure`, called at instantiation by :class:`fmu_src.table_slave.TableSlave`
 when :func:`fmu_src.kernel_cache.attach` says the shipped kernels cannot serve):
 
-1. if this machine already compiled the bundle's kernels (``warm.json`` in the bundle's folder of
-   the user cache names this numba, Python and CPU: :func:`machine_stamp`), nothing;
+1. if this machine already compiled this FMU's kernels (``warm.json`` in the bundle's folder of the
+   user cache names this numba, Python and CPU, :func:`machine_stamp`, with the FMU's model and a
+   digest of its warm-up runs: FMUs of one code share the folder but call other kernels), nothing;
 2. else a child process of the same interpreter (:func:`fmu_src.requirements.interpreter`, the
    host's environment) imports the FMU's own slave from ``resources/`` and replays the runs the
    build warmed the shipped kernels with (``resources/kernel_runs.json``, :data:`RUNS`), which
@@ -60,6 +61,8 @@ WARM = "warm.json"
 #: set to "1" in the environment of a process that is itself the compiling child (the build's warm-up,
 #: :mod:`cosim.fmus.kernels`, which runs on a main thread with numba's generic CPU)
 IN_PROCESS = "RRR_DK_KERNELS_IN_PROCESS"
+#: seconds after which a compiling child is stopped (the DK FMU's kernels take 3 minutes on a busy 2-core machine)
+CHILD_TIMEOUT = 1800.0
 _DONE: set = set()                    # resources folders this process made sure of
 _CHILD = ("import sys; sys.path.insert(0, sys.argv[1]); from fmu_src import kernel_warmup; "
           "raise SystemExit(kernel_warmup.main(sys.argv[1:]))")
@@ -92,11 +95,24 @@ def _stamps(folder: str) -> list:
         return []
 
 
+def _record(resources: str) -> dict:
+    """What ``warm.json`` records for the bundle in ``resources`` on this machine: the machine stamp, the
+    model and a digest of its warm-up runs (FMUs of one code share a key but call other kernels)."""
+    import hashlib
+
+    with open(os.path.join(resources, "slavemodule.txt"), encoding="utf-8") as f:
+        model = f.read().strip()
+    with open(os.path.join(resources, RUNS), "rb") as f:
+        runs = hashlib.sha256(f.read()).hexdigest()[:16]
+    return {**machine_stamp(), "model": model, "runs": runs}
+
+
 def is_warm(resources: str, root: str | None = None) -> bool:
-    """Whether this machine's kernels of the bundle in ``resources`` are in the cache ``root``."""
-    if "numba" not in sys.modules:
+    """Whether this machine compiled the kernels of the FMU in ``resources`` (its model and warm-up runs)
+    into the cache ``root``."""
+    if "numba" not in sys.modules or not os.path.isfile(os.path.join(resources, RUNS)):
         return False
-    return machine_stamp() in _stamps(_key_folder(str(root or cache_root()), resources))
+    return _record(resources) in _stamps(_key_folder(str(root or cache_root()), resources))
 
 
 def _writable_root() -> str:
@@ -116,24 +132,33 @@ def ensure(slave, resources: str, problem: str) -> None:
     """Make sure the kernels of the FMU in ``resources`` are compiled for this process, compiling them
     in a child process if they are not (module docstring); ``problem``: why the shipped ones do not
     serve.  Raises :class:`KernelCompileError`."""
-    if resources in _DONE or "numba" not in sys.modules or os.environ.get(IN_PROCESS) == "1":
+    if resources in _DONE or os.environ.get(IN_PROCESS) == "1":
         return
     # an instance an FMI host made (pythonfmu passes a logger) of an FMU's resources folder; one made in
     # process (tests, the compiling child itself) compiles where it is
     if not getattr(slave, "_fmi_strict", True) or not os.path.isfile(os.path.join(resources, BUNDLE_MARK)):
         return
-    root = _writable_root()
-    folder = _key_folder(root, resources)
-    os.makedirs(folder, exist_ok=True)
-    with open(os.path.join(folder, ".warm.lock"), "a") as lock:
-        if fcntl is not None:
-            fcntl.flock(lock, fcntl.LOCK_EX)
-        if machine_stamp() not in _stamps(folder):
-            try:
+    try:
+        if not os.path.isfile(os.path.join(resources, RUNS)):
+            raise KernelCompileError(f"{type(slave).__name__}: {problem}, and the FMU carries no warm-up runs "
+                                     f"(resources/{RUNS}) to compile them with: rebuild the FMU")
+        import numba  # noqa: F401 - a slave may import its kernels in setup(), after this; no compile here
+
+        root = _writable_root()
+        folder = _key_folder(root, resources)
+        os.makedirs(folder, exist_ok=True)
+        with open(os.path.join(folder, ".warm.lock"), "a") as lock:
+            if fcntl is not None:
+                fcntl.flock(lock, fcntl.LOCK_EX)
+            if _record(resources) not in _stamps(folder):
                 _compile_in_child(slave, resources, root, problem)
-            except KernelCompileError as exc:
-                _fail(slave, str(exc))
-                raise
+    except KernelCompileError as exc:
+        _fail(slave, str(exc))
+        raise
+    except Exception as exc:  # noqa: BLE001 - a cache that cannot be written, a child that cannot be waited for
+        msg = f"{type(slave).__name__}: {problem}; compiling them in a child process failed: {type(exc).__name__}: {exc}"
+        _fail(slave, msg)
+        raise KernelCompileError(msg) from exc
     _DONE.add(resources)
 
 
@@ -154,9 +179,6 @@ def _compile_in_child(slave, resources: str, root: str, problem: str) -> None:
     from .requirements import interpreter
 
     name = type(slave).__name__
-    if not os.path.isfile(os.path.join(resources, RUNS)):
-        raise KernelCompileError(f"{name}: {problem}, and the FMU carries no warm-up runs "
-                                 f"(resources/{RUNS}) to compile them with: rebuild the FMU")
     python = interpreter()
     if not python:
         raise KernelCompileError(f"{name}: {problem}; no Python executable of this interpreter "
@@ -176,15 +198,23 @@ def _compile_in_child(slave, resources: str, root: str, problem: str) -> None:
     out: list = []
     reader = threading.Thread(target=lambda: out.extend(proc.stdout), daemon=True)
     reader.start()
-    for line in proc.stderr:
-        line = line.rstrip()
-        if line.startswith(("compiling ", "compiled ")):
-            _send(slave, resources, f"{name}: {line}")
-        elif line:
-            tail.append(line)
-    status = proc.wait()
+    watchdog = threading.Timer(CHILD_TIMEOUT, proc.kill)   # a hung child must not hold the host for ever
+    watchdog.daemon = True
+    watchdog.start()
+    try:
+        for line in proc.stderr:
+            line = line.rstrip()
+            if line.startswith(("compiling ", "compiled ")):
+                _send(slave, resources, f"{name}: {line}")
+            elif line:
+                tail.append(line)
+        status = proc.wait()
+    finally:
+        watchdog.cancel()
     reader.join()
     seconds = time.perf_counter() - start
+    if seconds >= CHILD_TIMEOUT:
+        tail.append(f"(stopped after {CHILD_TIMEOUT:.0f} s)")
     if status != 0 or not any(o.startswith("WARM ") for o in out):
         text = "\n".join([*tail, *(o.rstrip() for o in out[-10:])])
         raise KernelCompileError(f"{name}: {problem}; compiling them in a child process ({python}) failed "
@@ -298,7 +328,7 @@ def main(argv: list) -> int:
     replay(cls, resources, runs)
     folder = _key_folder(str(cache_root()), resources)
     os.makedirs(folder, exist_ok=True)
-    stamp = machine_stamp()
+    stamp = _record(resources)
     machines = [m for m in _stamps(folder) if m != stamp] + [stamp]
     tmp = os.path.join(folder, f".{WARM}.{os.getpid()}")
     with open(tmp, "w", encoding="utf-8") as f:

@@ -163,13 +163,13 @@ def _runs(path: str) -> bool:
 def interpreter() -> str:
     """The Python executable of this interpreter's environment, as a path that exists ("" if none).
 
-    ``sys.executable`` when it is a file that runs: a Python host, or a C host whose loader started
-    the interpreter under its own name.  A host that embedded Python without naming it (pythonfmu's
+    ``sys.executable`` when it is a python file that runs: a Python host, or a C host whose loader
+    started the interpreter under its own name (a host binary that embedded Python is not one).  A host that embedded Python without naming it (pythonfmu's
     wrappers alone set a program name like ``<cwd>/PythonFMU``, which does not exist) gets the
     ``bin/python3.X`` of the environment the interpreter actually runs (``sys.prefix``, then
     ``sys.base_prefix``), the one whose ``pip`` installs what this process imports.
     """
-    if _runs(sys.executable):
+    if _runs(sys.executable) and os.path.basename(sys.executable).lower().startswith("python"):
         return sys.executable
     version = "%d.%d" % sys.version_info[:2]
     for prefix in dict.fromkeys((sys.prefix, sys.base_prefix, sys.exec_prefix)):

@@ -221,14 +221,21 @@ def _fail(source: str, where: str, value, expected: str):
     raise RobotDescriptionError(f"{source}: {where} = {value!r}: expected {expected}")
 
 
+def _is_number_tree(value) -> bool:
+    """Whether ``value`` is an int or float (not a bool), or a list of such trees."""
+    if isinstance(value, list):
+        return all(_is_number_tree(v) for v in value)
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
 def _numbers(source: str, where: str, value, shape: tuple) -> np.ndarray:
-    """``value`` as a float array of ``shape`` (finite numbers), or the error naming it."""
+    """``value`` as a float array of ``shape`` (finite numbers: no bool, no string), or the error naming it."""
     what = "a number" if shape == () else f"an array of shape {shape} (m)"
-    if isinstance(value, bool) or (shape == () and not isinstance(value, (int, float))):
-        _fail(source, where, value, what)
+    if not _is_number_tree(value):
+        _fail(source, where, value, what + ("" if shape == () else " of numbers"))
     try:
         arr = np.array(value, dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         _fail(source, where, value, what + " of numbers")
     if arr.shape != shape:
         _fail(source, where, value, f"{what}, got shape {arr.shape}")
@@ -291,13 +298,33 @@ def _home(source: str, kind: str, model, home: dict) -> tuple:
     return tuple(float(v) for v in pose), int(posture), tuple(float(v) for v in q)
 
 
+#: the most nodes a map of a description may have (the paper's robot at its default: 5.6 million)
+MAX_MAP_NODES = 2e8
+
+
 def _resolution(source: str, model, table: dict | None) -> tuple:
     if table and "resolution" in table:
         step = _numbers(source, "map.resolution", table["resolution"], (2,))
         if step[0] <= 0 or not 0 < step[1] <= 30:
             _fail(source, "map.resolution", table["resolution"], "[m > 0, deg in (0, 30]]")
+        nodes = (2.0 * _reach(model) / step[0]) ** 2 * 360.0 / step[1]      # the tool space's box, roughly
+        if nodes > MAX_MAP_NODES:
+            _fail(source, "map.resolution", table["resolution"], f"a spacing giving at most {MAX_MAP_NODES:.0e} map "
+                  f"nodes for a reach of {_reach(model):g} m (this one: about {nodes:.1e})")
         return float(step[0]), math.radians(float(step[1]))
     return _reach(model) / MAP_NODES_PER_REACH, math.radians(_DEFAULT_ANGLE_DEG)
+
+
+def _plain(source: str, value, where: str) -> None:
+    """Refuse what a description may not hold: TOML dates and times (the FMUs carry it as JSON)."""
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _plain(source, v, f"{where}.{k}" if where else str(k))
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _plain(source, v, f"{where}[{i}]")
+    elif not isinstance(value, (str, int, float, bool)):
+        _fail(source, where, value, "a number, a string, a boolean, or a list or table of them (no date or time)")
 
 
 def robot_from_dict(data: dict, source: str = "<dict>") -> Robot:
@@ -320,15 +347,20 @@ def robot_from_dict(data: dict, source: str = "<dict>") -> Robot:
     if unknown:
         raise RobotDescriptionError(f"{source}: unknown key {', '.join(unknown)} (expected {', '.join(_TOP)}; "
                                     "docs/robots.md)")
+    _plain(source, data, "")
     name, kind = data["name"], data["kind"]
     if not isinstance(name, str) or not name.strip():
         _fail(source, "name", name, "a non-empty string")
-    if kind not in KINDS:
+    if not isinstance(kind, str) or kind not in KINDS:
         _fail(source, "kind", kind, f"one of {', '.join(KINDS)}")
     geometry = _table(source, data, "geometry", {k: True for k in KINDS[kind]})
-    model = _model(source, kind, geometry, name)
     home = _table(source, data, "home", {"pose": True, "posture": False})
-    pose, posture, joints = _home(source, kind, model, home)
+    try:
+        model = _model(source, kind, geometry, name)
+        pose, posture, joints = _home(source, kind, model, home)
+    except (ArithmeticError, FloatingPointError) as exc:           # e.g. lengths of 1e200 m
+        raise RobotDescriptionError(f"{source}: [geometry] or [home]: numbers out of range for the kinematics "
+                                    f"({type(exc).__name__}: {exc}); expected lengths of a real robot in m") from None
     dynamics = data.get("dynamics")
     if dynamics is not None and not isinstance(dynamics, dict):
         _fail(source, "[dynamics]", dynamics, "a table (the keys of DynamicParameters.to_dict())")

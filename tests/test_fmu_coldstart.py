@@ -27,16 +27,23 @@ NAMES = ("RRRDirectKinematics", "RRRPlant", "ComputedTorqueController")
 #: Prints the kernels numba compiled, the host log's messages and where ``solver`` came from.
 CHILD = textwrap.dedent(r"""
     import json, os, stat, sys
-    from numba.core import event
 
     compiled = []
-    class Compiles(event.Listener):
-        def on_start(self, ev):
-            f = ev.data["dispatcher"].py_func
-            compiled.append(f"{f.__module__}.{f.__qualname__}")
-        def on_end(self, ev):
-            pass
-    event.register("numba:compile", Compiles())
+
+    def listen():                                      # numba's compile events of this (host) process
+        from numba.core import event
+
+        class Compiles(event.Listener):
+            def on_start(self, ev):
+                f = ev.data["dispatcher"].py_func
+                compiled.append(f"{f.__module__}.{f.__qualname__}")
+            def on_end(self, ev):
+                pass
+        event.register("numba:compile", Compiles())
+
+    late = os.environ.get("COLD_LATE_LISTENER") == "1"  # a host that has not imported numba when it instantiates
+    if not late:
+        listen()
 
     import fmpy
     from ctypes import byref
@@ -73,6 +80,8 @@ CHILD = textwrap.dedent(r"""
         except Exception as exc:
             outcome["error"] = str(exc)
             return
+        if late:
+            listen()
         fmu.setupExperiment(startTime=0.0)
         fmu.enterInitializationMode()
         fmu.exitInitializationMode()
@@ -189,6 +198,26 @@ def test_a_forced_compile_runs_in_a_child_process_not_on_a_small_host_stack(fmus
     again, _ = _cold(stripped, tmp_path / "first", {"COLD_STACK": str(512 * 1024)})
     assert again["error"] is None and again["compiled"] == [] and again["outputs"] == shipped["outputs"]
     assert not any("child process" in m for m in again["messages"]), again["messages"]
+
+
+@pytest.mark.parametrize("name", ["RRRPlant", "ComputedTorqueController"])
+def test_a_host_without_numba_imported_still_compiles_in_a_child(fmus, tmp_path, name):
+    """The plant and the controller import their kernels in setup(), after the instantiation decides; a host
+    that has not imported numba (fmpy alone) must still get the child, and each FMU its own (they share a
+    kernel key, not their kernels): nothing compiled in the host, one after the other, same caches."""
+    stripped = {n: _without_kernels(fmus[n], tmp_path / f"{n}.fmu") for n in ("RRRPlant", "ComputedTorqueController")}
+    caches = None
+    for n in ("RRRPlant", "ComputedTorqueController") if name == "ComputedTorqueController" else (name,):
+        work = tmp_path / n
+        work.mkdir()
+        env = {"COLD_LATE_LISTENER": "1"}
+        if caches is not None:                      # the controller after the plant, in the plant's caches
+            env.update(NUMBA_CACHE_DIR=str(caches / "numba"), RRR_DK_CACHE=str(caches / "rrr-dk"))
+        report, made = _cold(stripped[n], work, env)
+        caches = caches or made
+        assert report["error"] is None, report["stderr"][-3000:]
+        assert report["compiled"] == [], (n, report["compiled"])
+        assert any("in a child process" in m for m in report["messages"]), (n, report["messages"])
 
 
 def test_a_failed_child_compile_fails_the_instantiation_with_the_reason(fmus, tmp_path):

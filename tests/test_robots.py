@@ -78,10 +78,16 @@ BAD = [
     ("name", "", "name", "non-empty string"),
     ("home", KeyError, "missing home", "needs name, kind"),
     ("map.resolution", [0.0, 2.0], "map.resolution", "m > 0"),
+    ("map.resolution", [1e-7, 1e-5], "map.resolution", "at most"),
+    ("kind", ["3-RRR"], "kind", "one of 3-RRR"),
+    ("geometry.l1", [True, 0.6, 0.6], "geometry.l1", "numbers"),
+    ("home.pose", ["0.5", "0.3", "0"], "home.pose", "numbers"),
+    ("geometry.l1", [1e200, 1e200, 1e200], "[geometry] or [home]", "real robot"),
+    ("dynamics.mass_platform", __import__("datetime").date(2020, 1, 1), "dynamics.mass_platform", "no date"),
 ]
 
 
-@pytest.mark.parametrize("path, value, field, expected", BAD, ids=[b[2] for b in BAD])
+@pytest.mark.parametrize("path, value, field, expected", BAD, ids=[f"{b[0]}={b[1]!r}" for b in BAD])
 def test_a_bad_description_is_refused_naming_the_file_the_field_and_what_was_expected(path, value, field, expected):
     data = _irregular()
     data.setdefault("map", {})
@@ -326,8 +332,22 @@ def test_the_figures_of_the_example_robot(robot_loop, tmp_path):
     assert len(made) == 6 and {"fig16_circle.png", "fig17_all_branches.png", "fig18_tracked.png"} <= set(made), made
 
 
+def test_the_build_constant_is_python_for_any_name():
+    """BUILD_ROBOT is written into the slaves' source as Python: a name outside the BMP and quotes survive."""
+    from cosim.fmus.robot_build import robot_constant, with_robot_constant
+
+    data = _irregular()
+    data["name"] = 'robot "\\ 😀'
+    constant = robot_constant(robot_from_dict(data), 1, loop=True)
+    text = with_robot_constant("x = 1\nBUILD_ROBOT = None\n", constant, "test")
+    namespace: dict = {}
+    exec(compile(text, "test", "exec"), namespace)
+    assert namespace["BUILD_ROBOT"] == constant and namespace["BUILD_ROBOT"]["name"].encode("utf-8")
+
+
 @pytest.mark.parametrize("key, value, expected", [
     ("mass_platform", -0.5, "mass_platform"), ("inertia_distal", [0.006, 0.0, 0.007], "inertia_distal"),
+    ("mass_platform", True, "mass_platform"), ("gravity", [True, 0.0], "gravity"), ("mass_platform", "1.0", "mass_platform"),
     ("com_platform", [0.0], "com_platform"), ("colour", 1, "colour"), ("gravity", KeyError, "missing gravity")])
 def test_bad_dynamics_are_refused_naming_the_key(key, value, expected):
     from dynamics import DynamicParameters

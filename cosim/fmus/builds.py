@@ -125,7 +125,7 @@ def with_build_constants(text: str, posture: int, mode: str, where, robot: dict 
     pairs = [(r"^BUILD_POSTURE = \d+$", f"BUILD_POSTURE = {int(posture):d}"),
              (r'^BUILD_MODE = "\w+"$', f'BUILD_MODE = "{mode}"')]
     if robot is not None:
-        pairs.append((r"^BUILD_ROBOT = None$", "BUILD_ROBOT = " + json.dumps(robot, sort_keys=True)))
+        pairs.append((r"^BUILD_ROBOT = None$", "BUILD_ROBOT = " + repr(robot)))
     for pattern, value in pairs:
         text, n = re.subn(pattern, lambda _m: value, text, flags=re.MULTILINE)
         if n != 1:

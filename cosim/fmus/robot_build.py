@@ -48,7 +48,7 @@ def robot_constant(robot, posture: int, loop: bool = False) -> dict:
 def with_robot_constant(text: str, robot: dict, where) -> str:
     """The slave script ``text`` with its line ``BUILD_ROBOT = None`` set to ``robot`` (``where`` names
     the script in the error when that line is not there exactly once)."""
-    text, n = re.subn(r"^BUILD_ROBOT = None$", lambda _m: "BUILD_ROBOT = " + json.dumps(robot, sort_keys=True),
+    text, n = re.subn(r"^BUILD_ROBOT = None$", lambda _m: "BUILD_ROBOT = " + repr(robot),
                       text, flags=re.MULTILINE)
     if n != 1:
         raise RuntimeError(f"{where}: expected one line 'BUILD_ROBOT = None', found {n}")
