@@ -343,6 +343,10 @@ def robot_from_dict(data: dict, source: str = "<dict>") -> Robot:
     if missing:
         raise RobotDescriptionError(f"{source}: missing {', '.join(missing)} (a description needs name, kind, "
                                     "[geometry] and [home]; docs/robots.md)")
+    if "tolerance" in data:                 # the key is reserved for the robot as built (geometric tolerances)
+        raise RobotDescriptionError(f"{source}: [tolerance] = {data['tolerance']!r}: geometric tolerances are not "
+                                    "part of the tracker's certificates yet: certain and pose_bound hold for the "
+                                    "nominal geometry only; remove [tolerance] (docs/robots.md)")
     unknown = sorted(set(data) - set(_TOP))
     if unknown:
         raise RobotDescriptionError(f"{source}: unknown key {', '.join(unknown)} (expected {', '.join(_TOP)}; "

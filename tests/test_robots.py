@@ -84,6 +84,7 @@ BAD = [
     ("home.pose", ["0.5", "0.3", "0"], "home.pose", "numbers"),
     ("geometry.l1", [1e200, 1e200, 1e200], "[geometry] or [home]", "real robot"),
     ("dynamics.mass_platform", __import__("datetime").date(2020, 1, 1), "dynamics.mass_platform", "no date"),
+    ("tolerance", {"length": 5e-5}, "[tolerance]", "nominal geometry only"),
 ]
 
 
