@@ -19,6 +19,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from cosim.fmus.builds import build_fmus
+from cosim.fmus.robot_build import loop_robot
 from solver.progress import phase
 from cosim.unit import exit_process
 
@@ -57,7 +58,7 @@ def main(argv=None) -> int:
     ap.add_argument("--no-plots", action="store_true", help="write the CSV only, no PNG plots")
     args = ap.parse_args(argv)
     try:
-        robot = _robot(args.robot)
+        robot = loop_robot(args.robot, "the closed loop (its plant and controller)")
     except ValueError as exc:                     # a bad description: the reason, no traceback, nothing built
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -85,19 +86,6 @@ def main(argv=None) -> int:
           f"({m['realtime_factor']:.1f}x real time" + ("; this run compiled the FMUs' kernels: run it again "
                                                         "for the steady speed)" if compiled else ")"))
     return 0
-
-
-def _robot(path):
-    """The robot description of ``--robot`` (None without it), with the dynamics the loop needs; raises
-    ``ValueError`` (``solver.robot.RobotDescriptionError``) naming the file and the field."""
-    if path is None:
-        return None
-    from dynamics import DynamicParameters
-    from solver.robot import load_robot
-
-    robot = load_robot(path)
-    DynamicParameters.from_robot(robot, "the closed loop (its plant and controller)")
-    return robot
 
 
 if __name__ == "__main__":

@@ -62,13 +62,6 @@ def _vector(name: str, value, shape: tuple[int, ...], *, lower: float | None = N
     return arr
 
 
-def _number_tree(value) -> bool:
-    """Whether ``value`` is an int or float (not a bool), or a list of such trees."""
-    if isinstance(value, list):
-        return all(_number_tree(v) for v in value)
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
 @dataclass(frozen=True, eq=False)
 class DynamicParameters:
     """Inertial, friction and gravity data of a 3-RRR (constant, like the geometry).
@@ -221,7 +214,7 @@ class DynamicParameters:
             No ``[dynamics]`` (``what`` needs it), a key missing or unknown, a value refused (the file,
             the key and the value named).
         """
-        from solver.robot import RobotDescriptionError
+        from solver.robot import RobotDescriptionError, is_number_tree
 
         table = robot.require_dynamics(what)
         names = [f.name for f in fields(cls)]
@@ -230,7 +223,7 @@ class DynamicParameters:
             raise RobotDescriptionError(f"{robot.source}: [dynamics]: missing {', '.join(missing)} (give every key "
                                         f"of DynamicParameters: {', '.join(names)}; docs/robots.md)")
         for name in names:                      # numbers only: no boolean or string read as one
-            if not _number_tree(table[name]):
+            if not is_number_tree(table[name]):
                 raise RobotDescriptionError(f"{robot.source}: [dynamics].{name} = {table[name]!r}: expected a number "
                                             "or a list of numbers (no boolean, no string)")
         try:

@@ -37,8 +37,8 @@ from .kinematics import ik, singularity_measures
 from .manipulator import Manipulator
 from .rpr import RPRManipulator
 
-__all__ = ["Robot", "RobotDescriptionError", "load_robot", "robot_from_dict", "start_pose", "default_circle", "ROBOTS", "KINDS", "SINGULAR_MEASURE",
-           "MAP_NODES_PER_REACH"]
+__all__ = ["Robot", "RobotDescriptionError", "load_robot", "robot_from_dict", "start_pose", "default_circle",
+           "is_number_tree", "ROBOTS", "KINDS", "SINGULAR_MEASURE", "MAP_NODES_PER_REACH"]
 
 #: the folder of the robot descriptions that ship with the repository (the paper's robot, an irregular example)
 ROBOTS = Path(__file__).resolve().parent.parent / "robots"
@@ -221,17 +221,17 @@ def _fail(source: str, where: str, value, expected: str):
     raise RobotDescriptionError(f"{source}: {where} = {value!r}: expected {expected}")
 
 
-def _is_number_tree(value) -> bool:
+def is_number_tree(value) -> bool:
     """Whether ``value`` is an int or float (not a bool), or a list of such trees."""
     if isinstance(value, list):
-        return all(_is_number_tree(v) for v in value)
+        return all(is_number_tree(v) for v in value)
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def _numbers(source: str, where: str, value, shape: tuple) -> np.ndarray:
     """``value`` as a float array of ``shape`` (finite numbers: no bool, no string), or the error naming it."""
     what = "a number" if shape == () else f"an array of shape {shape} (m)"
-    if not _is_number_tree(value):
+    if not is_number_tree(value):
         _fail(source, where, value, what + ("" if shape == () else " of numbers"))
     try:
         arr = np.array(value, dtype=float)

@@ -139,6 +139,17 @@ print("DRIVE " + json.dumps({k: res[k].tolist() for k in ("x", "y", "phi", "cert
 """
 
 
+def _drive(script: str, marker: str, fmu, X, q, posture: int, tmp: Path):
+    """Run the fmpy driver ``script`` on ``fmu`` along poses ``X`` / joints ``q`` in a child; its JSON output."""
+    (tmp / "X.json").write_text(json.dumps(X.tolist()))
+    (tmp / "q.json").write_text(json.dumps(q.tolist()))
+    proc = subprocess.run([sys.executable, "-c", script, str(fmu), str(tmp / "X.json"), str(tmp / "q.json"),
+                           str(posture)], capture_output=True, text=True, timeout=600, cwd=tmp)
+    line = next((x for x in proc.stdout.splitlines() if x.startswith(marker + " ")), None)
+    assert line is not None, proc.stderr[-3000:]
+    return json.loads(line[len(marker) + 1:])
+
+
 @pytest.fixture(scope="module")
 def irregular_fmu(tmp_path_factory):
     out = tmp_path_factory.mktemp("robot-fmu")
@@ -179,13 +190,7 @@ def test_the_dk_fmu_of_a_robot_file_tracks_that_robot(irregular_fmu, tmp_path):
     robot, result, _ = irregular_fmu
     X, q = robot_circle(robot, 3, 300)
     assert q is not None
-    (tmp_path / "X.json").write_text(json.dumps(X.tolist()))
-    (tmp_path / "q.json").write_text(json.dumps(q.tolist()))
-    proc = subprocess.run([sys.executable, "-c", DRIVE, str(result.fmu), str(tmp_path / "X.json"),
-                           str(tmp_path / "q.json"), "3"], capture_output=True, text=True, timeout=600, cwd=tmp_path)
-    line = next((x for x in proc.stdout.splitlines() if x.startswith("DRIVE ")), None)
-    assert line is not None, proc.stderr[-3000:]
-    out = json.loads(line[6:])
+    out = _drive(DRIVE, "DRIVE", result.fmu, X, q, 3, tmp_path)
     got = np.column_stack([out["x"], out["y"], out["phi"]])
     assert got.shape == X.shape
     # fmpy records the initial outputs, then after each doStep those of the input of its start: row k + 1
@@ -405,13 +410,7 @@ def test_the_fmi3_dk_fmu_of_a_robot_file(tmp_path):
     assert [float(x) for x in v["pose0"].start.split()] == list(X0) and robot.digest in md.description
     assert np.allclose([float(x) for x in v["q"].start.split()], ik(robot.model, np.array(X0), 3), atol=1e-12)
     X, q = robot_circle(robot, 3, 200)
-    (tmp_path / "X.json").write_text(json.dumps(X.tolist()))
-    (tmp_path / "q.json").write_text(json.dumps(q.tolist()))
-    proc = subprocess.run([sys.executable, "-c", DRIVE3, str(result.fmu), str(tmp_path / "X.json"),
-                           str(tmp_path / "q.json"), "3"], capture_output=True, text=True, timeout=600, cwd=tmp_path)
-    line = next((x for x in proc.stdout.splitlines() if x.startswith("DRIVE3 ")), None)
-    assert line is not None, proc.stderr[-3000:]
-    assert float(np.max(np.abs(np.array(json.loads(line[7:])) - X[1:]))) <= 1e-9
+    assert float(np.max(np.abs(np.array(_drive(DRIVE3, "DRIVE3", result.fmu, X, q, 3, tmp_path)) - X[1:]))) <= 1e-9
 
 
 @settings(max_examples=3, deadline=None)
@@ -428,13 +427,7 @@ def test_the_dk_fmu_of_a_random_description_validates_and_equals_the_tracker(tmp
     result = builds.build_dk(tmp / "fmu", postures=(posture,), resolution=(robot.resolution[0] * 4, COARSE[1]),
                              robot=robot, log=lambda *a: None)
     assert result.problems == [] and validate_fmu(str(result.fmu)) == []
-    (tmp / "X.json").write_text(json.dumps(X.tolist()))
-    (tmp / "q.json").write_text(json.dumps(q.tolist()))
-    proc = subprocess.run([sys.executable, "-c", DRIVE, str(result.fmu), str(tmp / "X.json"), str(tmp / "q.json"),
-                           str(posture)], capture_output=True, text=True, timeout=600, cwd=tmp)
-    line = next((x for x in proc.stdout.splitlines() if x.startswith("DRIVE ")), None)
-    assert line is not None, proc.stderr[-3000:]
-    out = json.loads(line[6:])
+    out = _drive(DRIVE, "DRIVE", result.fmu, X, q, posture, tmp)
     got = np.column_stack([out["x"], out["y"], out["phi"]])
     with zipfile.ZipFile(result.fmu) as z:
         (tmp / "map.npz").write_bytes(z.read(f"resources/maps/posture{posture}.npz"))

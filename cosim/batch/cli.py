@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from cosim.fmus.builds import build_fmus, parse_resolution
+from cosim.fmus.robot_build import loop_robot
 from cosim.unit import exit_process
 
 from .execution import default_workers, run_batch
@@ -109,17 +110,12 @@ def _plan(args) -> tuple[dict, list[dict]]:
 def _robot(path):
     """The robot description of ``--robot`` (None without it), with the dynamics the loop needs; a bad one
     is a :class:`ConfigError` naming the file and the field."""
-    if path is None:
-        return None
-    from dynamics import DynamicParameters
-    from solver.robot import RobotDescriptionError, load_robot
+    from solver.robot import RobotDescriptionError
 
     try:
-        robot = load_robot(path)
-        DynamicParameters.from_robot(robot, "the batch's closed loop (its plant and controller)")
+        return loop_robot(path, "the batch's closed loop (its plant and controller)")
     except RobotDescriptionError as exc:
         raise ConfigError(str(exc)) from None
-    return robot
 
 
 def _robot_base(robot) -> dict:

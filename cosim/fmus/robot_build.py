@@ -18,7 +18,7 @@ import numpy as np
 from .kernels import Run, Scenario
 
 __all__ = ["robot_constant", "with_robot_constant", "stage_robot", "robot_circle", "robot_slave_scenario",
-           "other_robot", "fmu_robot", "fmu_model"]
+           "other_robot", "fmu_robot", "fmu_model", "loop_robot"]
 
 
 def robot_constant(robot, posture: int, loop: bool = False) -> dict:
@@ -136,3 +136,17 @@ def fmu_model(fmu):
 
     robot = fmu_robot(fmu)
     return robot.model if robot is not None else Manipulator.paper()
+
+
+def loop_robot(path, what: str):
+    """The robot description file ``path`` (None: None, the paper's robot) with the ``[dynamics]`` a closed
+    loop needs (``what`` names the command in the message); raises ``solver.robot.RobotDescriptionError``
+    (a ValueError) naming the file and the field."""
+    if path is None:
+        return None
+    from dynamics import DynamicParameters
+    from solver.robot import load_robot
+
+    robot = load_robot(path)
+    DynamicParameters.from_robot(robot, what)
+    return robot
