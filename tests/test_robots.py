@@ -17,7 +17,7 @@ from fmpy.validation import validate_fmu
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cosim.fmus import builds
+from cosim.fmus import builds, map_report
 from cosim.fmus.robot_build import robot_circle
 from solver import Manipulator, MapTensor, Tracker, default_bounds, ik
 from solver.robot import Robot, RobotDescriptionError, load_robot, robot_from_dict, start_pose
@@ -178,12 +178,14 @@ def test_the_build_reports_the_border_volume_and_warns_when_the_map_is_coarse(ir
     the same robot at its default resolution (the loop's map, cached) stays under the bound."""
     logs = " | ".join(map(str, irregular_fmu[2]))
     share = float(logs.split("map posture 3: border volume ")[1].split(" %")[0])
-    assert share > 100 * builds.COARSE_BORDER and "warning: map posture 3 is coarse for 'irregular-3rrr'" in logs
+    assert share > 100 * map_report.COARSE_BORDER and "warning: map posture 3 is coarse for 'irregular-3rrr'" in logs
+    cells = int(logs.split("map posture 3: border volume ")[1].split("; ")[1].split(" cusp cells")[0])
+    assert cells > 0 and f"holds cusps of the singular surface (posture 3: {cells} cells" in logs
     from solver import cached_map
 
     robot = load_robot(IRREGULAR)
     fine = cached_map(robot.model, 1, step=(robot.resolution[0],) * 2 + (robot.resolution[1],))
-    assert fine.border_fraction() < builds.COARSE_BORDER
+    assert fine.border_fraction() < map_report.COARSE_BORDER
 
 
 def test_the_dk_fmu_of_a_robot_file_tracks_that_robot(irregular_fmu, tmp_path):

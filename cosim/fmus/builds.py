@@ -42,6 +42,7 @@ from solver import progress as _progress
 from solver import DEFAULT_RULE, DEFAULT_STEP, ORDERING_RULES, Manipulator, MapTensor, cached_map, map_path
 
 from .checks import validate
+from .map_report import report_maps
 from .kernels import Run, Scenario, warm_up
 from .robot_build import other_robot, robot_circle, robot_constant, robot_slave_scenario, stage_robot, with_robot_constant
 from .sources import LOADER_SOURCE, SLAVE_DIR, slave_readme, slave_script
@@ -224,7 +225,7 @@ def build_dk(out_dir="build", postures=(1,), resolution=None, map_files=(), mode
     t_map = time.perf_counter()
     postures, maps = _dk_maps(model, postures, resolution, map_files, rule, cache_dir, progress, log)
     map_seconds = time.perf_counter() - t_map
-    _report_maps(maps, log)
+    report_maps(maps, log)
     with tempfile.TemporaryDirectory(prefix="build_fmu_") as tmp:
         tmp = Path(tmp)
         script = _stage_script(tmp, postures[0], mode, robot)
@@ -234,25 +235,6 @@ def build_dk(out_dir="build", postures=(1,), resolution=None, map_files=(), mode
                         documentation_dir=_stage_documentation(tmp), check=check, kernels=scenario)
     problems = validate(fmu) if check else []
     return BuildResult(fmu, maps, postures[0], mode, time.perf_counter() - t0, map_seconds, problems)
-
-
-#: The border volume (share of a map's reachable nodes near a label border, where procedure 2 finds more
-#: than one label) above which a build warns that its map is too coarse for the robot: the paper's robot
-#: at 10 mm / 2 deg has 29 % (posture 1), at 40 mm / 6 deg 76 %.
-COARSE_BORDER = 0.5
-
-
-def _report_maps(maps: dict, log) -> None:
-    """Say each embedded map's border volume, and warn when it is above :data:`COARSE_BORDER`."""
-    for posture in sorted(maps):
-        mt = MapTensor.load(maps[posture])
-        share = mt.border_fraction()
-        log(f"map posture {posture}: border volume {100 * share:.0f} % of the reachable nodes "
-            f"({mt.model.name}; the paper's robot at 10 mm / 2 deg: 29 %)")
-        if share > COARSE_BORDER:
-            log(f"warning: map posture {posture} is coarse for {mt.model.name!r}: {100 * share:.0f} % of its reachable "
-                f"nodes lie near a label border (more than {100 * COARSE_BORDER:.0f} %); the tracker works harder "
-                "near borders: a finer --resolution makes its regions wider than its cells")
 
 
 # ---------------------------------------------------------------------- the plant and the controller
