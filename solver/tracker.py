@@ -138,12 +138,14 @@ from ._kernels import layout as _lay
 from ._kernels.anytime import ANY_CUT, ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON, ANY_SIZE, walk_floats
 from ._kernels.clock import cycles_per_second
 from ._kernels.tracker import tracker_step
-from .checks import as_array
+from .checks import SolverInputError, as_array
 from .grid import default_bounds
 from .manipulator import Manipulator
 from .maptensor import MapTensor
 from .ordering import rule_code
+from .as_built import hull, inside, step_box, step_width
 from .encoder_grid import encoder_bits, encoder_note, grid_tolerance
+from .geometry_tolerance import geometry_tolerance as _geometry_tolerance
 from .start import START_TOLERANCE, StartInfo, honest_start, start_tolerance_for
 from .tracker_state import TrackerError
 from .tracking import _TrackerBase
@@ -245,8 +247,12 @@ class Tracker(_TrackerBase):
                  segment_singular: float = 0.05, posture_certificate: bool = True, max_tests: int = MAX_TESTS,
                  joint_tolerance: float = 0.0, gate: float = GATE, speed_bound=None,
                  reacquire_boxes: int = REACQUIRE_BOXES, stuck_after: int = 0, start_tolerance=None,
-                 step_budget: float | None = None):
+                 step_budget: float | None = None, geometry_tolerance=0.0):
         super().__init__(model)
+        try:
+            self.geometry_tolerance = _geometry_tolerance(model, geometry_tolerance)
+        except SolverInputError as exc:
+            raise TrackerError(str(exc)) from None
         if step_budget is not None and not (isinstance(step_budget, (int, float, np.floating, np.integer))
                                             and not isinstance(step_budget, bool) and np.isfinite(step_budget)
                                             and step_budget > 0):
@@ -292,6 +298,9 @@ class Tracker(_TrackerBase):
         self.stuck_after = int(stuck_after)
         bounds = _tool_space(model if model.kind == "3-RRR" else
                              replace(model, rho_max=model.rho_max + float(joint_tolerance)))
+        self._tool_space = np.asarray(bounds, float)
+        self._reach = float(np.max(model.l1 + model.l2)) if model.kind == "3-RRR" else float(model.rho_max)
+        self._dt = None
         self.map = map_tensor
         self.mode = mode
         self.posture = map_tensor.posture
@@ -335,8 +344,17 @@ class Tracker(_TrackerBase):
         super().reset(X0, q0)
         st = self.state
         note = self._encoder_tolerance(st.q)
-        start = honest_start(self._model_pack, self.model, st.X, st.q, self.start_tolerance, self.joint_tolerance,
+        eps = 0.0
+        if not self.geometry_tolerance.zero:          # the robot as built, anywhere in the start region
+            eps = step_width(self.model, self.geometry_tolerance, (st.X - self.start_tolerance, st.X + self.start_tolerance),
+                             st.q, st.q, self.joint_tolerance)
+        start = honest_start(self._model_pack, self.model, st.X, st.q, self.start_tolerance,
+                             self.joint_tolerance + (eps if np.isfinite(eps) else 0.0),
                              self._w, int(self._params[_lay.PARAM_REACQUIRE]) or REACQUIRE_BOXES)
+        if not np.isfinite(eps) and start.certain:
+            start = start._replace(certain=False, pose_bound=np.full(3, np.inf), tube=None,
+                                   reason="an elbow may be straight within the start region: no joint width "
+                                          "covers the geometry tolerance there (a serial singularity)")
         start = start._replace(note=note)
         self.start = start
         self._watch = GRID_WATCH if self.joint_tolerance == 0.0 and self.model.kind == "3-RRR" else 0
@@ -372,7 +390,41 @@ class Tracker(_TrackerBase):
         if self._encoder_tolerance(q, f"the reading of step {self.state.steps + 1}", stacklevel=4):
             self._watch = 0
 
+    def step(self, q, dt: float | None = None):
+        self._dt = dt
+        return super().step(q, dt)
+
+    step.__doc__ = _TrackerBase.step.__doc__
+
     def _kernel(self, q, state_pack, deadline):
+        if self.geometry_tolerance.zero:
+            return self._run(q, state_pack, deadline)
+        st = self.state                                # the robot as built (solver.as_built)
+        box = step_box(st, q, self._reach, self.speed_bound, self._dt, self._tool_space)
+        eps = step_width(self.model, self.geometry_tolerance, box, st.q, q, self.joint_tolerance)
+        saved = self._anytime.copy()
+        for attempt in range(2):
+            self._params[_lay.PARAM_JOINT_TOL] = self.joint_tolerance + (eps if np.isfinite(eps) else 0.0)
+            self._run(q, state_pack, deadline)
+            of, oi = self._out_real, self._out_int
+            if not oi[_lay.I_CERTAIN]:
+                break
+            X, bound = of[_lay.OUT_X:_lay.OUT_X + 3], of[_lay.OUT_BOUND:_lay.OUT_BOUND + 3]
+            if np.isfinite(eps) and inside(box, X, bound):
+                break
+            if attempt == 0 and np.isfinite(eps):     # the pose left the box: once more over the hull
+                box = hull(box, X, bound)
+                wider = step_width(self.model, self.geometry_tolerance, box, st.q, q, self.joint_tolerance)
+                if np.isfinite(wider):
+                    eps = max(eps, wider)
+                    self._anytime[:] = saved
+                    continue
+            oi[_lay.I_CERTAIN] = oi[_lay.I_INTACT] = 0   # no width covers the robot as built: not vouched for
+            oi[_lay.I_TRUST] = min(int(oi[_lay.I_TRUST]), _lay.TRUST_POSSIBLE)
+            break
+        self._params[_lay.PARAM_JOINT_TOL] = self.joint_tolerance
+
+    def _run(self, q, state_pack, deadline):
         anytime, walk = self._anytime, self.state.walk
         if walk is None:
             anytime[ANY_N] = anytime[ANY_K_ON] = anytime[ANY_R_ON] = 0.0

@@ -1,0 +1,84 @@
+"""One tracker step for the robot as built: the joint width of the step's pose box, and its check.
+
+:mod:`solver.geometry_tolerance` turns the robot's geometric tolerance into a joint half-width over a
+box of poses and joints. A step of :class:`solver.Tracker` with a non-zero ``geometry_tolerance``
+(:func:`step_width`) runs its certificates with ``joint_tolerance + eps``, ``eps`` that width over
+
+* the step's pose box: the last pose widened by its proven bound and an allowance for the motion of
+  one step (twice the last step's motion, at least a two-hundredth of the robot's reach and 0.02 rad);
+  after an uncertain step with a speed bound, the region the platform can have reached since the last
+  certain step (the one re-acquisition searches), with half as much again; after an uncertain step
+  without one, the whole tool space;
+* the joints between the last reading and this one, widened by ``joint_tolerance``.
+
+After the step (:func:`inside`): a certain step's pose box (its pose +- ``pose_bound``) must lie in
+the box the width was computed over; else the step runs once more with the width of the hull of both,
+and a step that still leaves it, or whose width is infinite (an elbow may be straight in the box),
+is not vouched for. The tube between two samples is taken to stay in the hull of their boxes (its
+ends are proved there; a step's joint motion is small against the box's allowance).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .geometry_tolerance import GeometryTolerance, joint_equivalent
+
+__all__ = ["step_box", "step_width", "inside", "hull"]
+
+#: The least motion allowance of a step's pose box: a fraction of the robot's reach (m) and an angle (rad).
+MOTION_FLOOR = (5e-3, 0.02)
+
+
+def step_box(state, q, reach: float, speed_bound, dt, tool_space) -> tuple[np.ndarray, np.ndarray]:
+    """The pose box (lo, hi), each (3,) m, m, rad, a step from ``state`` to joints ``q`` is checked over."""
+    X = state.X
+    bound = np.asarray(state.anchor_bound, float)
+    certain_before = state.uncertain_since < 0
+    if certain_before and np.all(np.isfinite(bound)):
+        motion = np.abs(X - state.X2) if state.X2 is not None else np.zeros(3)
+        motion[2] = abs(math.remainder(motion[2], 2 * math.pi)) if state.X2 is not None else 0.0
+        allow = bound + 2.0 * motion + np.array([MOTION_FLOOR[0] * reach, MOTION_FLOOR[0] * reach, MOTION_FLOOR[1]])
+        return X - allow, X + allow
+    if speed_bound is not None and state.anchor is not None and np.all(np.isfinite(bound)):
+        age = state.anchor_age + state.skipped_time + (dt if dt is not None else math.nan)
+        if math.isfinite(age):
+            v, w = speed_bound
+            allow = 1.5 * (bound + np.array([v * age, v * age, w * age]))
+            return state.anchor - allow, state.anchor + allow
+    return tool_space[:, 0].copy(), tool_space[:, 1].copy()
+
+
+def step_width(model, tolerance: GeometryTolerance, box, q_prev, q, joint_tolerance: float) -> float:
+    """The joint half-width (rad or m) of the robot as built over the pose ``box`` (lo, hi) and the joints
+    between ``q_prev`` and ``q`` (3,) widened by ``joint_tolerance``; ``inf`` when none covers it."""
+    lo, hi = box
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+        return math.inf
+    q_lo = np.minimum(q_prev, q) - joint_tolerance
+    q_hi = np.maximum(q_prev, q) + joint_tolerance
+    if hi[2] - lo[2] >= 2 * math.pi:
+        lo, hi = lo.copy(), hi.copy()
+        lo[2], hi[2] = -math.pi, math.pi
+    return joint_equivalent(model, tolerance, lo, hi, q_lo, q_hi)
+
+
+def inside(box, X, bound) -> bool:
+    """The pose box ``X +- bound`` (3,) lies in ``box`` (lo, hi); phi compared about the box's centre."""
+    lo, hi = box
+    c = 0.5 * (lo + hi)
+    d = np.asarray(X, float) - c
+    d[2] = math.remainder(d[2], 2 * math.pi)
+    half = 0.5 * (hi - lo)
+    return bool(np.all(np.abs(d) + np.asarray(bound, float) <= half)) or bool(half[2] >= math.pi and
+                                                                             np.all(np.abs(d[:2]) + bound[:2] <= half[:2]))
+
+
+def hull(box, X, bound) -> tuple[np.ndarray, np.ndarray]:
+    """The smallest box holding ``box`` (lo, hi) and ``X +- bound`` (phi unwrapped about the box)."""
+    lo, hi = box
+    c = 0.5 * (lo + hi)
+    Xu = np.asarray(X, float).copy()
+    Xu[2] = c[2] + math.remainder(Xu[2] - c[2], 2 * math.pi)
+    return np.minimum(lo, Xu - bound), np.maximum(hi, Xu + bound)

@@ -1,0 +1,195 @@
+"""The robot as built: geometric tolerances turned into the joint tolerance the certificates carry.
+
+No built robot has its model's exact lengths. After calibration a 0.6 m link is known to a few
+hundredths of a millimetre, before it to about half a millimetre. :class:`GeometryTolerance` holds the
+half-widths (m) of the geometry's lengths and coordinates; the tracker's option ``geometry_tolerance``
+makes ``certain`` and ``pose_bound`` hold for every robot inside them, not for the model alone.
+
+The reduction (exact, leg by leg; no linearisation)
+---------------------------------------------------
+Both manipulators are fully parallel: leg ``i`` is one circle constraint of its own joint ``q_i``.
+Take a robot as built, geometry ``g'`` within the tolerance of the model's ``g``, at pose ``X'`` with
+joints ``q`` (its encoders read them within ``joint_tolerance``). Is ``X'`` the *model's* pose for
+joints near ``q``?
+
+* 3-RRR: let ``B_i`` be the model's platform joint at ``X'`` and ``h(t) = |B_i - M_i - l1_i u(t)| -
+  l2_i`` (``u(t) = (cos t, sin t)``): the model's leg closes at ``X'`` where ``h = 0``. The built leg
+  closes at ``q_i``: ``|B'_i - M'_i - l1'_i u(q_i)| = l2'_i``, so by the triangle inequality
+  ``|h(q_i)| <= |dB_i| + |dM_i| + |dl1_i| + |dl2_i| <= e_i``, the leg's *offset bound*
+  (``sqrt(2)`` times the coordinate half-widths of ``M_i`` and ``b_i``, plus the two lengths').
+  ``|h'(t)| = l1_i |sin alpha_i(t)|``, ``alpha_i`` the elbow angle (between the crank and the rod).
+  Where it stays above ``m_i > 0`` on ``[q_i - e_i/m_i, q_i + e_i/m_i]``, ``h`` has a root there (the
+  intermediate value theorem) on the same elbow (``h'`` keeps its sign): the model reaches ``X'`` with
+  joint ``i`` within ``eps_i = e_i / m_i`` of the built robot's, in the same posture.
+* 3-RPR: ``h(t) = |B_i - A_i| - t`` has ``|h'| = 1``: ``eps_i = e_i``, everywhere.
+
+So every pose of a built robot whose readings lie within ``joint_tolerance`` of its joints is a pose of
+the model whose joints lie within ``joint_tolerance + max(eps)`` of the readings: the certificates,
+proofs over all joint paths in that box, hold for the built robot when the tracker runs them with the
+wider tolerance (:func:`joint_equivalent`). ``m_i`` is bounded from below over a box of poses and
+joints (:func:`elbow_margin`): ``|sin alpha| >= |sin alpha_c| - |alpha - alpha_c|``, the crank turning
+by at most the joint half-width and the rod ``v = B - A`` by at most ``asin(dv / |v_c|)`` with ``dv``
+the box's reach of ``B`` plus ``l1`` times the joint half-width. Near a serial singularity (the
+elbow straight) ``m_i`` vanishes and no width is enough: the step is not vouched for.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from ._kernels import geometry_width as _gw
+from .checks import SolverInputError
+
+__all__ = ["GeometryTolerance", "TOLERANCE_KEYS", "geometry_tolerance", "elbow_margin", "joint_equivalent"]
+
+#: Per-field keys of a tolerance (m): the geometry's fields by kind, besides ``length`` (all of them).
+TOLERANCE_KEYS = {"3-RRR": ("motors", "l1", "l2", "platform"), "3-RPR": ("base", "platform")}
+
+_SQRT2 = math.sqrt(2.0)
+
+
+@dataclass(frozen=True)
+class GeometryTolerance:
+    """Half-widths (m) of a model's geometric fields: the robot as built lies within them.
+
+    Attributes
+    ----------
+    kind : str
+        "3-RRR" or "3-RPR".
+    widths : dict
+        Field -> half-width, m (:data:`TOLERANCE_KEYS`): every coordinate of ``motors`` / ``base`` and
+        ``platform``, every entry of ``l1`` and ``l2``.
+    """
+
+    kind: str
+    widths: Mapping[str, float]
+
+    @property
+    def zero(self) -> bool:
+        """No tolerance: the model is the robot (the certificates as they have always been)."""
+        return all(w == 0.0 for w in self.widths.values())
+
+    def offset_bound(self) -> np.ndarray:
+        """The legs' offset bounds ``e_i`` (3,), m: how far a built leg's closure can be from the model's
+        at the same pose and joint (see the module docstring)."""
+        w = self.widths
+        if self.kind == "3-RPR":
+            return np.full(3, _SQRT2 * (w["base"] + w["platform"]))
+        return np.full(3, _SQRT2 * (w["motors"] + w["platform"]) + w["l1"] + w["l2"])
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, **{k: float(v) for k, v in self.widths.items()}}
+
+
+def _shortest(model) -> float:
+    """The shortest link (m) the tolerance is measured against: min(l1, l2) of a 3-RRR, the platform's
+    smallest radius of a 3-RPR (its legs have no fixed length)."""
+    if model.kind == "3-RPR":
+        return float(np.min(model.platform_radius))
+    return float(min(np.min(model.l1), np.min(model.l2)))
+
+
+def _width(name: str, value, limit: float) -> float:
+    ok = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    if not ok or not math.isfinite(float(value)) or float(value) < 0.0:
+        raise SolverInputError(f"{name}: expected a half-width in m, a finite number >= 0, got {value!r}")
+    if float(value) > limit:
+        raise SolverInputError(f"{name}: expected at most a tenth of the shortest link, {limit:.6g} m, "
+                               f"got {float(value)!r} m")
+    return float(value)
+
+
+def geometry_tolerance(model, value, name: str = "geometry_tolerance") -> GeometryTolerance:
+    """Check ``value`` into a :class:`GeometryTolerance` of ``model``.
+
+    Parameters
+    ----------
+    model : Manipulator or RPRManipulator
+    value : float, mapping or GeometryTolerance
+        A half-width (m) of every length and coordinate, or a mapping ``{"length": m, <field>: m}``
+        (fields: :data:`TOLERANCE_KEYS`; ``length`` the default of the fields not given; 0 when absent).
+    name : str
+        What to call ``value`` in an error.
+
+    Raises
+    ------
+    SolverInputError
+        A negative, non-finite or non-number half-width, one above a tenth of the shortest link, an
+        unknown field (each named).
+    """
+    keys = TOLERANCE_KEYS[model.kind]
+    limit = 0.1 * _shortest(model)
+    if isinstance(value, GeometryTolerance):
+        if value.kind != model.kind:
+            raise SolverInputError(f"{name}: a tolerance of a {value.kind}, not of a {model.kind}")
+        value = dict(value.widths)
+    if isinstance(value, Mapping):
+        unknown = sorted(set(value) - set(keys) - {"length"})
+        if unknown:
+            raise SolverInputError(f"{name}: unknown field(s) {unknown}; expected 'length' and any of {list(keys)} (m)")
+        default = _width(f"{name}.length", value.get("length", 0.0), limit)
+        widths = {k: _width(f"{name}.{k}", value[k], limit) if k in value else default for k in keys}
+    else:
+        w = _width(name, value, limit)
+        widths = {k: w for k in keys}
+    return GeometryTolerance(model.kind, widths)
+
+
+def elbow_margin(model, X_lo, X_hi, q_lo, q_hi) -> np.ndarray:
+    """A lower bound of ``l1_i |sin alpha_i|`` (m) over a box of poses and joints (3-RRR).
+
+    Parameters
+    ----------
+    model : Manipulator
+    X_lo, X_hi : array_like, shape (3,)
+        The pose box, m, m, rad.
+    q_lo, q_hi : array_like, shape (3,)
+        The joint box, rad.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        Per leg, m; 0 where the box may hold a straight elbow (a serial singularity).
+    """
+    out = np.empty(3)
+    _gw.elbow_margins(model.motors, model.l1, model.platform, model.platform_radius, *_boxes(X_lo, X_hi, q_lo, q_hi),
+                      out)
+    return out
+
+
+def _boxes(*arrays):
+    return [np.ascontiguousarray(a, dtype=float).reshape(3) for a in arrays]
+
+
+def joint_equivalent(model, tolerance: GeometryTolerance, X_lo, X_hi, q_lo, q_hi, iterations: int = 6) -> float:
+    """The joint half-width (rad for the 3-RRR, m for the 3-RPR) that covers the robot as built over a box.
+
+    Every built robot within ``tolerance`` whose pose lies in ``[X_lo, X_hi]`` and joints in ``[q_lo,
+    q_hi]`` is at a pose of the model with joints within the returned width of its own (module
+    docstring). The 3-RRR's width is the fixed point of ``eps = e / m(q box widened by eps)``
+    (:mod:`solver._kernels.geometry_width`).
+
+    Parameters
+    ----------
+    model : Manipulator or RPRManipulator
+    tolerance : GeometryTolerance
+    X_lo, X_hi : array_like, shape (3,)
+        m, m, rad.
+    q_lo, q_hi : array_like, shape (3,)
+        rad (3-RRR) or m (3-RPR).
+
+    Returns
+    -------
+    float
+        ``max_i eps_i``; 0.0 for a zero tolerance; ``inf`` where an elbow may be straight in the box.
+    """
+    if tolerance.zero:
+        return 0.0
+    e = tolerance.offset_bound()
+    if model.kind == "3-RPR":
+        return float(np.max(e))
+    return float(_gw.joint_width(model.motors, model.l1, model.platform, model.platform_radius, e,
+                                 *_boxes(X_lo, X_hi, q_lo, q_hi), int(iterations)))
