@@ -85,10 +85,11 @@ class GeometryTolerance:
 
 
 def _shortest(model) -> float:
-    """The shortest link (m) the tolerance is measured against: min(l1, l2) of a 3-RRR, the platform's
-    smallest radius of a 3-RPR (its legs have no fixed length)."""
+    """The shortest link (m) the tolerance is measured against: min(l1, l2) of a 3-RRR, the shortest side
+    of the base and platform triangles of a 3-RPR (its legs have no fixed length)."""
     if model.kind == "3-RPR":
-        return float(np.min(model.platform_radius))
+        sides = [np.linalg.norm(p - np.roll(p, 1, axis=0), axis=1) for p in (model.base, model.platform)]
+        return float(np.min(np.concatenate(sides)))
     return float(min(np.min(model.l1), np.min(model.l2)))
 
 

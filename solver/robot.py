@@ -15,6 +15,7 @@ irregular example)::
     posture = 1
     [dynamics]                     # optional (the plant and the controller need it)
     [map]                          # optional: resolution = [m, deg]
+    [tolerance]                    # optional: the robot as built, length = half-width in m (+ per field)
 
 :func:`load_robot` reads a file, :func:`robot_from_dict` a dict; both check everything before any
 work and raise :class:`RobotDescriptionError` (a ``ValueError``) naming the source, the field, its
@@ -32,7 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .checks import GeometryError
+from .checks import GeometryError, SolverInputError
+from .geometry_tolerance import GeometryTolerance, TOLERANCE_KEYS, geometry_tolerance
 from .kinematics import ik, singularity_measures
 from .manipulator import Manipulator
 from .rpr import RPRManipulator
@@ -45,7 +47,8 @@ ROBOTS = Path(__file__).resolve().parent.parent / "robots"
 #: the kinds of robot a description may name, and the keys of their ``[geometry]``
 KINDS = {"3-RRR": ("motors", "l1", "l2", "platform"), "3-RPR": ("base", "platform", "rho_min", "rho_max")}
 _SHAPES = {"motors": (3, 2), "platform": (3, 2), "base": (3, 2), "l1": (3,), "l2": (3,), "rho_min": (), "rho_max": ()}
-_TOP = {"name": True, "kind": True, "geometry": True, "home": True, "dynamics": False, "map": False}
+_TOP = {"name": True, "kind": True, "geometry": True, "home": True, "dynamics": False, "map": False,
+        "tolerance": False}
 #: below this normalised singularity measure (0 singular, 1 far) a home pose is refused as singular
 SINGULAR_MEASURE = 1e-3
 #: the default map spacing: the longest leg reach over this many nodes (the paper's 1.2 m: 10 mm)
@@ -82,6 +85,9 @@ class Robot:
         The file it came from, or ``"<dict>"``.
     description : dict
         The description as read (JSON-ready), what the FMUs carry.
+    tolerance : GeometryTolerance
+        The robot as built: ``[tolerance]``'s half-widths (m), zero when the description has none; what
+        a tracker of this robot takes as ``geometry_tolerance`` (:mod:`solver.geometry_tolerance`).
     """
 
     name: str
@@ -94,6 +100,7 @@ class Robot:
     resolution: tuple
     source: str
     description: dict = field(repr=False)
+    tolerance: GeometryTolerance = field(default=None, repr=False)
 
     @property
     def reach(self) -> float:
@@ -260,6 +267,19 @@ def _table(source: str, data: dict, key: str, required: dict) -> dict:
     return table
 
 
+def _tolerance(source: str, model, table) -> GeometryTolerance:
+    """``[tolerance]``: ``length`` (m, every length and coordinate) and per-field half-widths."""
+    keys = {"length": False, **{k: False for k in TOLERANCE_KEYS[model.kind]}}
+    table = _table(source, {"tolerance": table}, "tolerance", keys)
+    if not table:
+        _fail(source, "[tolerance]", table, f"length = <m> and/or per-field half-widths ({', '.join(keys)})")
+    try:
+        return geometry_tolerance(model, table, name="tolerance")
+    except SolverInputError as exc:
+        msg = str(exc).removeprefix("tolerance.").removeprefix("tolerance")
+        raise RobotDescriptionError(f"{source}: [tolerance] {msg.lstrip(': ')} (docs/robots.md)") from None
+
+
 def _model(source: str, kind: str, geometry: dict, name: str):
     values = {}
     for key in KINDS[kind]:
@@ -343,10 +363,6 @@ def robot_from_dict(data: dict, source: str = "<dict>") -> Robot:
     if missing:
         raise RobotDescriptionError(f"{source}: missing {', '.join(missing)} (a description needs name, kind, "
                                     "[geometry] and [home]; docs/robots.md)")
-    if "tolerance" in data:                 # the key is reserved for the robot as built (geometric tolerances)
-        raise RobotDescriptionError(f"{source}: [tolerance] = {data['tolerance']!r}: geometric tolerances are not "
-                                    "part of the tracker's certificates yet: certain and pose_bound hold for the "
-                                    "nominal geometry only; remove [tolerance] (docs/robots.md)")
     unknown = sorted(set(data) - set(_TOP))
     if unknown:
         raise RobotDescriptionError(f"{source}: unknown key {', '.join(unknown)} (expected {', '.join(_TOP)}; "
@@ -371,7 +387,8 @@ def robot_from_dict(data: dict, source: str = "<dict>") -> Robot:
     if dynamics is not None and kind != "3-RRR":
         _fail(source, "[dynamics]", "...", "no [dynamics] for a 3-RPR (its dynamics are not modelled)")
     table = _table(source, data, "map", {"resolution": False}) if "map" in data else None
+    tolerance = _tolerance(source, model, data["tolerance"]) if "tolerance" in data else geometry_tolerance(model, 0.0)
     description = json.loads(json.dumps(data))            # JSON-ready (TOML dates are not allowed above)
     return Robot(name=name, kind=kind, model=model, home_pose=pose, home_posture=posture, home_joints=joints,
                  dynamics=dict(dynamics) if dynamics is not None else None, resolution=_resolution(source, model, table),
-                 source=source, description=description)
+                 source=source, description=description, tolerance=tolerance)

@@ -85,7 +85,11 @@ BAD = [
     ("home.pose", ["0.5", "0.3", "0"], "home.pose", "numbers"),
     ("geometry.l1", [1e200, 1e200, 1e200], "[geometry] or [home]", "real robot"),
     ("dynamics.mass_platform", __import__("datetime").date(2020, 1, 1), "dynamics.mass_platform", "no date"),
-    ("tolerance", {"length": 5e-5}, "[tolerance]", "nominal geometry only"),
+    ("tolerance", {"length": -5e-5}, "[tolerance] length", "a finite number >= 0"),
+    ("tolerance", {"length": float("nan")}, "[tolerance] length", "a finite number >= 0"),
+    ("tolerance", {"l1": 0.2}, "[tolerance] l1", "at most a tenth of the shortest link"),
+    ("tolerance", {"lenght": 5e-5}, "[tolerance]: unknown key lenght", "expected length"),
+    ("tolerance", 5e-5, "[tolerance]", "a table"),
 ]
 
 
