@@ -23,9 +23,10 @@ import math
 
 import numpy as np
 
+from ._kernels import layout as _lay
 from .geometry_tolerance import GeometryTolerance, joint_equivalent
 
-__all__ = ["step_box", "step_width", "inside", "hull"]
+__all__ = ["as_built_step", "step_box", "step_width", "inside", "hull"]
 
 #: The least motion allowance of a step's pose box: a fraction of the robot's reach (m) and an angle (rad).
 MOTION_FLOOR = (5e-3, 0.02)
@@ -82,3 +83,33 @@ def hull(box, X, bound) -> tuple[np.ndarray, np.ndarray]:
     Xu = np.asarray(X, float).copy()
     Xu[2] = c[2] + math.remainder(Xu[2] - c[2], 2 * math.pi)
     return np.minimum(lo, Xu - bound), np.maximum(hi, Xu + bound)
+
+
+def as_built_step(tracker, q, state_pack, deadline) -> None:
+    """Run ``tracker``'s compiled step to joints ``q`` (3,) for the robot as built (module docstring):
+    its certificates with ``joint_tolerance`` plus the step's joint width; its result packs as the plain
+    step leaves them, with ``certain`` withdrawn where no width covers the step's poses."""
+    st, model, tol = tracker.state, tracker.model, tracker.geometry_tolerance
+    box = step_box(st, q, tracker._reach, tracker.speed_bound, tracker._dt, tracker._tool_space)
+    eps = step_width(model, tol, box, st.q, q, tracker.joint_tolerance)
+    saved = tracker._anytime.copy()
+    params, of, oi = tracker._params, tracker._out_real, tracker._out_int
+    for attempt in range(2):
+        params[_lay.PARAM_JOINT_TOL] = tracker.joint_tolerance + (eps if math.isfinite(eps) else 0.0)
+        tracker._run(q, state_pack, deadline)
+        if not oi[_lay.I_CERTAIN]:
+            break
+        X, bound = of[_lay.OUT_X:_lay.OUT_X + 3], of[_lay.OUT_BOUND:_lay.OUT_BOUND + 3]
+        if math.isfinite(eps) and inside(box, X, bound):
+            break
+        if attempt == 0 and math.isfinite(eps):          # the pose left the box: once more over the hull
+            box = hull(box, X, bound)
+            wider = step_width(model, tol, box, st.q, q, tracker.joint_tolerance)
+            if math.isfinite(wider):
+                eps = max(eps, wider)
+                tracker._anytime[:] = saved
+                continue
+        oi[_lay.I_CERTAIN] = oi[_lay.I_INTACT] = 0       # no width covers the robot as built: not vouched for
+        oi[_lay.I_TRUST] = min(int(oi[_lay.I_TRUST]), _lay.TRUST_POSSIBLE)
+        break
+    params[_lay.PARAM_JOINT_TOL] = tracker.joint_tolerance

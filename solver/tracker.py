@@ -154,7 +154,7 @@ from .grid import default_bounds
 from .manipulator import Manipulator
 from .maptensor import MapTensor
 from .ordering import rule_code
-from .as_built import hull, inside, step_box, step_width
+from .as_built import as_built_step, step_width
 from .encoder_grid import encoder_bits, encoder_note, grid_tolerance
 from .geometry_tolerance import geometry_tolerance as _geometry_tolerance
 from .start import START_TOLERANCE, StartInfo, honest_start, start_tolerance_for
@@ -410,30 +410,7 @@ class Tracker(_TrackerBase):
     def _kernel(self, q, state_pack, deadline):
         if self.geometry_tolerance.zero:
             return self._run(q, state_pack, deadline)
-        st = self.state                                # the robot as built (solver.as_built)
-        box = step_box(st, q, self._reach, self.speed_bound, self._dt, self._tool_space)
-        eps = step_width(self.model, self.geometry_tolerance, box, st.q, q, self.joint_tolerance)
-        saved = self._anytime.copy()
-        for attempt in range(2):
-            self._params[_lay.PARAM_JOINT_TOL] = self.joint_tolerance + (eps if np.isfinite(eps) else 0.0)
-            self._run(q, state_pack, deadline)
-            of, oi = self._out_real, self._out_int
-            if not oi[_lay.I_CERTAIN]:
-                break
-            X, bound = of[_lay.OUT_X:_lay.OUT_X + 3], of[_lay.OUT_BOUND:_lay.OUT_BOUND + 3]
-            if np.isfinite(eps) and inside(box, X, bound):
-                break
-            if attempt == 0 and np.isfinite(eps):     # the pose left the box: once more over the hull
-                box = hull(box, X, bound)
-                wider = step_width(self.model, self.geometry_tolerance, box, st.q, q, self.joint_tolerance)
-                if np.isfinite(wider):
-                    eps = max(eps, wider)
-                    self._anytime[:] = saved
-                    continue
-            oi[_lay.I_CERTAIN] = oi[_lay.I_INTACT] = 0   # no width covers the robot as built: not vouched for
-            oi[_lay.I_TRUST] = min(int(oi[_lay.I_TRUST]), _lay.TRUST_POSSIBLE)
-            break
-        self._params[_lay.PARAM_JOINT_TOL] = self.joint_tolerance
+        as_built_step(self, q, state_pack, deadline)
 
     def _run(self, q, state_pack, deadline):
         anytime, walk = self._anytime, self.state.walk
