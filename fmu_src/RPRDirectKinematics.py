@@ -49,5 +49,6 @@ class RPRDirectKinematics(RRRDirectKinematics):
         Var("mode", "Integer", "parameter", "fixed", start=0, min=0, max=1,
             description="tracker mode: 0 default (RK4 continuation + map), 1 paper (procedures 2-3 as written)"),
         *sensor_parameters("m"),
-        *dk_outputs(_DEPS, point="platform point P (= B1),"),
+        *dk_outputs(_DEPS, point="platform point P (= B1),",
+                    geometry_tolerance=float(BUILD_ROBOT.get("geometry_tolerance", 0.0)) if BUILD_ROBOT else 0.0),
     )

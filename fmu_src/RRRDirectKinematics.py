@@ -30,6 +30,7 @@ from fmu_src.table_slave import TableSlave, Var
 from solver import (HOME_POSE, START_TOLERANCE, STATUS, Manipulator, MapTensor, MapTensorFileError, Tracker, TrackerState, dk_all,
                     ik, jacobians, wrap_angle)
 from solver._kernels.clock import cycles_per_second
+from solver.geometry_tolerance import geometry_tolerance
 from solver.tracker_state import TRUST
 TRUST_CERTAIN, TRUST_LOST = (next(k for k, v in TRUST.items() if v == name) for name in ("certain", "lost"))
 
@@ -52,6 +53,7 @@ def _build_robot():
 _ROBOT, _START = _build_robot()
 # the start tolerance's start values: the tracker's default, or a robot's scaled with its size
 _START_TOLERANCE = tuple(BUILD_ROBOT.get("start_tolerance", START_TOLERANCE)) if BUILD_ROBOT else START_TOLERANCE
+_GEOMETRY_TOLERANCE = float(BUILD_ROBOT.get("geometry_tolerance", 0.0)) if BUILD_ROBOT else 0.0
 _ABOUT = ("the paper's 3-RRR (Table 1)" if BUILD_ROBOT is None else
           f"the 3-RRR {BUILD_ROBOT['name']!r} (robot description sha256 {BUILD_ROBOT['digest']})")
 
@@ -91,7 +93,7 @@ class RRRDirectKinematics(TableSlave):
         Var("mode", "Integer", "parameter", "fixed", start=MODES.index(BUILD_MODE), min=0, max=1,
             description="tracker mode: 0 default (RK4 continuation + map), 1 paper (procedures 2-3 as written)"),
         *sensor_parameters("rad"),
-        *dk_outputs(("q1", "q2", "q3"), start_tolerance=_START_TOLERANCE),
+        *dk_outputs(("q1", "q2", "q3"), start_tolerance=_START_TOLERANCE, geometry_tolerance=_GEOMETRY_TOLERANCE),
     )
     # _track: the TrackerState (the tracker's whole mutable data: previous pose and joints, the pose
     # before, the joint-step scale, the step count); _committed: (q, outputs) of the last doStep (or of
@@ -195,7 +197,11 @@ class RRRDirectKinematics(TableSlave):
         share = self.step_budget_share
         if not (math.isfinite(share) and 0.0 <= share <= 1.0):
             raise ValueError(f"parameter 'step_budget_share' = {share!r}: expected a number in [0, 1] (0: no budget)")
-        return (*self._sensor_options(), self._start_tolerance())
+        try:
+            geometry = geometry_tolerance(self._model, self.geometry_tolerance, "parameter 'geometry_tolerance'")
+        except ValueError as exc:
+            raise ValueError(str(exc)) from None
+        return (*self._sensor_options(), self._start_tolerance(), geometry)
 
     def _make_tracker(self, posture, mode):
         if posture not in self._maps:
@@ -203,11 +209,12 @@ class RRRDirectKinematics(TableSlave):
                              f"{sorted(self._maps)} only (build_fmu.py --posture)")
         if not 0 <= mode < len(self.MODES):
             raise ValueError(f"parameter 'mode' = {mode!r}: expected 0 (default) or 1 (paper)")
-        tol, speed, stuck, start_tol = self._options()
+        tol, speed, stuck, start_tol, geometry = self._options()
         if self.step_budget_share > 0.0:
             cycles_per_second()                   # the budget's clock calibrated now, not in the first doStep
         return Tracker(self._model, self._maps[posture], mode=self.MODES[mode], singular_tol=self.SINGULAR_TOL,
-                       joint_tolerance=tol, speed_bound=speed, stuck_after=stuck, start_tolerance=start_tol)
+                       joint_tolerance=tol, speed_bound=speed, stuck_after=stuck, start_tolerance=start_tol,
+                       geometry_tolerance=geometry)
 
     # ------------------------------------------------------------------ initialization
     def on_initialized(self):
@@ -440,6 +447,6 @@ class RRRDirectKinematics(TableSlave):
         if track is not None and (self._tracker is None or self._tracker.posture != self.posture
                                   or self._tracker.mode != self.MODES[self.mode]
                                   or (self._tracker.joint_tolerance, self._tracker.speed_bound,
-                                      self._tracker.stuck_after, tuple(self._tracker.start_tolerance.tolist()))
-                                  != self._options()):
+                                      self._tracker.stuck_after, tuple(self._tracker.start_tolerance.tolist()),
+                                      self._tracker.geometry_tolerance) != self._options()):
             self._tracker = self._make_tracker(self.posture, self.mode)

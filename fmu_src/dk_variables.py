@@ -41,10 +41,12 @@ def sensor_parameters(joint_unit: str) -> tuple:
     )
 
 
-def dk_outputs(deps: tuple, point: str = "platform centre", start_tolerance=START_TOLERANCE) -> tuple:
+def dk_outputs(deps: tuple, point: str = "platform centre", start_tolerance=START_TOLERANCE,
+               geometry_tolerance: float = 0.0) -> tuple:
     """The table rows of the DK outputs, each depending on the joint inputs ``deps``, then
     ``stuck_after`` and :func:`bound_rows` (added last: the other rows keep their value references);
-    ``start_tolerance``: the start values (m, m, rad) of the start tolerance parameters."""
+    ``start_tolerance``: the start values (m, m, rad) of the start tolerance parameters;
+    ``geometry_tolerance``: the start value (m) of that parameter (the robot description's)."""
     return (
         Var("x", "Real", "output", unit="m", depends_on=deps, description=f"{point} x"),
         Var("y", "Real", "output", unit="m", depends_on=deps, description=f"{point} y"),
@@ -71,11 +73,11 @@ def dk_outputs(deps: tuple, point: str = "platform centre", start_tolerance=STAR
         Var("stuck_after", "Integer", "parameter", "fixed", start=0, min=0,
             description="with joint_tolerance: identical readings in a row that mark a joint stuck (refused, "
                         "state rolled back to before them); 0: off, for noisy encoders see the readme"),
-        *bound_rows(deps, start_tolerance),
+        *bound_rows(deps, start_tolerance, geometry_tolerance),
     )
 
 
-def bound_rows(deps: tuple, start_tolerance=START_TOLERANCE) -> tuple:
+def bound_rows(deps: tuple, start_tolerance=START_TOLERANCE, geometry_tolerance: float = 0.0) -> tuple:
     """The rows of the pose bound, ``trust``, the start tolerance and the step budget (after
     ``stuck_after``: the rows before keep their value references)."""
     no = f"; {NO_BOUND:g}: no bound (not certain)"
@@ -101,4 +103,8 @@ def bound_rows(deps: tuple, start_tolerance=START_TOLERANCE) -> tuple:
                         "on at the next steps.  0: no budget (results then do not depend on the machine's timing)"),
         Var("out_of_budget", "Boolean", "output", depends_on=deps,
             description="the step is not certain because its budget (step_budget_share) ran out first"),
+        Var("geometry_tolerance", "Real", "parameter", "fixed", start=float(geometry_tolerance), unit="m", min=0.0,
+            description="the robot as built: half-width of every length and coordinate of its geometry (at most a "
+                        "tenth of the shortest link); certain and the bounds then hold for every robot within it. "
+                        "0: for the model's geometry only"),
     )

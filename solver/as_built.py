@@ -4,8 +4,9 @@
 box of poses and joints. A step of :class:`solver.Tracker` with a non-zero ``geometry_tolerance``
 (:func:`step_width`) runs its certificates with ``joint_tolerance + eps``, ``eps`` that width over
 
-* the step's pose box: the last pose widened by its proven bound and an allowance for the motion of
-  one step (twice the last step's motion, at least a two-hundredth of the robot's reach and 0.02 rad);
+* the step's pose box: the hull of the last pose and the one predicted for this sample (the last step's
+  motion again), widened by the last proven bound, a quarter of that motion and at least 5e-4 of the
+  robot's reach and 2e-3 rad;
   after an uncertain step with a speed bound, the region the platform can have reached since the last
   certain step (the one re-acquisition searches), with half as much again; after an uncertain step
   without one, the whole tool space;
@@ -28,8 +29,14 @@ from .geometry_tolerance import GeometryTolerance, joint_equivalent
 
 __all__ = ["as_built_step", "step_box", "step_width", "inside", "hull"]
 
+#: Runs of a step at most: the box grows to the hull of the proven box each time.
+ATTEMPTS = 4
+
+#: A retry's box holds the proven box widened by this factor (its wider joint width widens the bound).
+HULL_MARGIN = 1.25
+
 #: The least motion allowance of a step's pose box: a fraction of the robot's reach (m) and an angle (rad).
-MOTION_FLOOR = (5e-3, 0.02)
+MOTION_FLOOR = (5e-4, 2e-3)
 
 
 def step_box(state, q, reach: float, speed_bound, dt, tool_space) -> tuple[np.ndarray, np.ndarray]:
@@ -38,10 +45,14 @@ def step_box(state, q, reach: float, speed_bound, dt, tool_space) -> tuple[np.nd
     bound = np.asarray(state.anchor_bound, float)
     certain_before = state.uncertain_since < 0
     if certain_before and np.all(np.isfinite(bound)):
-        motion = np.abs(X - state.X2) if state.X2 is not None else np.zeros(3)
-        motion[2] = abs(math.remainder(motion[2], 2 * math.pi)) if state.X2 is not None else 0.0
-        allow = bound + 2.0 * motion + np.array([MOTION_FLOOR[0] * reach, MOTION_FLOOR[0] * reach, MOTION_FLOOR[1]])
-        return X - allow, X + allow
+        floor = np.array([MOTION_FLOOR[0] * reach, MOTION_FLOOR[0] * reach, MOTION_FLOOR[1]])
+        if state.X2 is None:
+            return X - bound - floor, X + bound + floor
+        motion = X - state.X2
+        motion[2] = math.remainder(motion[2], 2 * math.pi)
+        ahead = X + motion                                   # the pose predicted for this sample
+        slack = bound + 0.25 * np.abs(motion) + floor
+        return np.minimum(X, ahead) - slack, np.maximum(X, ahead) + slack
     if speed_bound is not None and state.anchor is not None and np.all(np.isfinite(bound)):
         age = state.anchor_age + state.skipped_time + (dt if dt is not None else math.nan)
         if math.isfinite(age):
@@ -57,6 +68,8 @@ def step_width(model, tolerance: GeometryTolerance, box, q_prev, q, joint_tolera
     lo, hi = box
     if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
         return math.inf
+    if model.kind == "3-RRR":                        # angles: the joint step the short way round (a wrap at pi)
+        q = q_prev + np.remainder(q - q_prev + math.pi, 2 * math.pi) - math.pi
     q_lo = np.minimum(q_prev, q) - joint_tolerance
     q_hi = np.maximum(q_prev, q) + joint_tolerance
     if hi[2] - lo[2] >= 2 * math.pi:
@@ -66,23 +79,29 @@ def step_width(model, tolerance: GeometryTolerance, box, q_prev, q, joint_tolera
 
 
 def inside(box, X, bound) -> bool:
-    """The pose box ``X +- bound`` (3,) lies in ``box`` (lo, hi); phi compared about the box's centre."""
+    """The pose box ``X +- bound`` (3,) lies in ``box`` (lo, hi); phi unwrapped about the box's centre (a box
+    spanning a turn holds every phi)."""
     lo, hi = box
-    c = 0.5 * (lo + hi)
-    d = np.asarray(X, float) - c
-    d[2] = math.remainder(d[2], 2 * math.pi)
-    half = 0.5 * (hi - lo)
-    return bool(np.all(np.abs(d) + np.asarray(bound, float) <= half)) or bool(half[2] >= math.pi and
-                                                                             np.all(np.abs(d[:2]) + bound[:2] <= half[:2]))
+    Xu = _unwrapped(box, X)
+    b = np.asarray(bound, float)
+    ok = (lo <= Xu - b) & (Xu + b <= hi)
+    return bool(ok[0] and ok[1] and (ok[2] or hi[2] - lo[2] >= 2 * math.pi))
+
+
+def _unwrapped(box, X) -> np.ndarray:
+    lo, hi = box
+    Xu = np.asarray(X, float).copy()
+    c = 0.5 * (lo[2] + hi[2])
+    Xu[2] = c + math.remainder(Xu[2] - c, 2 * math.pi)
+    return Xu
 
 
 def hull(box, X, bound) -> tuple[np.ndarray, np.ndarray]:
-    """The smallest box holding ``box`` (lo, hi) and ``X +- bound`` (phi unwrapped about the box)."""
+    """The smallest box holding ``box`` (lo, hi) and ``X +- HULL_MARGIN * bound`` (phi unwrapped about the box)."""
     lo, hi = box
-    c = 0.5 * (lo + hi)
-    Xu = np.asarray(X, float).copy()
-    Xu[2] = c[2] + math.remainder(Xu[2] - c[2], 2 * math.pi)
-    return np.minimum(lo, Xu - bound), np.maximum(hi, Xu + bound)
+    Xu = _unwrapped(box, X)
+    b = HULL_MARGIN * np.asarray(bound, float)        # a margin: the wider width widens the bound a little
+    return np.minimum(lo, Xu - b), np.maximum(hi, Xu + b)
 
 
 def as_built_step(tracker, q, state_pack, deadline) -> None:
@@ -94,7 +113,7 @@ def as_built_step(tracker, q, state_pack, deadline) -> None:
     eps = step_width(model, tol, box, st.q, q, tracker.joint_tolerance)
     saved = tracker._anytime.copy()
     params, of, oi = tracker._params, tracker._out_real, tracker._out_int
-    for attempt in range(2):
+    for attempt in range(ATTEMPTS):
         params[_lay.PARAM_JOINT_TOL] = tracker.joint_tolerance + (eps if math.isfinite(eps) else 0.0)
         tracker._run(q, state_pack, deadline)
         if not oi[_lay.I_CERTAIN]:
@@ -102,7 +121,7 @@ def as_built_step(tracker, q, state_pack, deadline) -> None:
         X, bound = of[_lay.OUT_X:_lay.OUT_X + 3], of[_lay.OUT_BOUND:_lay.OUT_BOUND + 3]
         if math.isfinite(eps) and inside(box, X, bound):
             break
-        if attempt == 0 and math.isfinite(eps):          # the pose left the box: once more over the hull
+        if attempt < ATTEMPTS - 1 and math.isfinite(eps):   # the pose left the box: again over the hull
             box = hull(box, X, bound)
             wider = step_width(model, tol, box, st.q, q, tracker.joint_tolerance)
             if math.isfinite(wider):

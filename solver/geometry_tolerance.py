@@ -165,7 +165,7 @@ def _boxes(*arrays):
     return [np.ascontiguousarray(a, dtype=float).reshape(3) for a in arrays]
 
 
-def joint_equivalent(model, tolerance: GeometryTolerance, X_lo, X_hi, q_lo, q_hi, iterations: int = 6) -> float:
+def joint_equivalent(model, tolerance: GeometryTolerance, X_lo, X_hi, q_lo, q_hi, iterations: int = 5) -> float:
     """The joint half-width (rad for the 3-RRR, m for the 3-RPR) that covers the robot as built over a box.
 
     Every built robot within ``tolerance`` whose pose lies in ``[X_lo, X_hi]`` and joints in ``[q_lo,

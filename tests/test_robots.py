@@ -139,8 +139,9 @@ table = np.array([(k * h, *q[k]) for k in range(len(q))], dtype=[("time", float)
                                                                    ("q3", float)])
 res = simulate_fmu(sys.argv[1], stop_time=(len(q) - 1) * h, step_size=h, output_interval=h, input=table,
                    start_values={"x0": X[0, 0], "y0": X[0, 1], "phi0": X[0, 2], "posture": int(sys.argv[4])},
-                   output=["x", "y", "phi", "certain", "status"])
-print("DRIVE " + json.dumps({k: res[k].tolist() for k in ("x", "y", "phi", "certain", "status")}))
+                   output=["x", "y", "phi", "certain", "status", "x_bound", "y_bound", "phi_bound"])
+print("DRIVE " + json.dumps({k: res[k].tolist() for k in ("x", "y", "phi", "certain", "status", "x_bound", "y_bound",
+                                                          "phi_bound")}))
 """
 
 
@@ -173,6 +174,8 @@ def test_the_dk_fmu_of_a_robot_file_carries_it_and_starts_at_its_home(irregular_
     assert [float(v[n].start) for n in ("x0", "y0", "phi0")] == list(X0) and int(v["posture"].start) == 3
     assert np.allclose([float(v[n].start) for n in ("q1", "q2", "q3")], ik(robot.model, np.array(X0), 3), atol=1e-12)
     assert robot.digest in md.description and robot.name in md.description
+    # [tolerance]: length 5e-5 m, l1 2e-5 m; the FMU takes one half-width, the largest
+    assert float(v["geometry_tolerance"].start) == 5e-5 == max(robot.tolerance.widths.values())
     with zipfile.ZipFile(result.fmu) as z:
         assert json.loads(z.read("resources/robot.json")) == robot.description
         assert z.read("resources/robot.toml") == IRREGULAR.read_bytes()
@@ -210,10 +213,41 @@ def test_the_dk_fmu_of_a_robot_file_tracks_that_robot(irregular_fmu, tmp_path):
         md = read_model_description(str(result.fmu))
     start = {v.name: float(v.start) for v in md.modelVariables if v.name.startswith("start_tolerance")}
     tracker = Tracker(robot.model, MapTensor.load(tmp_path / "map.npz"), singular_tol=1e-4,
-                      start_tolerance=(start["start_tolerance_linear"],) * 2 + (start["start_tolerance_angular"],))
+                      start_tolerance=(start["start_tolerance_linear"],) * 2 + (start["start_tolerance_angular"],),
+                      geometry_tolerance=5e-5)
     tracker.reset(X[0], q[0])
-    ours = np.array([tracker.step(q[k], 1e-3)[0] for k in range(1, len(q) - 1)])
+    steps = [tracker.step(q[k], 1e-3) for k in range(1, len(q) - 1)]
+    ours = np.array([x for x, _ in steps])
     assert np.array_equal(ours, got[2:]), float(np.max(np.abs(ours - got[2:])))
+    bounds = np.column_stack([out["x_bound"], out["y_bound"], out["phi_bound"]])[2:]
+    assert np.array_equal(bounds, np.array([info.pose_bound for _, info in steps]))
+
+
+def test_the_dk_fmu_holds_for_the_robot_as_built(irregular_fmu, tmp_path):
+    """The example robot's circle read from a robot at corners of its [tolerance] box (its own inverse
+    kinematics): the FMU, at its default geometry_tolerance, stays certain and each bound holds the built
+    robot's pose; at geometry_tolerance = 0 (the model alone) some certain bound misses it."""
+    robot, result, _ = irregular_fmu
+    X, _ = robot_circle(robot, 3, 300)
+    rng = np.random.default_rng(5)
+    d = robot.model.to_dict()
+    for key in ("motors", "platform", "l1", "l2"):
+        a = np.asarray(d[key], float)
+        d[key] = (a + robot.tolerance.widths[key] * rng.choice([-1.0, 1.0], a.shape)).tolist()
+    q = ik(Manipulator.from_dict(d), X, 3)
+    misses = {}
+    for value in (None, 0.0):
+        script = DRIVE if value is None else DRIVE.replace('"posture": int(sys.argv[4])}',
+                                                           '"posture": int(sys.argv[4]), "geometry_tolerance": 0.0}')
+        out = _drive(script, "DRIVE", result.fmu, X, q, 3, tmp_path)
+        got = np.column_stack([out["x"], out["y"], out["phi"]])[1:]
+        bound = np.column_stack([out["x_bound"], out["y_bound"], out["phi_bound"]])[1:]
+        certain = np.array(out["certain"][1:], bool)
+        miss = certain & np.any(np.abs(got - X[:-1]) > bound, axis=1)
+        misses[value] = int(miss.sum())
+        if value is None:
+            assert certain.all() and misses[value] == 0
+    assert misses[0.0] > 0, misses
 
 
 # ---------------------------------------------------------------------- any robot, any scale

@@ -24,7 +24,8 @@ __all__ = ["robot_constant", "with_robot_constant", "stage_robot", "robot_circle
 def robot_constant(robot, posture: int, loop: bool = False) -> dict:
     """The slaves' ``BUILD_ROBOT`` for ``robot`` started in ``posture``: its name, description digest,
     geometry (``Manipulator.to_dict()``), posture, start pose (:func:`solver.robot.start_pose`) and the DK
-    FMU's start tolerance (the tracker's default scaled by the robot's reach over the paper's); with
+    FMU's start tolerance (the tracker's default scaled by the robot's reach over the paper's) and, with a
+    ``[tolerance]``, its geometry tolerance (the largest half-width, m: the FMU takes one); with
     ``loop`` (the plant and the controller) also its ``[dynamics]``, checked
     (:meth:`dynamics.DynamicParameters.from_robot`), and its reference circle
     (:func:`solver.robot.default_circle`), whose first point is the start pose."""
@@ -36,6 +37,8 @@ def robot_constant(robot, posture: int, loop: bool = False) -> dict:
     out = {"name": robot.name, "digest": robot.digest, "geometry": robot.model.to_dict(), "posture": int(posture),
            "start": [float(v) for v in start_pose(robot, posture)],
            "start_tolerance": [float(v) for v in start_tolerance_for(robot.model)]}
+    if robot.tolerance is not None and not robot.tolerance.zero:    # one half-width: the largest of [tolerance]
+        out["geometry_tolerance"] = float(max(robot.tolerance.widths.values()))
     if loop:
         from dynamics import DynamicParameters
 
