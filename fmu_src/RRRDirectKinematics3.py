@@ -47,8 +47,8 @@ _WHY = {v.name: v.description for v in RRRDirectKinematics._table} if RRRDirectK
 
 
 def _robot_start() -> dict:
-    """The core's start values of a robot build: its start pose, the joints there in BUILD_POSTURE and its
-    start tolerance ({} for the paper's robot: the core's own)."""
+    """The core's start values of a robot build: its start pose, the joints there in BUILD_POSTURE, its
+    start tolerance and geometry tolerance ({} for the paper's robot: the core's own)."""
     if BUILD_ROBOT is None or RRRDirectKinematics is None:
         return {}
     from solver import Manipulator, ik
@@ -57,7 +57,8 @@ def _robot_start() -> dict:
     q = ik(Manipulator.from_dict(BUILD_ROBOT["geometry"]), pose, BUILD_POSTURE)
     lin, _, ang = BUILD_ROBOT["start_tolerance"]
     return {**dict(zip(("x0", "y0", "phi0"), pose)), **dict(zip(("q1", "q2", "q3"), (float(v) for v in q))),
-            "start_tolerance_linear": float(lin), "start_tolerance_angular": float(ang)}
+            "start_tolerance_linear": float(lin), "start_tolerance_angular": float(ang),
+            "geometry_tolerance": float(BUILD_ROBOT.get("geometry_tolerance", 0.0))}
 
 
 def _row(name, kind, causality, unit=None):
@@ -106,4 +107,5 @@ class RRRDirectKinematics3(Fmi3Adapter, Fmi3Slave):
              "half-widths of a proven box about the pose: x, y (m), phi (rad); -1 each: no bound (not certain)"),
         _row("trust", "Int32", "output"),
         _row("out_of_budget", "Boolean", "output"),
+        _row("geometry_tolerance", "Float64", "parameter", "m"),
     )

@@ -24,10 +24,14 @@ import math
 
 import numpy as np
 
+from ._kernels import geometry_width as _gw
 from ._kernels import layout as _lay
 from .geometry_tolerance import GeometryTolerance, joint_equivalent
 
 __all__ = ["as_built_step", "step_box", "step_width", "inside", "hull"]
+
+#: Iterations of the width's fixed point (:func:`solver._kernels.geometry_width.joint_width`).
+WIDTH_ITERATIONS = 5
 
 #: Runs of a step at most: the box grows to the hull of the proven box each time.
 ATTEMPTS = 4
@@ -39,69 +43,50 @@ HULL_MARGIN = 1.25
 MOTION_FLOOR = (5e-4, 2e-3)
 
 
-def step_box(state, q, reach: float, speed_bound, dt, tool_space) -> tuple[np.ndarray, np.ndarray]:
-    """The pose box (lo, hi), each (3,) m, m, rad, a step from ``state`` to joints ``q`` is checked over."""
-    X = state.X
-    bound = np.asarray(state.anchor_bound, float)
-    certain_before = state.uncertain_since < 0
-    if certain_before and np.all(np.isfinite(bound)):
-        floor = np.array([MOTION_FLOOR[0] * reach, MOTION_FLOOR[0] * reach, MOTION_FLOOR[1]])
-        if state.X2 is None:
-            return X - bound - floor, X + bound + floor
-        motion = X - state.X2
-        motion[2] = math.remainder(motion[2], 2 * math.pi)
-        ahead = X + motion                                   # the pose predicted for this sample
-        slack = bound + 0.25 * np.abs(motion) + floor
-        return np.minimum(X, ahead) - slack, np.maximum(X, ahead) + slack
-    if speed_bound is not None and state.anchor is not None and np.all(np.isfinite(bound)):
-        age = state.anchor_age + state.skipped_time + (dt if dt is not None else math.nan)
-        if math.isfinite(age):
-            v, w = speed_bound
-            allow = 1.5 * (bound + np.array([v * age, v * age, w * age]))
-            return state.anchor - allow, state.anchor + allow
-    return tool_space[:, 0].copy(), tool_space[:, 1].copy()
+_NAN3 = np.full(3, np.nan)
+
+
+def step_box(state, reach: float, speed_bound, dt, tool_space) -> tuple[np.ndarray, np.ndarray]:
+    """The pose box (lo, hi), each (3,) m, m, rad, of a step from ``state`` (module docstring)."""
+    lo, hi = np.empty(3), np.empty(3)
+    _gw.step_box(*_box_args(state, reach, speed_bound, dt, tool_space), lo, hi)
+    return lo, hi
+
+
+def _box_args(state, reach, speed_bound, dt, tool_space):
+    age = state.anchor_age + state.skipped_time + (dt if dt is not None else math.nan)
+    return (state.X, _NAN3 if state.X2 is None else state.X2, np.asarray(state.anchor_bound, float),
+            state.uncertain_since < 0, _NAN3 if state.anchor is None else state.anchor, age,
+            np.zeros(2) if speed_bound is None else np.asarray(speed_bound, float),
+            np.array([MOTION_FLOOR[0] * reach, MOTION_FLOOR[0] * reach, MOTION_FLOOR[1]]), tool_space)
 
 
 def step_width(model, tolerance: GeometryTolerance, box, q_prev, q, joint_tolerance: float) -> float:
     """The joint half-width (rad or m) of the robot as built over the pose ``box`` (lo, hi) and the joints
     between ``q_prev`` and ``q`` (3,) widened by ``joint_tolerance``; ``inf`` when none covers it."""
-    lo, hi = box
-    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-        return math.inf
-    if model.kind == "3-RRR":                        # angles: the joint step the short way round (a wrap at pi)
-        q = q_prev + np.remainder(q - q_prev + math.pi, 2 * math.pi) - math.pi
-    q_lo = np.minimum(q_prev, q) - joint_tolerance
-    q_hi = np.maximum(q_prev, q) + joint_tolerance
-    if hi[2] - lo[2] >= 2 * math.pi:
-        lo, hi = lo.copy(), hi.copy()
-        lo[2], hi[2] = -math.pi, math.pi
-    return joint_equivalent(model, tolerance, lo, hi, q_lo, q_hi)
+    if tolerance.zero:
+        return 0.0
+    if model.kind == "3-RPR":
+        return joint_equivalent(model, tolerance, *box, q_prev, q)
+    return float(_gw.step_width(model.motors, model.l1, model.platform, model.platform_radius,
+                                tolerance.offset_bound(), np.asarray(box[0], float), np.asarray(box[1], float),
+                                np.asarray(q_prev, float), np.asarray(q, float), float(joint_tolerance), True,
+                                WIDTH_ITERATIONS))
 
 
 def inside(box, X, bound) -> bool:
     """The pose box ``X +- bound`` (3,) lies in ``box`` (lo, hi); phi unwrapped about the box's centre (a box
     spanning a turn holds every phi)."""
-    lo, hi = box
-    Xu = _unwrapped(box, X)
-    b = np.asarray(bound, float)
-    ok = (lo <= Xu - b) & (Xu + b <= hi)
-    return bool(ok[0] and ok[1] and (ok[2] or hi[2] - lo[2] >= 2 * math.pi))
-
-
-def _unwrapped(box, X) -> np.ndarray:
-    lo, hi = box
-    Xu = np.asarray(X, float).copy()
-    c = 0.5 * (lo[2] + hi[2])
-    Xu[2] = c + math.remainder(Xu[2] - c, 2 * math.pi)
-    return Xu
+    lo, hi = np.array(box[0], float), np.array(box[1], float)
+    return bool(_gw.box_holds(lo, hi, np.asarray(X, float), np.asarray(bound, float), HULL_MARGIN))
 
 
 def hull(box, X, bound) -> tuple[np.ndarray, np.ndarray]:
-    """The smallest box holding ``box`` (lo, hi) and ``X +- HULL_MARGIN * bound`` (phi unwrapped about the box)."""
-    lo, hi = box
-    Xu = _unwrapped(box, X)
-    b = HULL_MARGIN * np.asarray(bound, float)        # a margin: the wider width widens the bound a little
-    return np.minimum(lo, Xu - b), np.maximum(hi, Xu + b)
+    """The smallest box holding ``box`` (lo, hi) and ``X +- HULL_MARGIN * bound`` (phi unwrapped about the
+    box), or ``box`` itself when it holds ``X +- bound``."""
+    lo, hi = np.array(box[0], float), np.array(box[1], float)
+    _gw.box_holds(lo, hi, np.asarray(X, float), np.asarray(bound, float), HULL_MARGIN)
+    return lo, hi
 
 
 def as_built_step(tracker, q, state_pack, deadline) -> None:
@@ -109,9 +94,10 @@ def as_built_step(tracker, q, state_pack, deadline) -> None:
     its certificates with ``joint_tolerance`` plus the step's joint width; its result packs as the plain
     step leaves them, with ``certain`` withdrawn where no width covers the step's poses."""
     st, model, tol = tracker.state, tracker.model, tracker.geometry_tolerance
-    box = step_box(st, q, tracker._reach, tracker.speed_bound, tracker._dt, tracker._tool_space)
-    eps = step_width(model, tol, box, st.q, q, tracker.joint_tolerance)
-    saved = tracker._anytime.copy()
+    lo, hi = np.empty(3), np.empty(3)
+    _gw.step_box(*_box_args(st, tracker._reach, tracker.speed_bound, tracker._dt, tracker._tool_space), lo, hi)
+    eps = step_width(model, tol, (lo, hi), st.q, q, tracker.joint_tolerance)
+    saved = tracker._anytime.copy() if deadline else None
     params, of, oi = tracker._params, tracker._out_real, tracker._out_int
     for attempt in range(ATTEMPTS):
         params[_lay.PARAM_JOINT_TOL] = tracker.joint_tolerance + (eps if math.isfinite(eps) else 0.0)
@@ -119,14 +105,14 @@ def as_built_step(tracker, q, state_pack, deadline) -> None:
         if not oi[_lay.I_CERTAIN]:
             break
         X, bound = of[_lay.OUT_X:_lay.OUT_X + 3], of[_lay.OUT_BOUND:_lay.OUT_BOUND + 3]
-        if math.isfinite(eps) and inside(box, X, bound):
+        if math.isfinite(eps) and _gw.box_holds(lo, hi, X, bound, HULL_MARGIN):
             break
         if attempt < ATTEMPTS - 1 and math.isfinite(eps):   # the pose left the box: again over the hull
-            box = hull(box, X, bound)
-            wider = step_width(model, tol, box, st.q, q, tracker.joint_tolerance)
+            wider = step_width(model, tol, (lo, hi), st.q, q, tracker.joint_tolerance)
             if math.isfinite(wider):
                 eps = max(eps, wider)
-                tracker._anytime[:] = saved
+                if saved is not None:
+                    tracker._anytime[:] = saved
                 continue
         oi[_lay.I_CERTAIN] = oi[_lay.I_INTACT] = 0       # no width covers the robot as built: not vouched for
         oi[_lay.I_TRUST] = min(int(oi[_lay.I_TRUST]), _lay.TRUST_POSSIBLE)
