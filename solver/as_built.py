@@ -28,7 +28,7 @@ from ._kernels import geometry_width as _gw
 from ._kernels import layout as _lay
 from .geometry_tolerance import GeometryTolerance, joint_equivalent
 
-__all__ = ["as_built_step", "step_box", "step_width", "inside", "hull"]
+__all__ = ["as_built_step", "step_constants", "step_box", "step_width", "inside", "hull"]
 
 #: Iterations of the width's fixed point (:func:`solver._kernels.geometry_width.joint_width`).
 WIDTH_ITERATIONS = 5
@@ -89,18 +89,35 @@ def hull(box, X, bound) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
+def step_constants(model, tolerance: GeometryTolerance, reach: float, speed_bound) -> tuple:
+    """What every step of one tracker passes the kernels unchanged: the legs' offset bounds ``e`` (3,), m,
+    the motion floor (3,), the speed bound (2,) (0: none)."""
+    return (np.ascontiguousarray(tolerance.offset_bound()),
+            np.array([MOTION_FLOOR[0] * reach, MOTION_FLOOR[0] * reach, MOTION_FLOOR[1]]),
+            np.zeros(2) if speed_bound is None else np.asarray(speed_bound, float))
+
+
 def as_built_step(tracker, q, state_pack, deadline) -> None:
     """Run ``tracker``'s compiled step to joints ``q`` (3,) for the robot as built (module docstring):
     its certificates with ``joint_tolerance`` plus the step's joint width; its result packs as the plain
     step leaves them, with ``certain`` withdrawn where no width covers the step's poses."""
-    st, model, tol = tracker.state, tracker.model, tracker.geometry_tolerance
+    st, model = tracker.state, tracker.model
+    e, floor, speed = tracker._as_built
+    jt = tracker.joint_tolerance
     lo, hi = np.empty(3), np.empty(3)
-    _gw.step_box(*_box_args(st, tracker._reach, tracker.speed_bound, tracker._dt, tracker._tool_space), lo, hi)
-    eps = step_width(model, tol, (lo, hi), st.q, q, tracker.joint_tolerance)
+    dt = tracker._dt
+    age = st.anchor_age + st.skipped_time + (dt if dt is not None else math.nan)
+    _gw.step_box(st.X, _NAN3 if st.X2 is None else st.X2, st.anchor_bound, st.uncertain_since < 0,
+                 _NAN3 if st.anchor is None else st.anchor, age, speed, floor, tracker._tool_space, lo, hi)
+    rpr = model.kind == "3-RPR"
+    width = ((lambda: float(np.max(e))) if rpr else
+             (lambda: _gw.step_width(model.motors, model.l1, model.platform, model.platform_radius, e, lo, hi,
+                                     st.q, q, jt, True, WIDTH_ITERATIONS)))
+    eps = width()
     saved = tracker._anytime.copy() if deadline else None
     params, of, oi = tracker._params, tracker._out_real, tracker._out_int
     for attempt in range(ATTEMPTS):
-        params[_lay.PARAM_JOINT_TOL] = tracker.joint_tolerance + (eps if math.isfinite(eps) else 0.0)
+        params[_lay.PARAM_JOINT_TOL] = jt + (eps if math.isfinite(eps) else 0.0)
         tracker._run(q, state_pack, deadline)
         if not oi[_lay.I_CERTAIN]:
             break
@@ -108,7 +125,7 @@ def as_built_step(tracker, q, state_pack, deadline) -> None:
         if math.isfinite(eps) and _gw.box_holds(lo, hi, X, bound, HULL_MARGIN):
             break
         if attempt < ATTEMPTS - 1 and math.isfinite(eps):   # the pose left the box: again over the hull
-            wider = step_width(model, tol, (lo, hi), st.q, q, tracker.joint_tolerance)
+            wider = width()
             if math.isfinite(wider):
                 eps = max(eps, wider)
                 if saved is not None:
@@ -117,4 +134,4 @@ def as_built_step(tracker, q, state_pack, deadline) -> None:
         oi[_lay.I_CERTAIN] = oi[_lay.I_INTACT] = 0       # no width covers the robot as built: not vouched for
         oi[_lay.I_TRUST] = min(int(oi[_lay.I_TRUST]), _lay.TRUST_POSSIBLE)
         break
-    params[_lay.PARAM_JOINT_TOL] = tracker.joint_tolerance
+    params[_lay.PARAM_JOINT_TOL] = jt

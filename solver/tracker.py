@@ -154,7 +154,7 @@ from .grid import default_bounds
 from .manipulator import Manipulator
 from .maptensor import MapTensor
 from .ordering import rule_code
-from .as_built import as_built_step, step_width
+from .as_built import as_built_step, step_constants, step_width
 from .encoder_grid import encoder_bits, encoder_note, grid_tolerance
 from .geometry_tolerance import geometry_tolerance as _geometry_tolerance
 from .start import START_TOLERANCE, StartInfo, honest_start, start_tolerance_for
@@ -312,6 +312,7 @@ class Tracker(_TrackerBase):
         self._tool_space = np.asarray(bounds, float)
         self._reach = float(np.max(model.l1 + model.l2)) if model.kind == "3-RRR" else float(model.rho_max)
         self._dt = None
+        self._as_built = step_constants(model, self.geometry_tolerance, self._reach, self.speed_bound)
         self.map = map_tensor
         self.mode = mode
         self.posture = map_tensor.posture

@@ -59,6 +59,7 @@ def test_model_description(md, map1):
                 "start_tolerance_linear": ("parameter", "fixed", "m"),
                 "start_tolerance_angular": ("parameter", "fixed", "rad"),
                 "step_budget_share": ("parameter", "fixed", "1"), "out_of_budget": ("output", "discrete", None),
+                "geometry_tolerance": ("parameter", "fixed", "m"),
                 "x_bound": ("output", "continuous", "m"), "y_bound": ("output", "continuous", "m"),
                 "phi_bound": ("output", "continuous", "rad"), "trust": ("output", "discrete", None),
                 "x": ("output", "continuous", "m"), "y": ("output", "continuous", "m"),
