@@ -283,6 +283,7 @@ def test_designed_gains_are_python_controls_bit_for_bit_and_cached(tmp_path, mon
     from dynamics import control
     from dynamics.control import ComputedTorqueGains
 
+    monkeypatch.delenv("RRR_DK_CACHE", raising=False)          # the user's shared cache would win over XDG
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     control._designed_gains.cache_clear()
     try:
