@@ -253,10 +253,10 @@ class RRRDirectKinematics(TableSlave):
         finite = bool(np.all(np.isfinite(q_in)))
         gap = float(np.max(np.abs(wrap_angle(q_in - q_ik)))) if finite else math.inf
         if gap <= self.Q0_TOL:
-            tracker.reset(X0, q_in)               # the joints at t0 are the inputs
+            tracker.reset(X0, q_in, warn=False)               # the joints at t0 are the inputs
             return tracker, q_in
         joints = f"inputs ({', '.join(self.JOINTS)}) = ({', '.join(repr(float(v)) for v in q_in)})"
-        if finite and tracker.reset(X0, q_in).certain:
+        if finite and tracker.reset(X0, q_in, warn=False).certain:
             # the inputs are not the joints of X0, but their DK solution within start_tolerance of X0 is
             # proved the robot's: the tracker starts there, at the inputs
             if log:
@@ -267,7 +267,7 @@ class RRRDirectKinematics(TableSlave):
                 self._pylog.info("%s", msg)
             return tracker, q_in
         why = tracker.start.reason if finite else "an input is not finite"
-        tracker.reset(X0, q_ik)
+        tracker.reset(X0, q_ik, warn=False)
         if log:
             self._report(f"initialization: {joints} are not the joints of the initial pose (x0, y0, phi0) in "
                          f"posture {self.posture} (largest difference {gap:.3g} rad > {self.Q0_TOL:g} rad) and "

@@ -33,7 +33,7 @@ from .mapcache import cached_map, map_path
 from .mapfile import FORMAT_VERSION, MapTensorFileError
 from .maptensor import MapTensor, label_poses
 from .ordering import DEFAULT_RULE, ORDERING_RULES
-from .start import START_TOLERANCE, StartInfo
+from .start import START_TOLERANCE, StartInfo, UncertainStartWarning
 from .tracker import Tracker
 from .tracker_state import CERTIFICATES, STATUS, TRUST, StepInfo, TrackerError, TrackerState, TrackResult
 from .trajectories import PAPER_CIRCLE, circle_path
@@ -48,5 +48,5 @@ __all__ = [
     "MapTensor", "MapTensorFileError", "FORMAT_VERSION", "label_poses", "default_bounds", "default_grid",
     "grid_shape", "DEFAULT_STEP", "cached_map", "map_path", "cache_dir", "CACHE_ENV",
     "Tracker", "TrackerState", "StepInfo", "TrackResult", "TrackerError", "STATUS", "CERTIFICATES", "TRUST",
-    "StartInfo", "START_TOLERANCE", "__version__",
+    "StartInfo", "UncertainStartWarning", "START_TOLERANCE", "__version__",
 ]

@@ -18,7 +18,7 @@ from ._kernels.tube_chain import MAX_COVER, pose_bound
 from .direct_kinematics import dk_all
 from .kinematics import wrap_angle
 
-__all__ = ["START_TOLERANCE", "StartInfo", "honest_start", "start_tolerance_for"]
+__all__ = ["START_TOLERANCE", "StartInfo", "UncertainStartWarning", "honest_start", "start_tolerance_for"]
 
 #: How far the initial pose given to :meth:`solver.Tracker.reset` may be from the robot's (m, m, rad), for
 #: the paper's robot (a 1.2 m leg reach); :func:`start_tolerance_for` scales it to another 3-RRR.
@@ -35,6 +35,11 @@ def start_tolerance_for(model) -> tuple:
         return START_TOLERANCE
     scale = float(np.max(model.l1 + model.l2)) / _PAPER_REACH
     return (START_TOLERANCE[0] * scale, START_TOLERANCE[1] * scale, START_TOLERANCE[2])
+
+
+class UncertainStartWarning(UserWarning):
+    """A tracker's start is not proved (:attr:`StartInfo.certain` False): it cannot vouch for its poses
+    until it re-acquires; the message says why and what to change."""
 
 
 class StartInfo(NamedTuple):

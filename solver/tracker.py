@@ -157,7 +157,7 @@ from .ordering import rule_code
 from .as_built import as_built_step, step_constants, step_width
 from .encoder_grid import encoder_bits, encoder_note, grid_tolerance
 from .geometry_tolerance import geometry_tolerance as _geometry_tolerance
-from .start import START_TOLERANCE, StartInfo, honest_start, start_tolerance_for
+from .start import START_TOLERANCE, StartInfo, UncertainStartWarning, honest_start, start_tolerance_for
 from .tracker_state import TrackerError
 from .tracking import _TrackerBase
 
@@ -332,7 +332,7 @@ class Tracker(_TrackerBase):
         self._mode = _lay.MODE_PAPER if mode == "paper" else _lay.MODE_DEFAULT
         self._rule = rule_code(map_tensor.rule)
 
-    def reset(self, X0, q0) -> StartInfo:
+    def reset(self, X0, q0, warn: bool = True) -> StartInfo:
         """Start tracking from an approximate configuration: the honest start.
 
         The tracker starts from the DK solution of ``q0`` within ``start_tolerance`` of ``X0``
@@ -347,6 +347,11 @@ class Tracker(_TrackerBase):
             The initial pose, known within ``start_tolerance`` (m, m, rad).
         q0 : array_like, shape (3,)
             The initial joints (rad), read within ``joint_tolerance``.
+        warn : bool
+            Warn (:class:`solver.start.UncertainStartWarning`) when the start is not proved, with the
+            reason and the fix (a start known exactly, a homed robot: a small ``start_tolerance``, e.g.
+            1 mm and 5 mrad; an approximate one: the tolerance it is known to).  False: only
+            :attr:`StartInfo.reason` says it (the DK FMU logs it itself).
 
         Returns
         -------
@@ -369,6 +374,9 @@ class Tracker(_TrackerBase):
                                           "covers the geometry tolerance there (a serial singularity)")
         start = start._replace(note=note)
         self.start = start
+        if warn and not start.certain:
+            warnings.warn(UncertainStartWarning(f"{self.name}: the start is not proved (certain is False until the "
+                                                f"tracker re-acquires): {start.reason}"), stacklevel=2)
         self._watch = GRID_WATCH if self.joint_tolerance == 0.0 and self.model.kind == "3-RRR" else 0
         # the robot is within the proven bound of the start, or else within the start tolerance of X0 (the
         # start's own assumption): where re-acquisition and the set-membership steps begin

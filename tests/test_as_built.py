@@ -144,3 +144,4 @@ def test_the_robot_description_carries_its_tolerance():
     tracker = Tracker(robot.model, cached_map(robot.model, robot.home_posture, step=(0.04, 0.04, np.deg2rad(6))),
                       geometry_tolerance=robot.tolerance)
     assert tracker.geometry_tolerance == robot.tolerance
+
