@@ -2,21 +2,24 @@
 
 :mod:`solver.geometry_tolerance` turns the robot's geometric tolerance into a joint half-width over a
 box of poses and joints. A step of :class:`solver.Tracker` with a non-zero ``geometry_tolerance``
-(:func:`step_width`) runs its certificates with ``joint_tolerance + eps``, ``eps`` that width over
+(:func:`as_built_step`) runs its certificates with ``joint_tolerance + eps``, ``eps`` that width
+(:func:`solver._kernels.geometry_width.step_width`) over
 
-* the step's pose box: the hull of the last pose and the one predicted for this sample (the last step's
-  motion again), widened by the last proven bound, a quarter of that motion and at least 5e-4 of the
-  robot's reach and 2e-3 rad;
+* the step's pose box (:func:`solver._kernels.geometry_width.step_box`): the hull of the last pose and
+  the one predicted for this sample (the last step's motion again), widened by the last proven bound,
+  a quarter of that motion and at least :data:`MOTION_FLOOR` (5e-4 of the robot's reach, 2e-3 rad);
   after an uncertain step with a speed bound, the region the platform can have reached since the last
   certain step (the one re-acquisition searches), with half as much again; after an uncertain step
   without one, the whole tool space;
-* the joints between the last reading and this one, widened by ``joint_tolerance``.
+* the joints between the last reading and this one (the short way round), widened by
+  ``joint_tolerance``.
 
-After the step (:func:`inside`): a certain step's pose box (its pose +- ``pose_bound``) must lie in
-the box the width was computed over; else the step runs once more with the width of the hull of both,
-and a step that still leaves it, or whose width is infinite (an elbow may be straight in the box),
-is not vouched for. The tube between two samples is taken to stay in the hull of their boxes (its
-ends are proved there; a step's joint motion is small against the box's allowance).
+After the step (:func:`solver._kernels.geometry_width.box_holds`): a certain step's pose box (its pose
++- ``pose_bound``) must lie in the box the width was computed over; else the box grows to hold it
+(with :data:`HULL_MARGIN`) and the step runs again with the width of that box (at most
+:data:`ATTEMPTS` runs); a step that still leaves it, or whose width is infinite (an elbow may be
+straight in the box), is not vouched for. The tube between two samples is taken to stay in the hull
+of their boxes (its ends are proved there; a step's joint motion is small against the box's allowance).
 """
 from __future__ import annotations
 
@@ -28,12 +31,13 @@ from ._kernels import geometry_width as _gw
 from ._kernels import layout as _lay
 from .geometry_tolerance import GeometryTolerance, joint_equivalent
 
-__all__ = ["as_built_step", "step_constants", "step_box", "step_width", "inside", "hull"]
+__all__ = ["as_built_step", "step_constants", "step_width", "WIDTH_ITERATIONS", "ATTEMPTS", "HULL_MARGIN",
+           "MOTION_FLOOR"]
 
 #: Iterations of the width's fixed point (:func:`solver._kernels.geometry_width.joint_width`).
 WIDTH_ITERATIONS = 5
 
-#: Runs of a step at most: the box grows to the hull of the proven box each time.
+#: Runs of a step at most: the box grows to hold the proven box each time.
 ATTEMPTS = 4
 
 #: A retry's box holds the proven box widened by this factor (its wider joint width widens the bound).
@@ -42,28 +46,13 @@ HULL_MARGIN = 1.25
 #: The least motion allowance of a step's pose box: a fraction of the robot's reach (m) and an angle (rad).
 MOTION_FLOOR = (5e-4, 2e-3)
 
-
 _NAN3 = np.full(3, np.nan)
 
 
-def step_box(state, reach: float, speed_bound, dt, tool_space) -> tuple[np.ndarray, np.ndarray]:
-    """The pose box (lo, hi), each (3,) m, m, rad, of a step from ``state`` (module docstring)."""
-    lo, hi = np.empty(3), np.empty(3)
-    _gw.step_box(*_box_args(state, reach, speed_bound, dt, tool_space), lo, hi)
-    return lo, hi
-
-
-def _box_args(state, reach, speed_bound, dt, tool_space):
-    age = state.anchor_age + state.skipped_time + (dt if dt is not None else math.nan)
-    return (state.X, _NAN3 if state.X2 is None else state.X2, np.asarray(state.anchor_bound, float),
-            state.uncertain_since < 0, _NAN3 if state.anchor is None else state.anchor, age,
-            np.zeros(2) if speed_bound is None else np.asarray(speed_bound, float),
-            np.array([MOTION_FLOOR[0] * reach, MOTION_FLOOR[0] * reach, MOTION_FLOOR[1]]), tool_space)
-
-
 def step_width(model, tolerance: GeometryTolerance, box, q_prev, q, joint_tolerance: float) -> float:
-    """The joint half-width (rad or m) of the robot as built over the pose ``box`` (lo, hi) and the joints
-    between ``q_prev`` and ``q`` (3,) widened by ``joint_tolerance``; ``inf`` when none covers it."""
+    """The joint half-width (rad or m) of the robot as built over the pose ``box`` (lo, hi), each (3,) m,
+    m, rad, and the joints between ``q_prev`` and ``q`` (3,) widened by ``joint_tolerance``; ``inf`` when
+    none covers it (what :meth:`solver.Tracker.reset` adds over its start region)."""
     if tolerance.zero:
         return 0.0
     if model.kind == "3-RPR":
@@ -74,24 +63,9 @@ def step_width(model, tolerance: GeometryTolerance, box, q_prev, q, joint_tolera
                                 WIDTH_ITERATIONS))
 
 
-def inside(box, X, bound) -> bool:
-    """The pose box ``X +- bound`` (3,) lies in ``box`` (lo, hi); phi unwrapped about the box's centre (a box
-    spanning a turn holds every phi)."""
-    lo, hi = np.array(box[0], float), np.array(box[1], float)
-    return bool(_gw.box_holds(lo, hi, np.asarray(X, float), np.asarray(bound, float), HULL_MARGIN))
-
-
-def hull(box, X, bound) -> tuple[np.ndarray, np.ndarray]:
-    """The smallest box holding ``box`` (lo, hi) and ``X +- HULL_MARGIN * bound`` (phi unwrapped about the
-    box), or ``box`` itself when it holds ``X +- bound``."""
-    lo, hi = np.array(box[0], float), np.array(box[1], float)
-    _gw.box_holds(lo, hi, np.asarray(X, float), np.asarray(bound, float), HULL_MARGIN)
-    return lo, hi
-
-
 def step_constants(model, tolerance: GeometryTolerance, reach: float, speed_bound) -> tuple:
     """What every step of one tracker passes the kernels unchanged: the legs' offset bounds ``e`` (3,), m,
-    the motion floor (3,), the speed bound (2,) (0: none)."""
+    the motion floor (3,) (m, m, rad; ``reach`` in m), the speed bound (2,) (m/s, rad/s; 0: none)."""
     return (np.ascontiguousarray(tolerance.offset_bound()),
             np.array([MOTION_FLOOR[0] * reach, MOTION_FLOOR[0] * reach, MOTION_FLOOR[1]]),
             np.zeros(2) if speed_bound is None else np.asarray(speed_bound, float))
@@ -123,8 +97,8 @@ def as_built_step(tracker, q, state_pack, deadline) -> None:
             break
         X, bound = of[_lay.OUT_X:_lay.OUT_X + 3], of[_lay.OUT_BOUND:_lay.OUT_BOUND + 3]
         if math.isfinite(eps) and _gw.box_holds(lo, hi, X, bound, HULL_MARGIN):
-            break
-        if attempt < ATTEMPTS - 1 and math.isfinite(eps):   # the pose left the box: again over the hull
+            break                                        # (box_holds grew [lo, hi] when it did not hold)
+        if attempt < ATTEMPTS - 1 and math.isfinite(eps):   # the pose left the box: again over the grown box
             wider = width()
             if math.isfinite(wider):
                 eps = max(eps, wider)

@@ -375,8 +375,8 @@ class Tracker(_TrackerBase):
         start = start._replace(note=note)
         self.start = start
         if warn and not start.certain:
-            warnings.warn(UncertainStartWarning(f"{self.name}: the start is not proved (certain is False until the "
-                                                f"tracker re-acquires): {start.reason}"), stacklevel=2)
+            warnings.warn(UncertainStartWarning(f"{self.name}: certain is False until the tracker re-acquires: "
+                                                f"{start.reason}"), stacklevel=2)
         self._watch = GRID_WATCH if self.joint_tolerance == 0.0 and self.model.kind == "3-RRR" else 0
         # the robot is within the proven bound of the start, or else within the start tolerance of X0 (the
         # start's own assumption): where re-acquisition and the set-membership steps begin
