@@ -197,10 +197,7 @@ class RRRDirectKinematics(TableSlave):
         share = self.step_budget_share
         if not (math.isfinite(share) and 0.0 <= share <= 1.0):
             raise ValueError(f"parameter 'step_budget_share' = {share!r}: expected a number in [0, 1] (0: no budget)")
-        try:
-            geometry = geometry_tolerance(self._model, self.geometry_tolerance, "parameter 'geometry_tolerance'")
-        except ValueError as exc:
-            raise ValueError(str(exc)) from None
+        geometry = geometry_tolerance(self._model, self.geometry_tolerance, "parameter 'geometry_tolerance'")
         return (*self._sensor_options(), self._start_tolerance(), geometry)
 
     def _make_tracker(self, posture, mode):

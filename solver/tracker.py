@@ -312,7 +312,8 @@ class Tracker(_TrackerBase):
         self._tool_space = np.asarray(bounds, float)
         self._reach = float(np.max(model.l1 + model.l2)) if model.kind == "3-RRR" else float(model.rho_max)
         self._dt = None
-        self._as_built = step_constants(model, self.geometry_tolerance, self._reach, self.speed_bound)
+        self._as_built = (None if self.geometry_tolerance.zero else      # None: the model alone
+                          step_constants(model, self.geometry_tolerance, self._reach, self.speed_bound))
         self.map = map_tensor
         self.mode = mode
         self.posture = map_tensor.posture
@@ -417,7 +418,7 @@ class Tracker(_TrackerBase):
     step.__doc__ = _TrackerBase.step.__doc__
 
     def _kernel(self, q, state_pack, deadline):
-        if self.geometry_tolerance.zero:
+        if self._as_built is None:
             return self._run(q, state_pack, deadline)
         as_built_step(self, q, state_pack, deadline)
 
