@@ -59,7 +59,7 @@ from experiments.sensors import SENSOR_GRADES, sensor_truth  # noqa: E402
 from experiments.suite import hard_suite  # noqa: E402
 from sensor_oracle import foldable  # noqa: E402
 from solver import Manipulator, Tracker, cached_map, ik  # noqa: E402
-from solver.geometry_tolerance import geometry_tolerance, joint_equivalent  # noqa: E402
+from solver.geometry_tolerance import built_robot, geometry_tolerance, joint_equivalent  # noqa: E402
 from solver.robot import ROBOTS, load_robot  # noqa: E402
 from solver.sensors import speed_bound  # noqa: E402
 
@@ -71,17 +71,6 @@ ROBOT_FILES = {"paper": ROBOTS / "paper-3rrr.toml", "irregular": ROBOTS / "irreg
 HEADER = ["robot", "tolerance m", "draw", "sensor", "paths", "steps", "counted", "certain steps", "silent",
           "bound holds %", "errors", "false alarms %", "fold floor %", "silent without", "bound holds without %",
           "tightness x", "tightness y", "tightness phi", "median step us", "median step without us", "ratio"]
-
-
-def built_robot(model: Manipulator, tol: float, rng, draw: str) -> Manipulator:
-    """A robot inside the tolerance box of ``model``: uniform or at a corner."""
-    d = model.to_dict()
-    for key in ("motors", "platform", "l1", "l2"):
-        a = np.asarray(d[key], float)
-        d[key] = (a + tol * (rng.choice([-1.0, 1.0], a.shape) if draw == "corner" else
-                             rng.uniform(-1.0, 1.0, a.shape))).tolist()
-    d["name"] = f"{model.name}-built"
-    return Manipulator.from_dict(d)
 
 
 def misses(X, X_true, bound):
@@ -99,7 +88,7 @@ def run_config(model, maps, paths, tol, draw, sensor, seed, fold_every):
                fold_n=0, fold=0, silent0=0, certain0=0, holds0=0)
     tight, secs, secs0 = [], [], []
     for i, path in enumerate(paths):
-        built = built_robot(model, tol, rng, draw)
+        built = built_robot(model, tol, rng, corner=draw == "corner")
         q_true = ik(built, path.X, path.posture)
         if not np.all(np.isfinite(q_true)):
             continue                                             # the built robot cannot follow this path

@@ -1,111 +1,57 @@
-"""One tracker step for the robot as built: the joint width of the step's pose box, and its check.
+"""Where a tracker carries the robot as built: a slack in each leg's constraint, or a joint width.
 
-:mod:`solver.geometry_tolerance` turns the robot's geometric tolerance into a joint half-width over a
-box of poses and joints. A step of :class:`solver.Tracker` with a non-zero ``geometry_tolerance``
-(:func:`as_built_step`) runs its certificates with ``joint_tolerance + eps``, ``eps`` that width
-(:func:`solver._kernels.geometry_width.step_width`) over
+:mod:`solver.geometry_tolerance` bounds how far a built leg's closure lies from the model's: at the
+built robot's pose and joints, the model's platform joint ``B_i`` is within ``e_i`` (the leg's *offset
+bound*, m) of the distance its leg closes at. A :class:`solver.Tracker` with a non-zero
+``geometry_tolerance`` puts that bound into its certificates once, at construction:
 
-* the step's pose box (:func:`solver._kernels.geometry_width.step_box`): the hull of the last pose and
-  the one predicted for this sample (the last step's motion again), widened by the last proven bound,
-  a quarter of that motion and at least :data:`MOTION_FLOOR` (5e-4 of the robot's reach, 2e-3 rad);
-  after an uncertain step with a speed bound, the region the platform can have reached since the last
-  certain step (the one re-acquisition searches), with half as much again; after an uncertain step
-  without one, the whole tool space;
-* the joints between the last reading and this one (the short way round), widened by
-  ``joint_tolerance``.
+* 3-RRR (revolute legs): as a **slack** of each leg's circle constraint. The model's
+  ``F_i = |B_i - D_i(q_i)|^2 - l2_i^2`` lies within ``sigma_i = e_i (2 l2_i + e_i)`` of 0 there (the
+  same triangle inequality), whatever the elbow angle. The tracker's model pack carries ``e_i``
+  (:data:`solver._kernels.layout.MODEL_OFFSET`, :func:`as_built_pack`) and every certificate takes the
+  constraint as ``F = s``, ``|s_i| <= sigma_i``: Krawczyk's and the tubes' constant term gains
+  ``|Y| sigma``, the exclusion's and the eliminant's interval evaluations take ``l2_i^2 +- sigma_i``,
+  and the exclusion's elbow sign gives way by ``asin(e_i / rho)`` (a built robot's elbow may be the
+  model's other one where it is nearly straight). Proofs over ``(q, s)``: they hold for every robot
+  within the tolerance, and with the joints' tolerance on top. No joint width, so no ``1 / sin alpha``
+  near a straight elbow.
+* 3-RPR (prismatic legs): as a **joint width**, exactly ``e_i`` (``|h'| = 1``: the model reaches the
+  built robot's pose with each leg length within ``e_i`` of the built one's, :func:`joint_width`),
+  added to ``joint_tolerance``.
 
-After the step (:func:`solver._kernels.geometry_width.box_holds`): a certain step's pose box (its pose
-+- ``pose_bound``) must lie in the box the width was computed over; else the box grows to hold it
-(with :data:`HULL_MARGIN`) and the step runs again with the width of that box (at most
-:data:`ATTEMPTS` runs); a step that still leaves it, or whose width is infinite (an elbow may be
-straight in the box), is not vouched for. The tube between two samples is taken to stay in the hull
-of their boxes (its ends are proved there; a step's joint motion is small against the box's allowance).
+A tracker with geometric tolerance is in the measured-joints regime even on exact joints (the model's DK
+solutions of the readings are not the built robot's poses): certainty comes from the tube chain and
+re-acquisition, which bound both. With 0 nothing changes, bit for bit.
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
-from ._kernels import geometry_width as _gw
 from ._kernels import layout as _lay
-from .geometry_tolerance import GeometryTolerance, joint_equivalent
+from .geometry_tolerance import GeometryTolerance
 
-__all__ = ["as_built_step", "step_constants", "step_width", "WIDTH_ITERATIONS", "ATTEMPTS", "HULL_MARGIN",
-           "MOTION_FLOOR"]
-
-#: Iterations of the width's fixed point (:func:`solver._kernels.geometry_width.joint_width`).
-WIDTH_ITERATIONS = 5
-
-#: Runs of a step at most: the box grows to hold the proven box each time.
-ATTEMPTS = 4
-
-#: A retry's box holds the proven box widened by this factor (its wider joint width widens the bound).
-HULL_MARGIN = 1.25
-
-#: The least motion allowance of a step's pose box: a fraction of the robot's reach (m) and an angle (rad).
-MOTION_FLOOR = (5e-4, 2e-3)
-
-_NAN3 = np.full(3, np.nan)
+__all__ = ["as_built_pack", "joint_width", "tool_space_margin"]
 
 
-def step_width(model, tolerance: GeometryTolerance, box, q_prev, q, joint_tolerance: float) -> float:
-    """The joint half-width (rad or m) of the robot as built over the pose ``box`` (lo, hi), each (3,) m,
-    m, rad, and the joints between ``q_prev`` and ``q`` (3,) widened by ``joint_tolerance``; ``inf`` when
-    none covers it (what :meth:`solver.Tracker.reset` adds over its start region)."""
-    if tolerance.zero:
+def as_built_pack(model, tolerance: GeometryTolerance, pack) -> np.ndarray:
+    """The model pack ``pack`` (MODEL_SIZE,) of ``model`` with its legs' offset bounds (3-RRR; m) for the
+    robot as built; ``pack`` itself (not copied) for a zero tolerance or a 3-RPR."""
+    if tolerance.zero or model.kind == "3-RPR":
+        return pack
+    out = np.array(pack, dtype=float)
+    out[_lay.MODEL_OFFSET:_lay.MODEL_OFFSET + 3] = tolerance.offset_bound()
+    return out
+
+
+def joint_width(model, tolerance: GeometryTolerance) -> float:
+    """The joint half-width (m) a 3-RPR's tracker adds to ``joint_tolerance`` for the robot as built: the
+    largest offset bound; 0.0 for a 3-RRR (its tolerance is a slack, :func:`as_built_pack`) or a zero
+    tolerance."""
+    if tolerance.zero or model.kind != "3-RPR":
         return 0.0
-    if model.kind == "3-RPR":
-        return joint_equivalent(model, tolerance, *box, q_prev, q)
-    return float(_gw.step_width(model.motors, model.l1, model.platform, model.platform_radius,
-                                tolerance.offset_bound(), np.asarray(box[0], float), np.asarray(box[1], float),
-                                np.asarray(q_prev, float), np.asarray(q, float), float(joint_tolerance), True,
-                                WIDTH_ITERATIONS))
+    return float(np.max(tolerance.offset_bound()))
 
 
-def step_constants(model, tolerance: GeometryTolerance, reach: float, speed_bound) -> tuple:
-    """What every step of one tracker passes the kernels unchanged: the legs' offset bounds ``e`` (3,), m,
-    the motion floor (3,) (m, m, rad; ``reach`` in m), the speed bound (2,) (m/s, rad/s; 0: none)."""
-    return (np.ascontiguousarray(tolerance.offset_bound()),
-            np.array([MOTION_FLOOR[0] * reach, MOTION_FLOOR[0] * reach, MOTION_FLOOR[1]]),
-            np.zeros(2) if speed_bound is None else np.asarray(speed_bound, float))
-
-
-def as_built_step(tracker, q, state_pack, deadline) -> None:
-    """Run ``tracker``'s compiled step to joints ``q`` (3,) for the robot as built (module docstring):
-    its certificates with ``joint_tolerance`` plus the step's joint width; its result packs as the plain
-    step leaves them, with ``certain`` withdrawn where no width covers the step's poses."""
-    st, model = tracker.state, tracker.model
-    e, floor, speed = tracker._as_built
-    jt = tracker.joint_tolerance
-    lo, hi = np.empty(3), np.empty(3)
-    dt = tracker._dt
-    age = st.anchor_age + st.skipped_time + (dt if dt is not None else math.nan)
-    _gw.step_box(st.X, _NAN3 if st.X2 is None else st.X2, st.anchor_bound, st.uncertain_since < 0,
-                 _NAN3 if st.anchor is None else st.anchor, age, speed, floor, tracker._tool_space, lo, hi)
-    rpr = model.kind == "3-RPR"
-    width = ((lambda: float(np.max(e))) if rpr else
-             (lambda: _gw.step_width(model.motors, model.l1, model.platform, model.platform_radius, e, lo, hi,
-                                     st.q, q, jt, True, WIDTH_ITERATIONS)))
-    eps = width()
-    saved = tracker._anytime.copy() if deadline else None
-    params, of, oi = tracker._params, tracker._out_real, tracker._out_int
-    for attempt in range(ATTEMPTS):
-        params[_lay.PARAM_JOINT_TOL] = jt + (eps if math.isfinite(eps) else 0.0)
-        tracker._run(q, state_pack, deadline)
-        if not oi[_lay.I_CERTAIN]:
-            break
-        X, bound = of[_lay.OUT_X:_lay.OUT_X + 3], of[_lay.OUT_BOUND:_lay.OUT_BOUND + 3]
-        if math.isfinite(eps) and _gw.box_holds(lo, hi, X, bound, HULL_MARGIN):
-            break                                        # (box_holds grew [lo, hi] when it did not hold)
-        if attempt < ATTEMPTS - 1 and math.isfinite(eps):   # the pose left the box: again over the grown box
-            wider = width()
-            if math.isfinite(wider):
-                eps = max(eps, wider)
-                if saved is not None:
-                    tracker._anytime[:] = saved
-                continue
-        oi[_lay.I_CERTAIN] = oi[_lay.I_INTACT] = 0       # no width covers the robot as built: not vouched for
-        oi[_lay.I_TRUST] = min(int(oi[_lay.I_TRUST]), _lay.TRUST_POSSIBLE)
-        break
-    params[_lay.PARAM_JOINT_TOL] = jt
+def tool_space_margin(tolerance: GeometryTolerance) -> float:
+    """How far (m) a built robot's tool point can reach beyond the model's: its legs reach ``e_i`` farther."""
+    return 0.0 if tolerance.zero else float(np.max(tolerance.offset_bound()))

@@ -43,7 +43,8 @@ import numpy as np
 from ._kernels import geometry_width as _gw
 from .checks import SolverInputError
 
-__all__ = ["GeometryTolerance", "TOLERANCE_KEYS", "geometry_tolerance", "elbow_margin", "joint_equivalent"]
+__all__ = ["GeometryTolerance", "TOLERANCE_KEYS", "geometry_tolerance", "built_robot", "elbow_margin",
+           "joint_equivalent"]
 
 #: Per-field keys of a tolerance (m): the geometry's fields by kind, besides ``length`` (all of them).
 TOLERANCE_KEYS = {"3-RRR": ("motors", "l1", "l2", "platform"), "3-RPR": ("base", "platform")}
@@ -137,6 +138,33 @@ def geometry_tolerance(model, value, name: str = "geometry_tolerance") -> Geomet
         w = _width(name, value, limit)
         widths = {k: w for k in keys}
     return GeometryTolerance(model.kind, widths)
+
+
+def built_robot(model, tolerance, rng, corner: bool = False):
+    """A robot as built: ``model`` with every length and coordinate of its geometry moved within
+    ``tolerance`` (a half-width in m, a mapping or a :class:`GeometryTolerance`, as
+    :func:`geometry_tolerance`), uniformly or (``corner``) by exactly +- the half-width, a corner of the
+    tolerance box.
+
+    Parameters
+    ----------
+    model : Manipulator or RPRManipulator
+    tolerance : float, mapping or GeometryTolerance
+    rng : numpy.random.Generator
+    corner : bool
+
+    Returns
+    -------
+    Manipulator or RPRManipulator
+        Of the same kind, named ``<model.name>-as-built``.
+    """
+    tol = geometry_tolerance(model, tolerance, "tolerance")
+    d = model.to_dict()
+    for key, w in tol.widths.items():
+        a = np.asarray(d[key], float)
+        d[key] = (a + w * (rng.choice([-1.0, 1.0], a.shape) if corner else rng.uniform(-1.0, 1.0, a.shape))).tolist()
+    d["name"] = f"{model.name}-as-built"
+    return type(model).from_dict(d)
 
 
 def elbow_margin(model, X_lo, X_hi, q_lo, q_hi) -> np.ndarray:

@@ -154,7 +154,7 @@ from .grid import default_bounds
 from .manipulator import Manipulator
 from .maptensor import MapTensor
 from .ordering import rule_code
-from .as_built import as_built_step, step_constants, step_width
+from .as_built import as_built_pack, joint_width, tool_space_margin
 from .encoder_grid import encoder_bits, encoder_note, grid_tolerance
 from .geometry_tolerance import geometry_tolerance as _geometry_tolerance
 from .start import START_TOLERANCE, StartInfo, UncertainStartWarning, honest_start, start_tolerance_for
@@ -307,13 +307,13 @@ class Tracker(_TrackerBase):
             raise TrackerError(f"stuck_after = {stuck_after}: needs joint_tolerance > 0 (measured joints); an "
                                "exact joint at rest repeats its value")
         self.stuck_after = int(stuck_after)
-        bounds = _tool_space(model if model.kind == "3-RRR" else
-                             replace(model, rho_max=model.rho_max + float(joint_tolerance)))
-        self._tool_space = np.asarray(bounds, float)
-        self._reach = float(np.max(model.l1 + model.l2)) if model.kind == "3-RRR" else float(model.rho_max)
-        self._dt = None
-        self._as_built = (None if self.geometry_tolerance.zero else      # None: the model alone
-                          step_constants(model, self.geometry_tolerance, self._reach, self.speed_bound))
+        # the robot as built (solver.as_built): a 3-RRR's legs carry a slack in the model pack, a 3-RPR's a
+        # joint width on top of joint_tolerance; its tool point reaches a little beyond the model's
+        self._joint_width = joint_width(model, self.geometry_tolerance)
+        self._model_pack = as_built_pack(model, self.geometry_tolerance, self._model_pack)
+        bounds = np.array(_tool_space(model if model.kind == "3-RRR" else replace(
+            model, rho_max=model.rho_max + float(joint_tolerance) + self._joint_width)), float)
+        bounds[:2] += np.array([-1.0, 1.0]) * tool_space_margin(self.geometry_tolerance)
         self.map = map_tensor
         self.mode = mode
         self.posture = map_tensor.posture
@@ -328,7 +328,8 @@ class Tracker(_TrackerBase):
         self._params = _lay.pack_tracker_params(ambiguity_ratio, jump_factor, SUBSTEP_DQ, MAX_SUBSTEPS, singular_tol,
                                                 use_map, strategy, segment_singular,
                                                 map_tensor.posture - 1 if posture_certificate else -1,
-                                                int(max_tests), float(joint_tolerance), float(gate),
+                                                int(max_tests), float(joint_tolerance) + self._joint_width,
+                                                float(gate),
                                                 bounds[:2].ravel(), speed, int(reacquire_boxes))
         self._mode = _lay.MODE_PAPER if mode == "paper" else _lay.MODE_DEFAULT
         self._rule = rule_code(map_tensor.rule)
@@ -362,17 +363,9 @@ class Tracker(_TrackerBase):
         super().reset(X0, q0)
         st = self.state
         note = self._encoder_tolerance(st.q)
-        eps = 0.0
-        if not self.geometry_tolerance.zero:          # the robot as built, anywhere in the start region
-            eps = step_width(self.model, self.geometry_tolerance, (st.X - self.start_tolerance, st.X + self.start_tolerance),
-                             st.q, st.q, self.joint_tolerance)
         start = honest_start(self._model_pack, self.model, st.X, st.q, self.start_tolerance,
-                             self.joint_tolerance + (eps if np.isfinite(eps) else 0.0),
-                             self._w, int(self._params[_lay.PARAM_REACQUIRE]) or REACQUIRE_BOXES)
-        if not np.isfinite(eps) and start.certain:
-            start = start._replace(certain=False, pose_bound=np.full(3, np.inf), tube=None,
-                                   reason="an elbow may be straight within the start region: no joint width "
-                                          "covers the geometry tolerance there (a serial singularity)")
+                             self.joint_tolerance + self._joint_width, self._w,
+                             int(self._params[_lay.PARAM_REACQUIRE]) or REACQUIRE_BOXES)
         start = start._replace(note=note)
         self.start = start
         if warn and not start.certain:
@@ -398,7 +391,7 @@ class Tracker(_TrackerBase):
             return ""
         tol = grid_tolerance(bits)
         self.joint_tolerance = tol
-        self._params[_lay.PARAM_JOINT_TOL] = tol
+        self._params[_lay.PARAM_JOINT_TOL] = tol + self._joint_width
         note = encoder_note(what, bits, tol, self.speed_bound)
         warnings.warn(note, stacklevel=stacklevel)
         return note
@@ -411,18 +404,7 @@ class Tracker(_TrackerBase):
         if self._encoder_tolerance(q, f"the reading of step {self.state.steps + 1}", stacklevel=4):
             self._watch = 0
 
-    def step(self, q, dt: float | None = None):
-        self._dt = dt
-        return super().step(q, dt)
-
-    step.__doc__ = _TrackerBase.step.__doc__
-
     def _kernel(self, q, state_pack, deadline):
-        if self._as_built is None:
-            return self._run(q, state_pack, deadline)
-        as_built_step(self, q, state_pack, deadline)
-
-    def _run(self, q, state_pack, deadline):
         anytime, walk = self._anytime, self.state.walk
         if walk is None:
             anytime[ANY_N] = anytime[ANY_K_ON] = anytime[ANY_R_ON] = 0.0

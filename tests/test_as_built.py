@@ -5,8 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from solver import Manipulator, Tracker, TrackerError, cached_map, ik
-from solver.geometry_tolerance import elbow_margin, geometry_tolerance, joint_equivalent
+from solver import Manipulator, Tracker, TrackerError, cached_map, dk_all, ik
+from solver._kernels.exclusion import leg_misses
+from solver._kernels.krawczyk import W_SIZE, W_TOT, krawczyk
+from solver.geometry_tolerance import built_robot, elbow_margin, geometry_tolerance, joint_equivalent
 from solver.robot import ROBOTS, load_robot
 from solver.rpr import RPR_HOME_POSE, RPRManipulator
 
@@ -16,13 +18,7 @@ TOL = 5e-5
 
 
 def as_built(model, tol, rng, corner=False):
-    """A robot drawn inside the tolerance box of ``model``: uniform, or at one of the box's corners."""
-    d = model.to_dict()
-    for key in ("motors", "platform", "l1", "l2"):
-        a = np.asarray(d[key], float)
-        d[key] = (a + tol * (rng.choice([-1.0, 1.0], a.shape) if corner else rng.uniform(-1, 1, a.shape))).tolist()
-    d["name"] = model.name + "-as-built"
-    return Manipulator.from_dict(d)
+    return built_robot(model, tol, rng, corner)
 
 
 def ellipse(n=300, centre=(0.5, 0.2887), a=0.1, b=0.08, phi=0.2):
@@ -85,6 +81,128 @@ def test_the_width_is_infinite_at_a_straight_elbow_and_exact_for_the_3rpr():
     t = geometry_tolerance(rpr, 1e-4)
     X = np.asarray(RPR_HOME_POSE)
     assert joint_equivalent(rpr, t, X, X, [1, 1, 1], [1, 1, 1]) == pytest.approx(2 * np.sqrt(2) * 1e-4)
+
+
+def legs(model, tol=None):
+    """The kernels' leg arguments: M, l1, the legs (l2^2 and, for a tolerance, the offset bounds), b."""
+    M, l1, l2sq = model.circle_legs()
+    if tol is not None:
+        l2sq = np.concatenate([l2sq, geometry_tolerance(model, tol).offset_bound()])
+    return M, l1, l2sq, np.array(model.platform)
+
+
+def model_residual(model, X, q):
+    """The model's constraints F_i = |B_i(X) - D_i(q_i)|^2 - l2_i^2 (N, 3) at poses X and joints q (N, 3)."""
+    c, s = np.cos(X[:, 2]), np.sin(X[:, 2])
+    out = np.empty((len(X), 3))
+    for i in range(3):
+        bx, by = model.platform[i]
+        B = np.stack([X[:, 0] + c * bx - s * by, X[:, 1] + s * bx + c * by], -1)
+        D = model.motors[i] + model.l1[i] * np.stack([np.cos(q[:, i]), np.sin(q[:, i])], -1)
+        out[:, i] = np.sum((B - D) ** 2, -1) - model.l2[i] ** 2
+    return out
+
+
+@pytest.mark.parametrize("model", [PAPER, IRREGULAR], ids=["paper", "irregular"])
+def test_the_model_constraints_close_within_the_slack_at_every_as_built_pose(model):
+    """The slack the tracker carries (solver.as_built): at a built robot's pose and joints the model's
+    constraints lie within sigma_i = e_i (2 l2_i + e_i), and robots at the corners come close to it."""
+    rng = np.random.default_rng(17)
+    tol = geometry_tolerance(model, 2e-4)
+    e = tol.offset_bound()
+    sigma = e * (2.0 * model.l2 + e)
+    X0 = np.array(load_robot(ROBOTS / ("paper-3rrr.toml" if model is PAPER else "irregular-3rrr.toml")).home_pose)
+    worst = np.zeros(3)
+    for trial in range(20):
+        built = as_built(model, 2e-4, rng, corner=trial % 2 == 1)
+        X = X0 + rng.uniform(-1, 1, (300, 3)) * np.array([0.05, 0.05, 0.3])
+        for posture in (1, 4, 8):
+            q = ik(built, X, posture)
+            ok = np.all(np.isfinite(q), axis=1)
+            F = np.abs(model_residual(model, X[ok], q[ok]))
+            assert np.all(F <= sigma), (trial, posture, (F / sigma).max())
+            worst = np.maximum(worst, F.max(0))
+    assert np.all(worst > 0.25 * sigma), worst / sigma
+
+
+def test_leg_exclusion_holds_where_the_elbow_cosine_is_least():
+    """A leg with l1 > l2 (the example robot's first): over radii about sqrt(l1^2 - l2^2) the elbow's cosine
+    is least inside the range, not at its ends; a pose box there still reaches the joints its poses have."""
+    M, l1, l2sq, b = legs(IRREGULAR)
+    rs = np.sqrt(l1[0] ** 2 - l2sq[0])
+    assert rs > 0.1
+    x = M[0, 0] + rs - b[0, 0]                       # B_0 on the x-axis from M_0 at the least cosine's radius
+    y = M[0, 1] - b[0, 1]
+    box = np.array([x - 0.01, x + 0.01, y - 1e-7, y + 1e-7, 0.0, 0.0])
+    for sign, posture in ((1.0, 1), (-1.0, 2)):
+        q = ik(IRREGULAR, np.array([[x, y, 0.0]]), posture)[0, 0]
+        if not np.isfinite(q):
+            q = ik(IRREGULAR, np.array([[x, y, 0.0]]), 3 - posture)[0, 0]
+        assert np.isfinite(q)
+        assert not leg_misses(box, 0, sign, q, q, M, l1, l2sq, b), (sign, q)
+
+
+@pytest.mark.parametrize("model", [PAPER, IRREGULAR], ids=["paper", "irregular"])
+def test_leg_exclusion_never_drops_an_as_built_pose(model):
+    """The exclusion's leg test with the slack: for robots at the corners of a 2e-4 m box, each pose's box
+    reaches the built robot's joints in the built robot's posture, including near straight elbows, where
+    the model's elbow at those joints may be the other one (asin(e / rho) in the test)."""
+    rng = np.random.default_rng(23)
+    M, l1, l2sq, b = legs(model, 2e-4)
+    flipped = 0
+    for trial in range(10):
+        built = as_built(model, 2e-4, rng, corner=True)
+        i = trial % 3
+        for posture in (1, 2, 5, 8):
+            sign = 1.0 - 2.0 * (((posture - 1) >> i) & 1)
+            # poses whose built leg i is nearly straight (its platform joint a micrometre or less from full
+            # reach: the elbow within about 1e-3 rad of straight) and others (up to 2 cm from it)
+            d = np.concatenate([rng.uniform(0, 1e-6, 40), rng.uniform(0, 2e-2, 20)])
+            a = rng.uniform(0, 2 * np.pi, 60)
+            far = built.motors[i] + (built.l1[i] + built.l2[i] - d)[:, None] * np.stack([np.cos(a), np.sin(a)], -1)
+            phi = rng.uniform(-0.5, 0.5, 60)
+            c, s = np.cos(phi), np.sin(phi)
+            bx, by = built.platform[i]
+            X = np.stack([far[:, 0] - (c * bx - s * by), far[:, 1] - (s * bx + c * by), phi], -1)
+            bx, by = model.platform[i]
+            q = ik(built, X, posture)
+            for k in np.flatnonzero(np.isfinite(q[:, i])):
+                half = rng.uniform(1e-6, 1e-3)
+                box = np.array([X[k, 0] - half, X[k, 0] + half, X[k, 1] - half, X[k, 1] + half,
+                                X[k, 2] - 1e-3, X[k, 2] + 1e-3])
+                assert not leg_misses(box, i, sign, q[k, i], q[k, i], M, l1, l2sq, b), (trial, posture, k)
+                D = model.motors[i] + model.l1[i] * np.array([np.cos(q[k, i]), np.sin(q[k, i])])
+                B = X[k, :2] + np.array([c[k] * bx - s[k] * by, s[k] * bx + c[k] * by])
+                u = D - model.motors[i]
+                flipped += np.sign(u[0] * (B - M[i])[1] - u[1] * (B - M[i])[0]) != sign
+    assert flipped > 0                              # the test reached the model's other elbow
+
+
+def test_krawczyk_with_the_slack_holds_the_as_built_pose():
+    """Krawczyk's test over a joint box with the slack: its proven box holds the pose of robots at the
+    corners of the tolerance whose joints lie in the box; without the slack it does not always."""
+    rng = np.random.default_rng(29)
+    X0 = np.array([0.5, 0.2887, 0.1])
+    M, l1, l2sq6, b = legs(PAPER, TOL)
+    eps = np.full(3, 1e-5)
+    rho = np.full(3, 2e-3)
+    q0 = ik(PAPER, X0[None], 1)[0]
+    w = np.empty(W_SIZE)
+    none = np.zeros(3)
+    assert krawczyk(X0, rho, q0, none, none, 0.0, 0.0, eps, M, l1, b, l2sq6, w)
+    with_slack = w[W_TOT:W_TOT + 3].copy()
+    assert krawczyk(X0, rho, q0, none, none, 0.0, 0.0, eps, M, l1, b, l2sq6[:3], w)
+    without = w[W_TOT:W_TOT + 3].copy()
+    outside = 0
+    for _ in range(40):
+        built = as_built(PAPER, TOL, rng, corner=True)
+        sols = dk_all(built, q0)                       # the built robot's pose at the joints q0
+        Xb = np.array([p.real for p, r in zip(sols.poses, sols.real) if r])
+        Xb = Xb[np.argmin(np.abs(Xb - X0).sum(1))]
+        d = np.abs(Xb - X0)
+        assert np.all(d <= with_slack), (d, with_slack)
+        outside += bool(np.any(d > without))
+    assert outside > 0
 
 
 def test_a_zero_tolerance_changes_nothing_bit_for_bit():

@@ -18,7 +18,7 @@ from .candidates import certify
 from .certify import CERT_CONTINUATION, CERT_NONE, CERT_REACQUIRED, CERT_TUBE, FOLLOW_CUT, FOLLOW_DONE, same_pose
 from .choice import nearest
 from .clock import cycles, expired
-from .kinematics import geometry
+from .kinematics import as_built, geometry
 from .layout import (I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_TRUST, MAP_WEIGHTS, MODE_PAPER, OUT_BOUND,
                      OUT_CANDS, OUT_N_PAVE, OUT_N_TUBES, OUT_REGION, OUT_TUBE, OUT_X_PRED, PARAM_JOINT_TOL,
                      PARAM_MAX_TESTS, PARAM_POSTURE_BITS, PARAM_REACQUIRE, PAVE_BOXES, STATE_CANDS, STATE_EXT_SCALE,
@@ -84,6 +84,7 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
         bound[r] = np.inf
     keep = np.empty(6, dtype=np.bool_)
     tol = params[PARAM_JOINT_TOL]
+    measured = is_measured(params, model_pack)
     sol = -1
     deadline = anytime[ANY_DEADLINE]
     if untrusted or deadline <= 0.0:           # a glitch may break the path the walk assumes; a step
@@ -103,7 +104,7 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
     else:
         if deadline <= 0.0:
             n_new, cert, intact, linked = chains(state, work, poses, real, params, model_pack, new_cands, keep)
-        if tol > 0.0:                          # along the measured joints: a choice, not a proof
+        if measured:                           # along the measured joints: a choice, not a proof
             intact = False
             if params[PARAM_REACQUIRE] > 0.0 and int(params[PARAM_POSTURE_BITS]) >= 0 and not untrusted:
                 if deadline > 0.0:             # resumable (a proof the deadline cuts goes on next step),
@@ -137,7 +138,7 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
             mask[k + 1] = keep[k]
         chosen, _ = nearest(poses, real, out_real[OUT_X_PRED:OUT_X_PRED + 3], map_pack[MAP_WEIGHTS:MAP_WEIGHTS + 3],
                             mask, mask, mask, True)
-    if not certain and tol > 0.0 and mode != MODE_PAPER and not untrusted and \
+    if not certain and measured and mode != MODE_PAPER and not untrusted and \
             int(params[PARAM_POSTURE_BITS]) >= 0:    # not a pose the robot cannot be at
         taken = region_choice(chosen, poses, real, params, state, work[STEP_QU:STEP_QU + 3], model_pack)
         if taken != chosen:
@@ -162,7 +163,7 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
             bound[r] = np.inf
     out_real[OUT_N_TUBES] = n_tubes if certain else 0
     out_real[OUT_REGION:OUT_REGION + 6], out_real[OUT_N_PAVE] = np.nan, 0.0
-    if not certain and tol > 0.0 and not untrusted:
+    if not certain and measured and not untrusted:
         region_step(state, qu, params, model_pack, out_real[OUT_REGION:OUT_REGION + 6],
                     out_real[OUT_N_PAVE:OUT_N_PAVE + 1 + 6 * PAVE_BOXES], deadline)
     elif certain and boxed:
@@ -197,7 +198,7 @@ def budgeted(untrusted, state, work, poses, real, params, model_pack, new_cands,
                                  share(deadline, WALK_SHARE))
         if sol >= 0:
             return sol, n_tubes, n_new, cert, intact, linked
-    measured = tol_of(params) > 0.0
+    measured = is_measured(params, model_pack)
     chain_share = PENDING_CHAIN_SHARE if measured and anytime[ANY_N] > 0.0 else CHAIN_SHARE
     n_new, cert, intact, linked = anytime_chains(untrusted, state, work, poses, real, params, model_pack, new_cands,
                                                  keep, anytime, True, share(deadline, chain_share))
@@ -257,6 +258,14 @@ def anytime_chains(untrusted, state, work, poses, real, params, model_pack, new_
 @njit(cache=True, inline="always")
 def tol_of(params):
     return params[PARAM_JOINT_TOL]
+
+
+@njit(cache=True, inline="always")
+def is_measured(params, model_pack):
+    """Whether the robot's pose may lie off the model's DK solutions of the readings: joints read within a
+    tolerance, or a robot as built (its legs' offsets): the chains along the readings then only steer the
+    choice, and certainty comes from the tube chain and re-acquisition, which bound both."""
+    return tol_of(params) > 0.0 or as_built(geometry(model_pack)[2])
 
 
 @njit(cache=True, inline="always")

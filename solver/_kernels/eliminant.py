@@ -21,7 +21,9 @@ solution to re-acquire has its phi there, every pose of the region (in any postu
 joint box is that solution's: its phi in the run, its ``P = n / delta`` in the interval enclosure
 over the run (``delta`` kept away from 0), which gives the pose bound.  With the robot's posture
 known, a run whose box holds no pose reaching the joint box in that posture is ruled out too
-(another assembly mode in another posture), and the range may be a whole turn.
+(another assembly mode in another posture), and the range may be a whole turn.  For the robot as built
+each ``l2_i^2`` is an interval (its slack, :func:`.kinematics.leg_slack`): every claim holds for each
+geometry within it.
 """
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ from numba import njit
 
 from .clock import expired
 from .exclusion import posture_misses
+from .kinematics import leg_slack
 from .krawczyk import PAD, TWO_PI
 
 #: The first cut of the region's phi range (rad), the narrowest interval halving may reach, and the
@@ -143,7 +146,8 @@ def eliminant(pm, h, D0, D1, b, l2sq, out):
     s[A_SIZE], s[A_SIZE + 1], s[A_SIZE + A_R] = cm, -sm * h, rem
     u0x = q_add(q_add(q_scale(b[0, 0], c), q_scale(b[0, 1], s), -1.0), D0[0], -1.0)
     u0y = q_add(q_add(q_scale(b[0, 0], s), q_scale(b[0, 1], c)), D1[0], -1.0)
-    k0 = q_add(q_add(q_mul(u0x, u0x), q_mul(u0y, u0y)), q_const(l2sq[0], 0, 0.0, 0.0), -1.0)
+    # the robot as built: each l2_i^2 within its slack sigma_i (a remainder; uncorrelated across terms: wider)
+    k0 = q_add(q_add(q_mul(u0x, u0x), q_mul(u0y, u0y)), q_const(l2sq[0], 0, 0.0, leg_slack(l2sq, 0)), -1.0)
     rx = np.empty((2, Q_SIZE))
     ry = np.empty((2, Q_SIZE))
     hh = np.empty((2, Q_SIZE))
@@ -154,7 +158,8 @@ def eliminant(pm, h, D0, D1, b, l2sq, out):
         # k_j - k_0 = (r_j + 2 u_0) . r_j - (l2_j^2 - l2_0^2)
         sx = q_add(rx[j], q_scale(2.0, u0x))
         sy = q_add(ry[j], q_scale(2.0, u0y))
-        dk = q_add(q_add(q_mul(sx, rx[j]), q_mul(sy, ry[j])), q_const(l2sq[j + 1] - l2sq[0], 0, 0.0, 0.0), -1.0)
+        dk = q_add(q_add(q_mul(sx, rx[j]), q_mul(sy, ry[j])),
+                   q_const(l2sq[j + 1] - l2sq[0], 0, 0.0, leg_slack(l2sq, j + 1) + leg_slack(l2sq, 0)), -1.0)
         hh[j] = q_scale(-0.5, dk)
     delta = q_add(q_mul(rx[0], ry[1]), q_mul(ry[0], rx[1]), -1.0)
     nx = q_add(q_mul(hh[0], ry[1]), q_mul(hh[1], ry[0]), -1.0)

@@ -25,7 +25,7 @@ from numba import njit
 
 from .certify import TINY, elbow_bits, prove_part, same_pose
 from .clock import expired
-from .kinematics import geometry
+from .kinematics import geometry, leg_offset, leg_slack
 from .krawczyk import PAD, TWO_PI, W_SIZE, _smul, icos, isin, krawczyk
 from .tube import (TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_T, TUBE_V, TUBE_W, TUBE_X, set_spread, slab_test,
                    tube_test)
@@ -80,15 +80,17 @@ def leg_misses(box, i, sign, qlo_t, qhi_t, M, l1, l2sq, b):
     rlo, rhi = math.sqrt(x2lo + y2lo), math.sqrt(x2hi + y2hi)
     if rlo < 1e-9:
         return False
-    # cos alpha = (l1^2 + rho^2 - l2^2) / (2 l1 rho): at both ends and at its minimum rho^2 = l2^2 - l1^2
-    c0 = l1[i] * l1[i] - l2sq[i]
-    fa = (c0 + rlo * rlo) / (2.0 * l1[i] * rlo)
-    fb = (c0 + rhi * rhi) / (2.0 * l1[i] * rhi)
-    flo, fhi = min(fa, fb), max(fa, fb)
-    if c0 < 0.0:
-        rs = math.sqrt(-c0)
+    # cos alpha = (c0 + rho^2) / (2 l1 rho), c0 = l1^2 - l2^2 (the robot as built: l2^2 within sigma):
+    # largest at an end of [rlo, rhi], smallest at an end or at rho^2 = c0 (its minimum when c0 > 0)
+    slack = leg_slack(l2sq, i)
+    c0lo, c0hi = l1[i] * l1[i] - l2sq[i] - slack, l1[i] * l1[i] - l2sq[i] + slack
+    k2 = 2.0 * l1[i]
+    flo = min((c0lo + rlo * rlo) / (k2 * rlo), (c0lo + rhi * rhi) / (k2 * rhi))
+    fhi = max((c0hi + rlo * rlo) / (k2 * rlo), (c0hi + rhi * rhi) / (k2 * rhi))
+    if c0lo > 0.0:
+        rs = math.sqrt(c0lo)
         if rlo < rs < rhi:
-            flo = min(flo, (c0 + rs * rs) / (2.0 * l1[i] * rs))
+            flo = min(flo, rs / l1[i])
     flo, fhi = flo - 1e-12, fhi + 1e-12
     if flo > 1.0 or fhi < -1.0:
         return True                                     # the leg cannot reach any pose of the box
@@ -97,6 +99,22 @@ def leg_misses(box, i, sign, qlo_t, qhi_t, M, l1, l2sq, b):
         qlo, qhi = tlo - ahi, thi - alo
     else:
         qlo, qhi = tlo + alo, thi + ahi
+    e = leg_offset(l2sq, i)
+    if e > 0.0:
+        # the robot as built is in the posture, the model at its pose and joints may not be: the elbow's
+        # sign is that of the crank's cross product with A_i - M_i, which the geometry moves by at most e:
+        # the model's signed elbow angle lies within delta = asin(e / rho) beyond [0, pi]
+        delta = math.asin(min(1.0, e / rlo)) + PAD if e < rlo else math.pi
+        if alo < delta:
+            if sign > 0.0:
+                qhi = max(qhi, thi + delta)
+            else:
+                qlo = min(qlo, tlo - delta)
+        if ahi > math.pi - delta:
+            if sign > 0.0:
+                qlo = min(qlo, tlo - math.pi - delta)
+            else:
+                qhi = max(qhi, thi + math.pi + delta)
     n_lo = math.ceil((qlo_t - qhi) / TWO_PI)
     n_hi = math.floor((qhi_t - qlo) / TWO_PI)
     return n_lo > n_hi

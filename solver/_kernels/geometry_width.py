@@ -2,7 +2,9 @@
 
 ``elbow_margins``: per leg a lower bound of ``l1_i |sin alpha_i|`` over the box (``alpha_i`` the
 elbow angle); ``joint_width``: the fixed point ``eps = e / m(joints widened by eps)``, ``inf`` when
-an elbow may be straight. Scalars only: a step calls it once (about a microsecond).
+an elbow may be straight. Scalars only.  The tracker carries a 3-RRR's tolerance as a constraint slack
+(:mod:`solver.as_built`), not as this width; the width is the reduction's own measure (the benchmarks'
+fold floor with the geometry box, and the tests of the reduction).
 """
 from __future__ import annotations
 
@@ -101,70 +103,3 @@ def joint_width(M, l1, b, b_radius, e, X_lo, X_hi, q_lo, q_hi, iterations):
         if not (m[i] > 0.0 and e[i] / m[i] <= eps[i]):
             return math.inf
     return max(eps[0], max(eps[1], eps[2]))
-
-
-@njit(cache=True)
-def step_box(X, X2, bound, certain_before, anchor, age, speed, floor, tool_space, lo, hi):
-    """The pose box ``[lo, hi]`` (3,) of a step (:mod:`solver.as_built`): after a certain step the hull
-    of the last pose ``X`` and the one predicted (``X2`` the pose before, NaN: none) widened by the
-    proven ``bound``, a quarter of the motion and ``floor``; after an uncertain one with a speed bound
-    (``speed`` (2,), 0: none) the region reached since the ``anchor`` (widened by half), else the tool
-    space (3, 2)."""
-    finite = math.isfinite(bound[0]) and math.isfinite(bound[1]) and math.isfinite(bound[2])
-    if certain_before and finite:
-        for a in range(3):
-            d = 0.0
-            if math.isfinite(X2[a]):
-                d = X[a] - X2[a]
-                if a == 2:
-                    d = d - 2.0 * math.pi * round(d / (2.0 * math.pi))
-            s = bound[a] + 0.25 * abs(d) + floor[a]
-            lo[a] = min(X[a], X[a] + d) - s
-            hi[a] = max(X[a], X[a] + d) + s
-        return
-    if speed[0] > 0.0 and finite and math.isfinite(anchor[0]) and math.isfinite(age):
-        for a in range(3):
-            r = 1.5 * (bound[a] + (speed[0] if a < 2 else speed[1]) * age)
-            lo[a], hi[a] = anchor[a] - r, anchor[a] + r
-        return
-    for a in range(3):
-        lo[a], hi[a] = tool_space[a, 0], tool_space[a, 1]
-
-
-@njit(cache=True)
-def step_width(M, l1, b, b_radius, e, lo, hi, q_prev, q, joint_tol, angles, iterations):
-    """:func:`joint_width` over the pose box ``[lo, hi]`` and the joints between ``q_prev`` and ``q`` (3,)
-    (``angles``: the short way round) widened by ``joint_tol``; ``inf`` for an unbounded box."""
-    q_lo, q_hi, X_lo, X_hi = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-    for a in range(3):
-        if not (math.isfinite(lo[a]) and math.isfinite(hi[a])):
-            return math.inf
-        X_lo[a], X_hi[a] = lo[a], hi[a]
-        qa = q[a]
-        if angles:
-            d = qa - q_prev[a]
-            qa = q_prev[a] + d - 2.0 * math.pi * round(d / (2.0 * math.pi))
-        q_lo[a], q_hi[a] = min(q_prev[a], qa) - joint_tol, max(q_prev[a], qa) + joint_tol
-    if X_hi[2] - X_lo[2] >= 2.0 * math.pi:
-        X_lo[2], X_hi[2] = -math.pi, math.pi
-    return joint_width(M, l1, b, b_radius, e, X_lo, X_hi, q_lo, q_hi, iterations)
-
-
-@njit(cache=True)
-def box_holds(lo, hi, X, bound, margin):
-    """Whether ``[lo, hi]`` holds the pose box ``X +- bound`` (phi unwrapped about the box's centre; a
-    box spanning a turn holds every phi); if not, ``[lo, hi]`` grows to hold ``X +- margin * bound``."""
-    c = 0.5 * (lo[2] + hi[2])
-    d = X[2] - c
-    x2 = c + d - 2.0 * math.pi * round(d / (2.0 * math.pi))
-    ok = True
-    for a in range(3):
-        xa = x2 if a == 2 else X[a]
-        if not (lo[a] <= xa - bound[a] and xa + bound[a] <= hi[a]) and not (a == 2 and hi[2] - lo[2] >= 2 * math.pi):
-            ok = False
-    if not ok:
-        for a in range(3):
-            xa = x2 if a == 2 else X[a]
-            lo[a] = min(lo[a], xa - margin * bound[a])
-            hi[a] = max(hi[a], xa + margin * bound[a])
-    return ok

@@ -18,15 +18,45 @@ import math
 import numpy as np
 from numba import njit
 
-from .layout import MODEL_L1, MODEL_L2SQ, MODEL_MOTORS, MODEL_PLATFORM
+from .layout import MODEL_L1, MODEL_L2SQ, MODEL_MOTORS, MODEL_OFFSET, MODEL_PLATFORM
 from .linalg import cramer3, det3, hadamard, row_ratio, solve3, wrap
 
 
 @njit(cache=True)
 def geometry(model_pack):
-    """Views of the model pack: motors (3, 2), l1 (3,), l2^2 (3,), platform joints (3, 2)."""
+    """Views of the model pack: motors (3, 2), l1 (3,), the legs (6,): l2^2 (3,) then the offset bounds of
+    the robot as built (3,, m; :func:`leg_slack`), platform joints (3, 2).  Every kernel reads ``l2sq[i]``,
+    ``i < 3``; a ``l2sq`` of three entries (a model's, from Python) has no offsets."""
     return (model_pack[MODEL_MOTORS:MODEL_MOTORS + 6].reshape((3, 2)), model_pack[MODEL_L1:MODEL_L1 + 3],
-            model_pack[MODEL_L2SQ:MODEL_L2SQ + 3], model_pack[MODEL_PLATFORM:MODEL_PLATFORM + 6].reshape((3, 2)))
+            model_pack[MODEL_L2SQ:MODEL_OFFSET + 3], model_pack[MODEL_PLATFORM:MODEL_PLATFORM + 6].reshape((3, 2)))
+
+
+@njit(cache=True, inline="always")
+def leg_offset(l2sq, i):
+    """Leg ``i``'s offset bound ``e_i`` (m) of the robot as built: 0 for the model, and for a prismatic leg
+    (whose tolerance the tracker carries as a joint width, exactly ``e_i``)."""
+    if l2sq.shape[0] < 6 or l2sq[i] < 0.0:
+        return 0.0
+    return l2sq[3 + i]
+
+
+@njit(cache=True, inline="always")
+def leg_slack(l2sq, i):
+    """The slack ``sigma_i`` (m^2) of leg ``i``'s circle constraint for the robot as built: at the built
+    robot's pose and joints the model's ``F_i = |P + R(phi) b_i - D_i(q_i)|^2 - l2_i^2`` lies in
+    ``[-sigma_i, sigma_i]``, ``sigma_i = e_i (2 l2_i + e_i)`` (the model's distance there is within
+    ``e_i`` of ``l2_i``: the triangle inequality; :mod:`solver.geometry_tolerance`).  0 without offsets."""
+    e = leg_offset(l2sq, i)
+    if e == 0.0:
+        return 0.0
+    return e * (2.0 * math.sqrt(l2sq[i]) + e) * (1.0 + 1e-12)
+
+
+@njit(cache=True, inline="always")
+def as_built(l2sq):
+    """Whether the legs carry an offset (the robot as built): the certificates then bound the pose for
+    every geometry within it, and the joints' chains along the readings vouch for nothing."""
+    return leg_offset(l2sq, 0) > 0.0 or leg_offset(l2sq, 1) > 0.0 or leg_offset(l2sq, 2) > 0.0
 
 
 @njit(cache=True, inline="always")

@@ -12,7 +12,9 @@ constraints ``F(X, q) = 0`` have exactly one solution in ``B`` (J regular on
 B).  It is Krawczyk's operator in centred form,
 ``K = m - Y F(m, s_c) - Y g(m, S) (S - s_c) - Y F_q(m, Q) e + (I - Y J(B, Q)) (B - m)``
 with ``Y = J(m, s_c)^-1``, ``g = dF/ds = F_q dq/ds`` and ``e`` the tube's offset;
-``K`` inside ``B`` is the proof.
+``K`` inside ``B`` is the proof.  For the robot as built the constraints are ``F(X, q) = s`` for some
+``|s_i| <= sigma_i`` (:func:`.kinematics.leg_slack`): one more term, ``|Y| sigma``, and the proof holds
+for every such ``s``.
 
 Floating point: the interval arithmetic here rounds to nearest, not outward.
 Every interval end and every point evaluation is padded by :data:`PAD` (1e-14
@@ -26,7 +28,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .kinematics import radius_sq, radius_sq_dq
+from .kinematics import leg_slack, radius_sq, radius_sq_dq
 from .linalg import inverse3_flat as inverse3
 
 #: Absolute pad of every interval end and point evaluation.
@@ -144,7 +146,7 @@ def krawczyk(m, rho, q0, d1, d2, s_lo, s_hi, eps, M, l1, b, l2sq, w):
         if l2sq[i] < 0.0:                            # a prismatic leg: dF_i/dq_i = -2 q_i over the tube
             fqlo, fqhi = fqlo - 2.0 * (qhi + eps[i]) - PAD, fqhi - 2.0 * (qlo - eps[i]) + PAD
         w[W_GLO + i], w[W_GHI + i] = _mul(fqlo, fqhi, vlo, vhi)
-        w[W_FQ + i] = max(abs(fqlo), abs(fqhi)) * eps[i]
+        w[W_FQ + i] = max(abs(fqlo), abs(fqhi)) * eps[i] + leg_slack(l2sq, i)   # (+ the as-built slack)
     return _image_inside(w, rho, hs)
 
 
@@ -182,7 +184,7 @@ def _image_inside(w, rho, hs):
             glo += a
             ghi += c2
         t = abs(yf) + ypad * PAD + hs * max(abs(glo), abs(ghi))
-        for j in range(3):                            # the joints' own box: |Y| |dF/dq| eps
+        for j in range(3):                            # the joints' own box |Y| |dF/dq| eps, and |Y| sigma
             t += abs(w[W_Y + 3 * r + j]) * w[W_FQ + j]
         for j in range(3):
             lo = 1.0 if r == j else 0.0

@@ -15,17 +15,21 @@ import numpy as np
 MODEL_MOTORS = 0          # (3, 2) motor positions M_i, m
 MODEL_L1 = 6              # (3,) proximal lengths l1_i, m
 MODEL_L2SQ = 9            # (3,) squared distal lengths l2_i^2, m^2
-MODEL_PLATFORM = 12       # (3, 2) platform joints b_i in the platform frame, m
-MODEL_COS8 = 18           # (8,) cos of the eight sample angles 2 pi m / 8
-MODEL_SIN8 = 26           # (8,) sin of the eight sample angles
-MODEL_PSI = 34            # (8,) half-angle shift psi_j of each sample j
-MODEL_SNAP_TOL = 42       # |Im phi| below which a root is tried as real
-MODEL_REAL_TOL = 43       # residual below which a polished root is real, m^2
-MODEL_NEWTON_STEPS = 44   # Newton steps that polish a real root (an integer)
-MODEL_SIZE = 45
+MODEL_OFFSET = 12         # (3,) the legs' offset bounds e_i of the robot as built, m (0: the model is the robot)
+MODEL_PLATFORM = 15       # (3, 2) platform joints b_i in the platform frame, m
+MODEL_COS8 = 21           # (8,) cos of the eight sample angles 2 pi m / 8
+MODEL_SIN8 = 29           # (8,) sin of the eight sample angles
+MODEL_PSI = 37            # (8,) half-angle shift psi_j of each sample j
+MODEL_SNAP_TOL = 45       # |Im phi| below which a root is tried as real
+MODEL_REAL_TOL = 46       # residual below which a polished root is real, m^2
+MODEL_NEWTON_STEPS = 47   # Newton steps that polish a real root (an integer)
+MODEL_SIZE = 48
 #: Every leg is a circle constraint |P + R(phi) b_i - D_i|^2 = r_i^2: for the 3-RRR the joint moves the
 #: centre (D_i = M_i + l1_i (cos q_i, sin q_i), r_i^2 = MODEL_L2SQ), for the 3-RPR the radius (l1 = 0 so
 #: D_i = M_i, the base joint; MODEL_L2SQ < 0 marks the leg prismatic: r_i = q_i, kinematics.radius_sq).
+#: MODEL_OFFSET follows MODEL_L2SQ: kinematics.geometry hands both to the kernels as one (6,) view, the
+#: squared radii and the offsets (a revolute leg of a robot as built closes within e_i of the model's:
+#: |P + R(phi) b_i - D_i|^2 within sigma_i = e_i (2 l2_i + e_i) of l2_i^2; kinematics.leg_slack).
 
 # ----------------------------------------------------------------------------- tracker state pack
 # What a step reads of the tracker's state (rewritten before every step).
@@ -137,12 +141,15 @@ RULE_REAL_PHI, RULE_LITERAL, RULE_REAL_X, RULE_REAL_Y, RULE_ASPECT = 0, 1, 2, 3,
 
 
 # ----------------------------------------------------------------------------- packers
-def pack_model(motors, l1, l2sq, platform, cos8, sin8, psi, snap_tol, real_tol, newton_steps) -> np.ndarray:
-    """The model pack (MODEL_SIZE,) of a geometry and its DK constants."""
+def pack_model(motors, l1, l2sq, platform, cos8, sin8, psi, snap_tol, real_tol, newton_steps,
+               offset=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """The model pack (MODEL_SIZE,) of a geometry and its DK constants; ``offset`` (3,), m: the legs'
+    offset bounds of the robot as built (:meth:`solver.geometry_tolerance.GeometryTolerance.offset_bound`)."""
     pack = np.empty(MODEL_SIZE)
     pack[MODEL_MOTORS:MODEL_MOTORS + 6] = np.ravel(motors)
     pack[MODEL_L1:MODEL_L1 + 3] = l1
     pack[MODEL_L2SQ:MODEL_L2SQ + 3] = l2sq
+    pack[MODEL_OFFSET:MODEL_OFFSET + 3] = offset
     pack[MODEL_PLATFORM:MODEL_PLATFORM + 6] = np.ravel(platform)
     pack[MODEL_COS8:MODEL_COS8 + 8] = cos8
     pack[MODEL_SIN8:MODEL_SIN8 + 8] = sin8

@@ -9,7 +9,9 @@ predictor, ``x = x~ + S (q - q~) + y``, and runs Krawczyk's test on
 ``Q`` at once.  The first-order term in the joint error cancels (``J~ S + K~ ~ 0``), and the
 Jacobian's spread is evaluated as an affine form in ``(q - q~, y)`` (point matrices
 ``C A_k``, ``C B_j``) plus a closed-form second-order remainder, so that cancellations are
-kept.  When the Krawczyk radius ``kappa < rho``, then for every ``q`` in ``Q`` exactly one
+kept.  (The robot as built: ``F(x, q) = s`` with ``|s_i| <= sigma_i``, :func:`.kinematics.leg_slack`, one
+more parameter whose term ``|C| sigma`` joins the constant part; every claim below then holds for each
+``(q, s)``.)  When the Krawczyk radius ``kappa < rho``, then for every ``q`` in ``Q`` exactly one
 pose lies in the *tube* ``T = {x~ + S (q - q~) + y : |y| <= rho}``, and it satisfies
 ``|y| <= kappa``: the tube's solution is a continuous function of ``q`` on ``Q``.  ``kappa`` is then
 tightened: the solution's ``y`` satisfies ``|y| <= a + M |y|`` (``a`` the Krawczyk image's
@@ -40,6 +42,7 @@ import math
 import numpy as np
 from numba import njit
 
+from .kinematics import leg_slack
 from .krawczyk import PAD, W_SIZE, newton_on_path
 from .linalg import inverse3, wrap
 
@@ -235,6 +238,7 @@ def slab_test(xg, qc, V, tw, tq, rho_min, M, l1, l2sq, b, tube):
         beta[i] = 2.0 * en[i] * r0 + (math.hypot(gt[i, 0], gt[i, 1]) + r0) ** 2 + PAD * fscale[i]
         if l2sq[i] < 0.0:
             beta[i] += t[i] * t[i]
+        beta[i] += leg_slack(l2sq, i)          # the robot as built: F_i within sigma_i of 0 at its pose
     a = np.empty(3)
     for r in range(3):
         acc = abs(C[r, 0] * F[0] + C[r, 1] * F[1] + C[r, 2] * F[2])
