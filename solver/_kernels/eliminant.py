@@ -46,23 +46,35 @@ MAX_EVALS = 6000
 MAX_RUN = 512
 
 
-#: An affine form over the noise symbols e_0 (phi's interval) and e_1..e_3 (the joints), all |e_j| <= 1:
-#: its centre (index 0), the coefficient of e_j (index 1 + j) and a remainder (index 5); a quantity is
-#: two of them, its value and its d/dphi.
-A_C, A_R, A_SIZE = 0, 5, 6
+#: An affine form over the noise symbols e_0 (phi's interval), e_1..e_3 (the joints) and e_4..e_6 (the legs'
+#: slacks of the robot as built), all |e_j| <= 1: its centre (index 0), the coefficient of e_j (index 1 + j)
+#: and a remainder (index A_R); a quantity is two of them, its value and its d/dphi.
+N_SYM = 7
+A_C, A_R, A_SIZE = 0, 1 + N_SYM, 2 + N_SYM
 Q_SIZE = 2 * A_SIZE
+#: The first slack symbol: leg i's slack is e_(SLACK_SYM + i).
+SLACK_SYM = 4
+
+
+@njit(cache=True, inline="always")
+def _dev(x, o):
+    """sum |coefficients| of the affine form at ``x[o:]``."""
+    t = 0.0
+    for j in range(1, A_R):
+        t += abs(x[o + j])
+    return t
 
 
 @njit(cache=True, inline="always")
 def _mag(x, o):
     """|centre| + sum |coefficients| of the affine form at ``x[o:]``."""
-    return abs(x[o]) + abs(x[o + 1]) + abs(x[o + 2]) + abs(x[o + 3]) + abs(x[o + 4])
+    return abs(x[o]) + _dev(x, o)
 
 
 @njit(cache=True, inline="always")
 def _aff_add(x, xo, y, yo, sy, z, zo):
     """z = x + sy y (affine forms at offsets; ``sy`` +1 or -1), the rounding in the remainder."""
-    for j in range(5):
+    for j in range(A_R):
         z[zo + j] = x[xo + j] + sy * y[yo + j]
     z[zo + A_R] = (x[xo + A_R] + y[yo + A_R]) * (1.0 + PAD) + PAD * (_mag(x, xo) + _mag(y, yo))
 
@@ -71,10 +83,10 @@ def _aff_add(x, xo, y, yo, sy, z, zo):
 def _aff_mul(x, xo, y, yo, z, zo):
     """z = x y: centre and linear terms exact to rounding, the products of deviations in the remainder."""
     xc, yc = x[xo], y[yo]
-    dx = abs(x[xo + 1]) + abs(x[xo + 2]) + abs(x[xo + 3]) + abs(x[xo + 4]) + x[xo + A_R]
-    dy = abs(y[yo + 1]) + abs(y[yo + 2]) + abs(y[yo + 3]) + abs(y[yo + 4]) + y[yo + A_R]
+    dx = _dev(x, xo) + x[xo + A_R]
+    dy = _dev(y, yo) + y[yo + A_R]
     z[zo] = xc * yc
-    for j in range(1, 5):
+    for j in range(1, A_R):
         z[zo + j] = xc * y[yo + j] + yc * x[xo + j]
     z[zo + A_R] = (abs(xc) * y[yo + A_R] + abs(yc) * x[xo + A_R] + dx * dy) * (1.0 + PAD) + \
         PAD * (_mag(x, xo) * _mag(y, yo) + abs(xc * yc) + 1e-300)
@@ -106,7 +118,7 @@ def q_scale(k, x):
     """k x for a number ``k``."""
     z = np.empty(Q_SIZE)
     for o in (0, A_SIZE):
-        for j in range(5):
+        for j in range(A_R):
             z[o + j] = k * x[o + j]
         z[o + A_R] = abs(k) * x[o + A_R] * (1.0 + PAD) + PAD * abs(k) * _mag(x, o)
     return z
@@ -114,8 +126,8 @@ def q_scale(k, x):
 
 @njit(cache=True, inline="always")
 def q_const(v, j, a, r):
-    """The quantity ``v + a e_j`` (remainder ``r``; ``j`` 1..3, a joint's symbol) or the number ``v``
-    (``j = 0``, ``a = 0``), neither depending on phi (its d/dphi is zero)."""
+    """The quantity ``v + a e_j`` (remainder ``r``; ``j`` 1..3 a joint's symbol, SLACK_SYM.. a leg's slack)
+    or the number ``v`` (``j = 0``, ``a = 0``), neither depending on phi (its d/dphi is zero)."""
     z = np.zeros(Q_SIZE)
     z[0] = v
     z[1 + j] += a
@@ -126,7 +138,7 @@ def q_const(v, j, a, r):
 @njit(cache=True, inline="always")
 def q_range(x, o):
     """(lo, hi) of the affine form at ``x[o:]``."""
-    w = abs(x[o + 1]) + abs(x[o + 2]) + abs(x[o + 3]) + abs(x[o + 4]) + x[o + A_R]
+    w = _dev(x, o) + x[o + A_R]
     w += PAD * _mag(x, o)
     return x[o] - w, x[o] + w
 
@@ -146,8 +158,8 @@ def eliminant(pm, h, D0, D1, b, l2sq, out):
     s[A_SIZE], s[A_SIZE + 1], s[A_SIZE + A_R] = cm, -sm * h, rem
     u0x = q_add(q_add(q_scale(b[0, 0], c), q_scale(b[0, 1], s), -1.0), D0[0], -1.0)
     u0y = q_add(q_add(q_scale(b[0, 0], s), q_scale(b[0, 1], c)), D1[0], -1.0)
-    # the robot as built: each l2_i^2 within its slack sigma_i (a remainder; uncorrelated across terms: wider)
-    k0 = q_add(q_add(q_mul(u0x, u0x), q_mul(u0y, u0y)), q_const(l2sq[0], 0, 0.0, leg_slack(l2sq, 0)), -1.0)
+    # the robot as built: leg i closes at l2_i^2 + sigma_i e_(SLACK_SYM + i) (its slack, its own symbol)
+    k0 = q_add(q_add(q_mul(u0x, u0x), q_mul(u0y, u0y)), q_const(l2sq[0], SLACK_SYM, leg_slack(l2sq, 0), 0.0), -1.0)
     rx = np.empty((2, Q_SIZE))
     ry = np.empty((2, Q_SIZE))
     hh = np.empty((2, Q_SIZE))
@@ -158,8 +170,10 @@ def eliminant(pm, h, D0, D1, b, l2sq, out):
         # k_j - k_0 = (r_j + 2 u_0) . r_j - (l2_j^2 - l2_0^2)
         sx = q_add(rx[j], q_scale(2.0, u0x))
         sy = q_add(ry[j], q_scale(2.0, u0y))
-        dk = q_add(q_add(q_mul(sx, rx[j]), q_mul(sy, ry[j])),
-                   q_const(l2sq[j + 1] - l2sq[0], 0, 0.0, leg_slack(l2sq, j + 1) + leg_slack(l2sq, 0)), -1.0)
+        sl = q_const(l2sq[j + 1] - l2sq[0], SLACK_SYM + j + 1, leg_slack(l2sq, j + 1), 0.0)
+        sl[1 + SLACK_SYM] = -leg_slack(l2sq, 0)
+        sl[A_R] += PAD * leg_slack(l2sq, 0)
+        dk = q_add(q_add(q_mul(sx, rx[j]), q_mul(sy, ry[j])), sl, -1.0)
         hh[j] = q_scale(-0.5, dk)
     delta = q_add(q_mul(rx[0], ry[1]), q_mul(ry[0], rx[1]), -1.0)
     nx = q_add(q_mul(hh[0], ry[1]), q_mul(hh[1], ry[0]), -1.0)
@@ -284,23 +298,47 @@ def end_signs(lo, hi, D0, D1, b, l2sq, ev):
     return -1 if a != z else 1
 
 
-@njit(cache=True, inline="always")
+#: Interval evaluations one pose enclosure may spend cutting its run's intervals where ``f`` cannot vanish.
+REFINE_EVALS = 192
+
+
+@njit(cache=True)
 def run_box(run, n, D0, D1, b, l2sq, ev, box):
-    """The pose box (6,) over the run's intervals ``run[:n]``: ``P = n / delta`` enclosed interval by
-    interval (False when ``delta`` may vanish), phi the run's span."""
+    """The pose box (6,) over the run's intervals ``run[:n]``: each interval is halved where that lets a half
+    drop (``f`` cannot vanish on it: no root there), within :data:`REFINE_EVALS` evaluations, the narrowest
+    a hundredth of the interval; ``P = n / delta`` is enclosed over the pieces left (False when ``delta``
+    may vanish on one), phi is their span (False when no piece is left: the run holds no root)."""
     box[0], box[1], box[2], box[3] = np.inf, -np.inf, np.inf, -np.inf
-    box[4], box[5] = run[0, 0], run[n - 1, 1]
+    box[4], box[5] = np.inf, -np.inf
+    stack = np.empty((64, 2))
+    budget = REFINE_EVALS
     for j in range(n):
-        eliminant(0.5 * (run[j, 0] + run[j, 1]), 0.5 * (run[j, 1] - run[j, 0]), D0, D1, b, l2sq, ev)
-        dlo, dhi = ev[4], ev[5]
-        if not (dlo > 0.0 or dhi < 0.0):
-            return False
-        for a in range(2):
-            nlo, nhi = ev[6 + 2 * a], ev[7 + 2 * a]
-            p1, p2, p3, p4 = nlo / dlo, nlo / dhi, nhi / dlo, nhi / dhi
-            lo = min(min(p1, p2), min(p3, p4))
-            hi = max(max(p1, p2), max(p3, p4))
-            pad = PAD * max(abs(lo), abs(hi))
-            box[2 * a] = min(box[2 * a], lo - pad)
-            box[2 * a + 1] = max(box[2 * a + 1], hi + pad)
-    return True
+        top = 1
+        stack[0, 0], stack[0, 1] = run[j, 0], run[j, 1]
+        least = 0.01 * (run[j, 1] - run[j, 0])
+        while top > 0:
+            top -= 1
+            lo, hi = stack[top, 0], stack[top, 1]
+            eliminant(0.5 * (lo + hi), 0.5 * (hi - lo), D0, D1, b, l2sq, ev)
+            budget -= 1
+            if ev[0] > 0.0 or ev[1] < 0.0:
+                continue                               # f cannot vanish here: no root, no pose
+            if budget > 2 and hi - lo > least and top + 2 <= stack.shape[0]:
+                mid = 0.5 * (lo + hi)
+                stack[top, 0], stack[top, 1] = mid, hi
+                stack[top + 1, 0], stack[top + 1, 1] = lo, mid
+                top += 2
+                continue
+            dlo, dhi = ev[4], ev[5]
+            if not (dlo > 0.0 or dhi < 0.0):
+                return False
+            for a in range(2):
+                nlo, nhi = ev[6 + 2 * a], ev[7 + 2 * a]
+                p1, p2, p3, p4 = nlo / dlo, nlo / dhi, nhi / dlo, nhi / dhi
+                plo = min(min(p1, p2), min(p3, p4))
+                phi_ = max(max(p1, p2), max(p3, p4))
+                pad = PAD * max(abs(plo), abs(phi_))
+                box[2 * a] = min(box[2 * a], plo - pad)
+                box[2 * a + 1] = max(box[2 * a + 1], phi_ + pad)
+            box[4], box[5] = min(box[4], lo), max(box[5], hi)
+    return box[4] <= box[5]
