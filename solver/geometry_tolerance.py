@@ -1,36 +1,33 @@
-"""The robot as built: geometric tolerances turned into the joint tolerance the certificates carry.
+"""The robot as built: geometric tolerances and how far they move a leg's closure.
 
 No built robot has its model's exact lengths. After calibration a 0.6 m link is known to a few
 hundredths of a millimetre, before it to about half a millimetre. :class:`GeometryTolerance` holds the
 half-widths (m) of the geometry's lengths and coordinates; the tracker's option ``geometry_tolerance``
-makes ``certain`` and ``pose_bound`` hold for every robot inside them, not for the model alone.
+makes ``certain`` and ``pose_bound`` hold for every robot inside them, not for the model alone
+(:mod:`solver.as_built`: where the tracker carries it).
 
-The reduction (exact, leg by leg; no linearisation)
----------------------------------------------------
+The offset bound (exact, leg by leg; no linearisation)
+------------------------------------------------------
 Both manipulators are fully parallel: leg ``i`` is one circle constraint of its own joint ``q_i``.
 Take a robot as built, geometry ``g'`` within the tolerance of the model's ``g``, at pose ``X'`` with
-joints ``q`` (its encoders read them within ``joint_tolerance``). Is ``X'`` the *model's* pose for
-joints near ``q``?
+joints ``q``. Let ``B_i`` be the model's platform joint at ``X'`` and ``D_i(q_i)`` the model's elbow
+(3-RPR: its base joint). The built leg closes, ``|B'_i - D'_i| = l2'_i`` (3-RPR: ``= q_i``), so by the
+triangle inequality ``| |B_i - D_i| - l2_i | <= |dB_i| + |dM_i| + |dl1_i| + |dl2_i| <= e_i``, the leg's
+*offset bound* (:meth:`GeometryTolerance.offset_bound`: ``sqrt(2)`` times the coordinate half-widths of
+``M_i`` and ``b_i``, plus the two lengths').
 
-* 3-RRR: let ``B_i`` be the model's platform joint at ``X'`` and ``h(t) = |B_i - M_i - l1_i u(t)| -
-  l2_i`` (``u(t) = (cos t, sin t)``): the model's leg closes at ``X'`` where ``h = 0``. The built leg
-  closes at ``q_i``: ``|B'_i - M'_i - l1'_i u(q_i)| = l2'_i``, so by the triangle inequality
-  ``|h(q_i)| <= |dB_i| + |dM_i| + |dl1_i| + |dl2_i| <= e_i``, the leg's *offset bound*
-  (``sqrt(2)`` times the coordinate half-widths of ``M_i`` and ``b_i``, plus the two lengths').
-  ``|h'(t)| = l1_i |sin alpha_i(t)|``, ``alpha_i`` the elbow angle (between the crank and the rod).
-  Where it stays above ``m_i > 0`` on ``[q_i - e_i/m_i, q_i + e_i/m_i]``, ``h`` has a root there (the
-  intermediate value theorem) on the same elbow (``h'`` keeps its sign): the model reaches ``X'`` with
-  joint ``i`` within ``eps_i = e_i / m_i`` of the built robot's, in the same posture.
-* 3-RPR: ``h(t) = |B_i - A_i| - t`` has ``|h'| = 1``: ``eps_i = e_i``, everywhere.
+* 3-RRR: the model's ``F_i = |B_i - D_i|^2 - l2_i^2`` lies within ``sigma_i = e_i (2 l2_i + e_i)`` of 0:
+  the tracker's certificates take that slack (:mod:`solver.as_built`).
+* 3-RPR: ``h(t) = |B_i - A_i| - t`` has ``|h'| = 1``: the model reaches ``X'`` with each leg length
+  within ``e_i`` of the built robot's, a joint width.
 
-So every pose of a built robot whose readings lie within ``joint_tolerance`` of its joints is a pose of
-the model whose joints lie within ``joint_tolerance + max(eps)`` of the readings: the certificates,
-proofs over all joint paths in that box, hold for the built robot when the tracker runs them with the
-wider tolerance (:func:`joint_equivalent`). ``m_i`` is bounded from below over a box of poses and
-joints (:func:`elbow_margin`): ``|sin alpha| >= |sin alpha_c| - |alpha - alpha_c|``, the crank turning
-by at most the joint half-width and the rod ``v = B - A`` by at most ``asin(dv / |v_c|)`` with ``dv``
-the box's reach of ``B`` plus ``l1`` times the joint half-width. Near a serial singularity (the
-elbow straight) ``m_i`` vanishes and no width is enough: the step is not vouched for.
+:func:`joint_equivalent` gives the 3-RRR's joint width too: ``h(t) = |B_i - M_i - l1_i u(t)| - l2_i``
+has ``|h'| = l1_i |sin alpha_i|`` (``alpha_i`` the elbow angle), so where it stays above ``m_i > 0`` on
+``[q_i - e_i/m_i, q_i + e_i/m_i]`` the model reaches ``X'`` with joint ``i`` within ``e_i / m_i`` of the
+built robot's, in the same posture (the intermediate value theorem); ``m_i`` is bounded from below over
+a box (:func:`elbow_margin`: ``|sin alpha| >= |sin alpha_c| - |alpha - alpha_c|``). Unbounded near a
+straight elbow, the tracker does not use it; the benchmark's fold floor does (the joint box a sound
+method cannot shrink). :func:`built_robot` draws a robot inside the tolerance.
 """
 from __future__ import annotations
 

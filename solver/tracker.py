@@ -120,12 +120,11 @@ The robot as built
 ------------------
 The certificates are proofs about the model's geometry; no built robot has it exactly.  With
 ``geometry_tolerance`` (m: half-widths of the lengths and coordinates, from a description's
-``[tolerance]``) every step runs its certificates with ``joint_tolerance`` plus the joint width that
-covers every robot within the tolerance over the step's pose box (:mod:`solver.geometry_tolerance`:
-leg by leg, the model reaches a built robot's pose with each joint within ``e_i / (l1_i |sin alpha_i|)``
-of the built robot's; :mod:`solver.as_built`: the step's box and its check).  ``certain`` then means the
-branch is proved for all of them, and ``pose_bound`` encloses the pose of each.  Near a straight elbow
-no width covers it and the step is not vouched for.  0 (the default) changes nothing.
+``[tolerance]``) they are proofs for every robot within it (:mod:`solver.as_built`): a built leg closes
+within ``e_i`` of the model's (:mod:`solver.geometry_tolerance`), so a 3-RRR's certificates take each
+leg's constraint within its slack ``sigma_i = e_i (2 l2_i + e_i)``, a 3-RPR's take ``joint_tolerance +
+e_i``.  ``certain`` then means the branch is proved for all of them, and ``pose_bound`` encloses the
+pose of each.  0 (the default) changes nothing.
 
 A step budget
 -------------

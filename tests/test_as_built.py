@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 
 from solver import Manipulator, Tracker, TrackerError, cached_map, dk_all, ik
+from solver._kernels import layout as _lay
 from solver._kernels.exclusion import leg_misses
 from solver._kernels.krawczyk import W_SIZE, W_TOT, krawczyk
 from solver.geometry_tolerance import built_robot, elbow_margin, geometry_tolerance, joint_equivalent
 from solver.robot import ROBOTS, load_robot
-from solver.rpr import RPR_HOME_POSE, RPRManipulator
+from solver.rpr import RPR_HOME_POSE, RPR_WORK_BOUNDS, RPRManipulator
 
 PAPER = Manipulator.paper()
 IRREGULAR = load_robot(ROBOTS / "irregular-3rrr.toml").model
@@ -263,3 +264,26 @@ def test_the_robot_description_carries_its_tolerance():
                       geometry_tolerance=robot.tolerance)
     assert tracker.geometry_tolerance == robot.tolerance
 
+
+
+def test_a_3rpr_as_built_is_tracked_with_its_exact_joint_width():
+    """The 3-RPR carries its tolerance as the joint width e (solver.as_built.joint_width): the cusp loop read
+    exactly from robots at the corners of a 1e-5 m box is never silently wrong with the tolerance, and
+    the model alone is."""
+    from experiments.rpr_suite import cusp_loop_path
+    from solver import MapTensor
+    rpr = RPRManipulator.zein_wenger_chablat()
+    mt = MapTensor.build(rpr, 1, bounds=RPR_WORK_BOUNDS, shape=(46, 41, 60))
+    path = cusp_loop_path(rpr, 1, 60)
+    rng = np.random.default_rng(31)
+    nominal_silent = 0
+    for _ in range(3):
+        built = as_built(rpr, 1e-5, rng, corner=True)
+        q = ik(built, path.X)
+        nominal_silent += silent(track(Tracker(rpr, mt, joint_tolerance=1e-6), path.X, q), path.X)
+        tracker = Tracker(rpr, mt, joint_tolerance=1e-6, geometry_tolerance=1e-5)
+        assert tracker._params[_lay.PARAM_JOINT_TOL] == pytest.approx(1e-6 + 2 * np.sqrt(2) * 1e-5)
+        out = track(tracker, path.X, q)
+        assert silent(out, path.X) == 0
+        assert sum(c for _, c, _ in out) >= 0.5 * len(out)
+    assert nominal_silent > 0
