@@ -18,10 +18,6 @@ IRREGULAR = load_robot(ROBOTS / "irregular-3rrr.toml").model
 TOL = 5e-5
 
 
-def as_built(model, tol, rng, corner=False):
-    return built_robot(model, tol, rng, corner)
-
-
 def ellipse(n=300, centre=(0.5, 0.2887), a=0.1, b=0.08, phi=0.2):
     t = np.linspace(0, 2 * np.pi, n)
     return np.stack([centre[0] + a * np.cos(t), centre[1] + b * np.sin(t), phi * np.sin(2 * t)], -1)
@@ -56,7 +52,7 @@ def test_the_model_reaches_every_as_built_pose_within_the_joint_width(model):
     X0 = np.array(load_robot(ROBOTS / ("paper-3rrr.toml" if model is PAPER else "irregular-3rrr.toml")).home_pose)
     half = np.array([0.02, 0.02, 0.05])
     for trial in range(20):
-        built = as_built(model, 2e-4, rng, corner=trial % 2 == 1)
+        built = built_robot(model, 2e-4, rng, corner=trial % 2 == 1)
         X = X0 + rng.uniform(-1, 1, (200, 3)) * half
         for posture in (1, 2):
             q_built = ik(built, X, posture)
@@ -115,7 +111,7 @@ def test_the_model_constraints_close_within_the_slack_at_every_as_built_pose(mod
     X0 = np.array(load_robot(ROBOTS / ("paper-3rrr.toml" if model is PAPER else "irregular-3rrr.toml")).home_pose)
     worst = np.zeros(3)
     for trial in range(20):
-        built = as_built(model, 2e-4, rng, corner=trial % 2 == 1)
+        built = built_robot(model, 2e-4, rng, corner=trial % 2 == 1)
         X = X0 + rng.uniform(-1, 1, (300, 3)) * np.array([0.05, 0.05, 0.3])
         for posture in (1, 4, 8):
             q = ik(built, X, posture)
@@ -152,7 +148,7 @@ def test_leg_exclusion_never_drops_an_as_built_pose(model):
     M, l1, l2sq, b = legs(model, 2e-4)
     flipped = 0
     for trial in range(10):
-        built = as_built(model, 2e-4, rng, corner=True)
+        built = built_robot(model, 2e-4, rng, corner=True)
         i = trial % 3
         for posture in (1, 2, 5, 8):
             sign = 1.0 - 2.0 * (((posture - 1) >> i) & 1)
@@ -196,7 +192,7 @@ def test_krawczyk_with_the_slack_holds_the_as_built_pose():
     without = w[W_TOT:W_TOT + 3].copy()
     outside = 0
     for _ in range(40):
-        built = as_built(PAPER, TOL, rng, corner=True)
+        built = built_robot(PAPER, TOL, rng, corner=True)
         sols = dk_all(built, q0)                       # the built robot's pose at the joints q0
         Xb = np.array([p.real for p, r in zip(sols.poses, sols.real) if r])
         Xb = Xb[np.argmin(np.abs(Xb - X0).sum(1))]
@@ -229,7 +225,7 @@ def test_a_robot_at_the_corners_is_never_silently_wrong_where_the_model_alone_is
     rng = np.random.default_rng(11)
     nominal_silent = 0
     for trial in range(3):
-        built = as_built(PAPER, TOL, rng, corner=True)
+        built = built_robot(PAPER, TOL, rng, corner=True)
         q = ik(built, X, 1)
         without = track(Tracker(PAPER, mt, joint_tolerance=1e-4), X, q)
         nominal_silent += silent(without, X)
@@ -278,7 +274,7 @@ def test_a_3rpr_as_built_is_tracked_with_its_exact_joint_width():
     rng = np.random.default_rng(31)
     nominal_silent = 0
     for _ in range(3):
-        built = as_built(rpr, 1e-5, rng, corner=True)
+        built = built_robot(rpr, 1e-5, rng, corner=True)
         q = ik(built, path.X)
         nominal_silent += silent(track(Tracker(rpr, mt, joint_tolerance=1e-6), path.X, q), path.X)
         tracker = Tracker(rpr, mt, joint_tolerance=1e-6, geometry_tolerance=1e-5)
