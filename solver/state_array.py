@@ -12,6 +12,10 @@ from ._kernels.anytime import (ANY_C_K, ANY_C_STAGE, ANY_K_KIND, ANY_K_N_PATH, A
 from ._kernels.exclusion import HULL_FACTORS, PREIMAGE_STACK
 from ._kernels.layout import PAVE_BOXES
 from ._kernels.reacquisition import REACQUIRE_COVERS
+from ._kernels.state_layout import (STATE_FLOATS, _AGE, _ANCHOR, _ANCHOR_BOUND, _A_SCALE, _BASE, _CANDS,  # noqa: F401
+                                    _CLEAN_LAG, _CLEAN_TIME, _DQ_SCALE, _DT, _FINITE, _INTACT, _N_CAND, _N_PAVE,
+                                    _N_TUBES, _PAVE, _Q, _Q2, _READING, _REFUSED, _REPEATS, _SINCE, _SKIPPED,
+                                    _SKIPPED_TIME, _STEPS, _TUBE, _VERIFIED, _WALK, _X, _X2)
 from ._kernels.tube import TUBE_SIZE
 from ._kernels.tube_chain import MAX_COVER, MAX_PIECES
 
@@ -98,27 +102,3 @@ def _same_angles(a, b) -> bool:
     """The joints ``a`` and ``b`` (3,) are the same up to whole turns."""
     d = np.asarray(a) - np.asarray(b)
     return bool(np.all(np.abs(d - 2 * np.pi * np.round(d / (2 * np.pi))) < 1e-9))
-
-
-#: Fields of TrackerState.as_array: X, q, X2 (NaN after a reset), dq_scale, steps, dt, q2 (NaN after a
-#: reset), number of candidates, verified, uncertain_since, candidates (6 x 3, NaN past the number), intact,
-#: a_scale, refused, anchor (NaN before the first certain step), anchor_age, skipped, reading (NaN before the
-#: first), repeats, clean_lag, the number of tubes and the cover (NaN past them), the anchor's bound, the number
-#: of paving boxes and the boxes (NaN past them), skipped_time, clean_time; then the
-#: clean state's first _BASE floats (NaN when there is none); then the walk (NaN when there is none).
-_X, _Q, _X2, _DQ_SCALE, _STEPS, _DT, _Q2, _N_CAND, _VERIFIED, _SINCE, _CANDS = 0, 3, 6, 9, 10, 11, 12, 15, 16, 17, 18
-_INTACT, _A_SCALE, _REFUSED, _ANCHOR, _AGE = _CANDS + 18, _CANDS + 19, _CANDS + 20, _CANDS + 21, _CANDS + 24
-_SKIPPED = _AGE + 1
-_READING, _REPEATS, _CLEAN_LAG = _SKIPPED + 1, _SKIPPED + 4, _SKIPPED + 7
-_N_TUBES = _CLEAN_LAG + 1
-_TUBE = _N_TUBES + 1
-_ANCHOR_BOUND = _TUBE + MAX_COVER * TUBE_SIZE
-_N_PAVE = _ANCHOR_BOUND + 3
-_PAVE = _N_PAVE + 1
-_SKIPPED_TIME = _PAVE + 6 * PAVE_BOXES
-_CLEAN_TIME = _SKIPPED_TIME + 1
-_BASE = _CLEAN_TIME + 1
-_WALK = 2 * _BASE
-STATE_FLOATS = _WALK + ANY_SIZE
-_FINITE = [*range(_X, _X + 3), *range(_Q, _Q + 3), _DQ_SCALE, _STEPS, _N_CAND, _VERIFIED, _SINCE, _INTACT, _A_SCALE,
-           _REFUSED, _SKIPPED, *range(_REPEATS, _REPEATS + 3), _CLEAN_LAG, _N_PAVE]

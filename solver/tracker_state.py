@@ -28,6 +28,7 @@ from ._kernels.layout import (F_DQ, F_INNOV, I_CERTAIN, I_CERTIFICATE, I_INTACT,
                               STATE_N_PAVE, STATE_PAVE,
                               STATE_N_TUBES, STATE_Q, STATE_Q2, STATE_REFUSED, STATE_STEP_DT, STATE_TUBE,
                               STATE_VERIFIED, STATE_X, STATE_X2, STATUS_REJECTED, STATUS_UNREACHABLE)
+from ._kernels.state_layout import MAX_HELD  # noqa: F401 (documented here)
 from ._kernels.tube import TUBE_SIZE
 from ._kernels.tube_chain import MAX_COVER
 from .state_array import (STATE_FLOATS, TrackerError, _AGE, _ANCHOR, _ANCHOR_BOUND, _A_SCALE, _BASE, _CANDS,
@@ -43,9 +44,6 @@ __all__ = ["TrackerState", "StepInfo", "TrackResult", "TrackerError", "STATUS", 
 
 
 
-#: With measured joints and a speed bound: samples held in a row (a pose the platform cannot have
-#: reached) after which the next pose is taken whatever its distance (see "Sensors", :mod:`solver.tracker`).
-MAX_HELD = 10
 
 
 def _cover(out_real: np.ndarray) -> np.ndarray | None:

@@ -9,13 +9,18 @@ meaning of ``certain``: :mod:`solver.tracker`.
 """
 from __future__ import annotations
 
+import platform
 import time
 
 import numpy as np
 
-from ._kernels.layout import (I_CERTAIN, INFO_I_SIZE, OUT_N_PAVE, OUT_N_TUBES, OUT_REGION, OUT_SIZE, OUT_X, STATE_SIZE,
+from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, I_AMBIGUOUS, I_CERTAIN, I_CERTIFICATE, I_JUMP, I_LABEL,
+                              I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, I_TRUST, INFO_F_SIZE, INFO_I_SIZE,
+                              OUT_N_PAVE, OUT_N_TUBES, OUT_REGION, OUT_SIZE, OUT_X, STATE_SIZE,
                               STATUS_REJECTED, TRUST_CERTAIN, TRUST_LOST)
-from ._kernels.clock import deadline_after
+from ._kernels.clock import cycles_per_second, deadline_after
+from ._kernels.state_layout import STATE_FLOATS
+from ._kernels.stepper import NOT_FINITE, copy_state
 from .checks import SolverInputError, as_array
 from .direct_kinematics import kernel_constants
 from .kinematics import wrap_angle
@@ -42,6 +47,8 @@ class _TrackerBase:
     stuck_after = 0
     #: Readings still to check for an encoder grid after a reset at exact joints (see :class:`solver.Tracker`).
     _watch = 0
+    #: Step with the state as a TrackerState object (the reference the compiled stepper is tested against).
+    _objects = False
 
     def __init__(self, model):
         if not isinstance(model, tuple(MANIPULATOR_TYPES.values())):
@@ -52,7 +59,11 @@ class _TrackerBase:
         k = kernel_constants(model)
         self._model_pack, self._sample_to_sextic = k["pack"], k["sample_to_sextic"]
         self._w = np.array([1.0, 1.0, float(np.mean(model.platform_radius)) ** 2])
-        self.state: TrackerState | None = None
+        # the state: a flat array the compiled step advances in place (_flat, live when _live), and the
+        # TrackerState a caller reads or sets (_st, made from the array when asked for; see ``state``)
+        self._flat = np.full(STATE_FLOATS, np.nan)
+        self._live = False
+        self._st: TrackerState | None = None
         self._state_pack = np.empty(STATE_SIZE)
         self._out_real = np.empty(OUT_SIZE)
         self._out_real[OUT_N_TUBES] = 0.0                  # a baseline's step leaves no cover of tubes,
@@ -61,6 +72,53 @@ class _TrackerBase:
         self._out_int = np.empty(INFO_I_SIZE, dtype=np.int64)
         #: seconds one step may take (None: no budget); only the tracker has anytime proofs
         self.step_budget: float | None = None
+
+    @property
+    def state(self) -> TrackerState | None:
+        """The tracker's data (:class:`TrackerState`; None before :meth:`reset`).  Setting it replaces the
+        data as a whole (a saved state restored); the compiled step keeps it as a flat array
+        (:meth:`TrackerState.as_array`'s floats) and makes the object when it is read."""
+        if self._st is None and self._live:
+            self._st = TrackerState.from_array(self._flat)
+        return self._st
+
+    @state.setter
+    def state(self, st: TrackerState | None) -> None:
+        if st is not None and not isinstance(st, TrackerState):
+            raise TrackerError(f"state: expected a TrackerState or None, got {type(st).__name__}")
+        self._st, self._live = st, False
+
+    def snapshot(self):
+        """The tracker's data now, for :meth:`restore`: a read-only copy of the flat state (cheap, about a
+        microsecond: what the compiled step keeps; the floats past its counts of candidates, tubes, boxes
+        and walk are unspecified), or the :class:`TrackerState` when that is what the tracker holds; None
+        before :meth:`reset`.  ``TrackerState.from_array`` reads the array form (its ``as_array`` is the
+        canonical one, to save)."""
+        if not self._live:
+            return self._st
+        snap = np.empty(STATE_FLOATS)
+        copy_state(self._flat, snap, True)
+        snap.flags.writeable = False
+        return snap
+
+    def restore(self, snap) -> None:
+        """Make the tracker's data a :meth:`snapshot` (of this tracker or one of the same options)."""
+        if isinstance(snap, np.ndarray):
+            if snap.shape != (STATE_FLOATS,):
+                raise TrackerError(f"snap: expected a snapshot of {STATE_FLOATS} floats, got shape {snap.shape}")
+            copy_state(snap, self._flat, False)
+            self._st, self._live = None, True
+        else:
+            self.state = snap
+
+    def _flat_state(self) -> np.ndarray:
+        """The live flat state (made from the TrackerState when that was set); TrackerError without one."""
+        if not self._live:
+            if self._st is None:
+                raise TrackerError(f"{self.name}: no state; call reset(X0, q0) first")
+            self._flat[:] = self._st.as_array()
+            self._live = True
+        return self._flat
 
     def reset(self, X0, q0) -> None:
         """Start tracking from a known configuration.
@@ -121,11 +179,43 @@ class _TrackerBase:
         TrackerError
             No state yet (call :meth:`reset`).
         """
+        if self._watch or self.stuck_after or self._objects:  # the encoder-grid watch, the stuck-joint detector
+            return self._step_objects(q, dt)
         deadline = deadline_after(self.step_budget) if self.step_budget is not None else 0.0
+        if type(q) is not np.ndarray or q.shape != (3,) or q.dtype != np.float64 or self._limits is not None:
+            q = self._check_joints(q)                        # (a float array (3,) is checked finite compiled)
+        a = self._flat if self._live else self._flat_state()
+        if dt is None:
+            dt = np.nan
+        elif not (np.isfinite(dt) and dt > 0):
+            raise SolverInputError(f"dt: expected a positive time step in s, got {dt!r}")
+        since = self._advance(q, float(dt), deadline, a)
+        if since == NOT_FINITE:
+            self._check_joints(q)                            # raises, naming q; nothing changed
+        self._st = None                                      # the flat state moved on
+        X, info = StepInfo.pose_and_info(self._out_real, self._out_int, since)
+        if deadline and not info.certain and self._out_of_budget():
+            info = info._replace(out_of_budget=True)
+        return X, info
+
+    def _check_joints(self, q) -> np.ndarray:
+        """``q`` as a float array (3,) within the joint limits; SolverInputError naming it otherwise."""
         q = _check_q(q)
         if self._limits is not None and (np.any(q < self._limits[0]) or np.any(q > self._limits[1])):
             raise SolverInputError(f"q: expected leg lengths within the joint limits [{self._limits[0]}, "
                                    f"{self._limits[1]}] m, got {q.tolist()}")
+        return q
+
+    def _advance(self, q, dt: float, deadline: float, a: np.ndarray) -> int:  # pragma: no cover - abstract
+        """The compiled step from the flat state ``a`` to joints ``q``, ``dt`` s on (NaN: unknown), advancing
+        ``a`` in place (:mod:`._kernels.stepper`); returns the step's ``uncertain_since``."""
+        raise NotImplementedError
+
+    def _step_objects(self, q, dt):
+        """:meth:`step` with the state as a :class:`TrackerState` (the encoder-grid watch and the stuck-joint
+        detector, :mod:`solver.stuck`, work on it)."""
+        deadline = deadline_after(self.step_budget) if self.step_budget is not None else 0.0
+        q = self._check_joints(q)
         st = self.state
         if st is None:
             raise TrackerError(f"{self.name}: no state; call reset(X0, q0) first")
@@ -183,7 +273,9 @@ class _TrackerBase:
         X[0] = Xp[0] = self.state.X
         if start is not None:
             bound[0] = start.pose_bound
-        for k in range(1, n):
+        k = 1
+        # the encoder-grid watch and the stuck-joint detector step in Python, the rest in one compiled loop
+        while k < n and (self._watch or self.stuck_after or self._objects or not _CYCLES):
             t0 = time.perf_counter()
             X[k], info = self.step(q_stream[k])
             out["seconds"][k] = time.perf_counter() - t0
@@ -191,6 +283,38 @@ class _TrackerBase:
             bound[k] = info.pose_bound
             for key, _ in STEP_FIELDS:
                 out[key][k] = getattr(info, key)
+            k += 1
+        if k < n:
+            self._track_compiled(np.ascontiguousarray(q_stream, dtype=float), k, X, Xp, bound, out)
         return TrackResult(X=X, X_pred=Xp, pose_bound=bound, **out)
+
+    def _track_compiled(self, qs: np.ndarray, k0: int, X, Xp, bound, out: dict) -> None:
+        """Steps ``k0``.. of :meth:`track` (joints ``qs`` (n, 3)) in one compiled loop, into its arrays."""
+        n = len(qs)
+        info_f, info_i = np.zeros((n, INFO_F_SIZE)), np.zeros((n, INFO_I_SIZE), dtype=np.int64)
+        since, cut, cyc = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.int64)
+        self._loop(qs, k0, self._flat_state(), X, Xp, info_f, info_i, bound, since, cut, cyc)
+        self._st = None
+        rows = slice(k0, n)
+        for key, col in _INFO_COLUMNS:
+            out[key][rows] = info_i[rows, col]
+        for key, col in (("cond", F_COND), ("d_best", F_D_BEST), ("d_second", F_D_SECOND)):
+            out[key][rows] = info_f[rows, col]
+        out["uncertain_since"][rows], out["out_of_budget"][rows] = since[rows], cut[rows]
+        out["seconds"][rows] = cyc[rows] / cycles_per_second()
+
+    def _loop(self, qs, k0, a, X, Xp, info_f, info_i, bound, since, cut, cyc) -> None:  # pragma: no cover
+        """The compiled loop of :meth:`_track_compiled` (:mod:`._kernels.stepper`)."""
+        raise NotImplementedError
+
+
+#: TrackResult fields read from a step's integer result pack, and their columns.
+_INFO_COLUMNS = (("label", I_LABEL), ("near_border", I_NEAR_BORDER), ("n_real", I_N_REAL),
+                 ("ambiguous", I_AMBIGUOUS), ("status", I_STATUS), ("jump", I_JUMP), ("certain", I_CERTAIN),
+                 ("certificate", I_CERTIFICATE), ("n_candidates", I_N_CAND), ("trust", I_TRUST))
+
+#: The compiled loop of track times its steps with the CPU's cycle counter (x86-64); elsewhere track steps
+#: in Python.
+_CYCLES = platform.machine().lower() in ("x86_64", "amd64")
 
 

@@ -87,6 +87,7 @@ ANY_SIZE = ANY_PIECES + MAX_PIECES * TUBE_SIZE
 WALK_FAILED, WALK_CLOSED, WALK_PENDING = 0, 1, 2
 
 
+@njit(cache=True)
 def walk_floats(anytime: np.ndarray) -> int:
     """How many leading floats of the anytime pack ``anytime`` hold its walk, continuation and
     re-acquisition (0 when it has none)."""

@@ -1,0 +1,97 @@
+"""What a tracker step costs beside its compiled math: ``step``, the compiled kernel, and ``track``.
+
+    python bench/bench_step.py [--n 1000] [--repeats 5]
+
+On the paper circle (``--n`` points, posture 1, exact joints) it times, interleaved in one run:
+
+* ``kernel``: the compiled step alone, as the compiled stream loop of ``track`` times it (the CPU's
+  cycle counter around each step inside compiled code: no Python, no call overhead);
+* ``step``: ``Tracker.step(q)`` from Python (argument checks, one compiled call that packs the flat
+  state, steps and advances it in place, the ``StepInfo``);
+* ``step (objects)``: the same step with the state as a ``TrackerState`` object packed and rebuilt in
+  Python at every step (the reference path, used while the stuck-joint detector or the encoder-grid
+  watch is on; every step before this change);
+* ``track``: ``track(q_stream, X0)`` over the stream, less its ``reset`` (the honest start), per step.
+
+for the tracker (default mode) and for ``NewtonTracker`` (Newton from the previous pose).  It prints
+medians (us) and the ratios the compiled-step issue sets targets for: ``step / kernel`` (tracker at most
+1.3, Newton at most 3) and ``track / sum of kernels`` (at most 1.05).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from solver import Manipulator, Tracker, cached_map, circle_path, ik  # noqa: E402
+from solver.baselines import NewtonTracker  # noqa: E402
+
+
+def _time_steps(tr, X, q, objects: bool) -> list:
+    tr._objects = objects
+    tr.reset(X[0], q[0])
+    step, out = tr.step, []
+    for k in range(1, len(q)):
+        t0 = time.perf_counter()
+        step(q[k])
+        out.append(time.perf_counter() - t0)
+    tr._objects = False
+    return out
+
+
+def _time_track(tr, X, q) -> tuple:
+    """(seconds of track less its reset, per step; the compiled loop's own step times)."""
+    t0 = time.perf_counter()
+    tr.reset(X[0], q[0], **({"warn": False} if isinstance(tr, Tracker) else {}))
+    t_reset = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    res = tr.track(q, X[0])
+    t_track = time.perf_counter() - t0 - t_reset
+    return t_track / (len(q) - 1), res.seconds[1:]
+
+
+def measure(n: int = 1000, repeats: int = 5) -> dict:
+    """Median microseconds per step of every (method, what) on the paper circle of ``n`` points."""
+    model = Manipulator.paper()
+    X = circle_path(n)
+    q = ik(model, X, 1)
+    trackers = {"tracker": Tracker(model, cached_map(model, 1), start_tolerance=(1e-9, 1e-9, 1e-9)),
+                "newton": NewtonTracker(model)}
+    samples = {(name, what): [] for name in trackers for what in ("kernel", "step", "step (objects)", "track")}
+    for _ in range(repeats):
+        for name, tr in trackers.items():                  # interleaved: the same conditions for all
+            samples[name, "step"] += _time_steps(tr, X, q, False)
+            samples[name, "step (objects)"] += _time_steps(tr, X, q, True)
+            per_step, kernel = _time_track(tr, X, q)
+            samples[name, "track"].append(per_step)
+            samples[name, "kernel"] += list(kernel)
+    med = {key: 1e6 * float(np.median(v)) for key, v in samples.items()}
+    # track is compared with the sum of its kernels: the mean kernel time, not the median
+    for name in trackers:
+        med[name, "kernel mean"] = 1e6 * float(np.mean(samples[name, "kernel"]))
+    return med
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n", type=int, default=1000, help="points of the paper circle (default %(default)s)")
+    ap.add_argument("--repeats", type=int, default=5, help="passes over the circle (default %(default)s)")
+    args = ap.parse_args(argv)
+    measure(50, 1)                                         # compiled and warm before the timing
+    med = measure(args.n, args.repeats)
+    print(f"paper circle, {args.n} points, exact joints, {args.repeats} passes; medians (us):")
+    print(f"{'method':10s} {'kernel':>8s} {'step':>8s} {'objects':>8s} {'track':>8s} "
+          f"{'step/kernel':>12s} {'objects/kernel':>15s} {'track/kernels':>14s}")
+    for name in ("tracker", "newton"):
+        k, s, o, t = (med[name, w] for w in ("kernel", "step", "step (objects)", "track"))
+        print(f"{name:10s} {k:8.2f} {s:8.2f} {o:8.2f} {t:8.2f} {s / k:12.2f} {o / k:15.2f} "
+              f"{t / med[name, 'kernel mean']:14.3f}")
+
+
+if __name__ == "__main__":
+    main()

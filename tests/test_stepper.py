@@ -1,0 +1,161 @@
+"""The compiled step on the flat state (solver/_kernels/stepper.py) against the reference path that packs and
+rebuilds a TrackerState object in Python at every step: bit for bit, state and outputs, for the tracker in
+both modes, with measured joints, glitches, uneven time steps and a speed bound, and for every baseline;
+``track``'s compiled loop against the step loop; snapshots; and a bad input leaving the state as it was."""
+import numpy as np
+import pytest
+
+from solver import Tracker, circle_path, ik
+from solver.baselines import BASELINES
+from solver.checks import SolverInputError
+from solver.tracker_state import TrackerError, TrackerState
+
+from conftest import coarse_map
+
+EXACT = (1e-9, 1e-9, 1e-9)
+
+
+def _same(a, b) -> bool:
+    return np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True)
+
+
+def _streams(model):
+    """(name, X, q) of the paper circle and of a circle passing 1 mm from a type-1 singularity (posture 1)."""
+    from experiments.suite import near_singular_circle, NEAR_SINGULAR_SEEDS
+    X = circle_path(120)
+    posture, centre, phd = NEAR_SINGULAR_SEEDS[0]
+    radius, _ = near_singular_circle(model, posture, centre, phd, 1e-3)
+    Xs = circle_path(60, centre, radius, np.deg2rad(phd))
+    return [("paper-circle", X, ik(model, X, 1)), ("near-singular", Xs, ik(model, Xs, posture))], posture
+
+
+def _makers(model, maps):
+    out = {"default": lambda: Tracker(model, maps, start_tolerance=EXACT),
+           "paper": lambda: Tracker(model, maps, mode="paper", start_tolerance=EXACT),
+           "measured": lambda: Tracker(model, maps, joint_tolerance=1e-4, speed_bound=(2.0, 10.0))}
+    for name, cls in BASELINES.items():
+        out[name] = (lambda c: (lambda: c(model)))(cls)
+    return out
+
+
+def _inputs(name, q, rng):
+    """The samples a tracker reads: exact joints, or (measured) noisy joints with a glitch every 17th sample
+    and uneven time steps."""
+    if name != "measured":
+        return [(q[k], None) for k in range(1, len(q))]
+    out = []
+    for k in range(1, len(q)):
+        qk = q[k] + rng.normal(0.0, 3e-5, 3)
+        if k % 17 == 5:
+            qk = qk + np.array([0.05, 0.0, 0.0])
+        out.append((qk, 1e-3 * (1.0 + 0.5 * (k % 3))))
+    return out
+
+
+def test_the_compiled_step_is_the_reference_step_bit_for_bit(model):
+    streams, posture = _streams(model)
+    for name, make in _makers(model, coarse_map(model, 1)).items():
+        for path, X, q in streams:
+            if path == "near-singular" and posture != 1:
+                continue
+            fast, ref = make(), make()
+            ref._objects = True
+            for tr in (fast, ref):
+                tr.reset(X[0], q[0], **({"warn": False} if isinstance(tr, Tracker) else {}))
+            statuses = set()
+            for k, (qk, dt) in enumerate(_inputs(name, q, np.random.default_rng(7)), start=1):
+                Xa, ia = fast.step(qk, dt)
+                Xb, ib = ref.step(qk, dt)
+                assert _same(Xa, Xb), (name, path, k)
+                for f in ia._fields:
+                    assert _same(getattr(ia, f), getattr(ib, f)), (name, path, k, f)
+                statuses.add(ia.status)
+                if k % 5 == 0 or k == len(q) - 1:          # the whole state, as saved
+                    assert _same(fast.state.as_array(), ref.state.as_array()), (name, path, k)
+            if name == "measured":
+                assert 3 in statuses                         # the glitches were refused on both paths
+
+
+def test_track_runs_the_stream_compiled_with_the_step_loops_results(model):
+    streams, _ = _streams(model)
+    for name, make in _makers(model, coarse_map(model, 1)).items():
+        if name == "measured":
+            continue
+        for path, X, q in streams[:1]:
+            fast, ref = make(), make()
+            ref._objects = True                              # track then steps in Python
+            a, b = fast.track(q, X[0]), ref.track(q, X[0])
+            for f in a._fields:
+                if f != "seconds":
+                    assert _same(getattr(a, f), getattr(b, f)), (name, f)
+            assert np.all(a.seconds[1:] > 0) and a.seconds[0] == 0.0
+            assert _same(fast.state.as_array(), ref.state.as_array())
+
+
+def test_a_snapshot_restores_the_state_and_the_steps_after_it(model, coarse_map1):
+    X = circle_path(80)
+    q = ik(model, X, 1)
+    tr = Tracker(model, coarse_map1, start_tolerance=EXACT)
+    tr.reset(X[0], q[0])
+    for k in range(1, 30):
+        tr.step(q[k])
+    snap = tr.snapshot()
+    assert snap.flags.writeable is False
+    assert _same(TrackerState.from_array(snap).as_array(), tr.state.as_array())
+    ahead = [tr.step(q[k]) for k in range(30, 50)]
+    tr.restore(snap)
+    again = [tr.step(q[k]) for k in range(30, 50)]
+    for (Xa, ia), (Xb, ib) in zip(ahead, again):
+        assert _same(Xa, Xb) and _same(ia.pose_bound, ib.pose_bound) and ia.certain == ib.certain
+    other = Tracker(model, coarse_map1, start_tolerance=EXACT)     # another tracker of the same options
+    other.restore(snap)
+    assert _same(other.step(q[30])[0], ahead[0][0])
+    with pytest.raises(TrackerError, match="snap"):
+        tr.restore(np.zeros(5))
+
+
+def test_a_state_set_as_an_object_is_the_one_the_compiled_step_continues(model, coarse_map1):
+    X = circle_path(60)
+    q = ik(model, X, 1)
+    tr = Tracker(model, coarse_map1, start_tolerance=EXACT)
+    tr.reset(X[0], q[0])
+    for k in range(1, 20):
+        tr.step(q[k])
+    saved = tr.state                                         # made from the flat state when read
+    x20 = tr.step(q[20])[0]
+    tr.step(q[21])
+    tr.state = saved
+    assert _same(tr.step(q[20])[0], x20)
+    with pytest.raises(TrackerError, match="state"):
+        tr.state = saved.as_array()
+
+
+@pytest.mark.parametrize("bad", [np.array([np.nan, 0.0, 0.0]), np.array([0.0, np.inf, 0.0]), [0.1, 0.2],
+                                 np.zeros(3, dtype=np.float32) + np.nan])
+def test_a_refused_input_leaves_the_flat_state_as_it_was(model, coarse_map1, bad):
+    X = circle_path(40)
+    q = ik(model, X, 1)
+    for make in (lambda: Tracker(model, coarse_map1, start_tolerance=EXACT), lambda: BASELINES["newton"](model)):
+        tr, twin = make(), make()
+        for t in (tr, twin):
+            t.reset(X[0], q[0])
+            for k in range(1, 6):                          # past the encoder-grid watch: the flat state
+                t.step(q[k])
+        before = tr.snapshot()
+        assert isinstance(before, np.ndarray)
+        before = TrackerState.from_array(before).as_array()
+        with pytest.raises(SolverInputError, match="q"):
+            tr.step(bad)
+        with pytest.raises(SolverInputError, match="dt"):
+            tr.step(q[6], dt=-1.0)
+        assert _same(TrackerState.from_array(tr.snapshot()).as_array(), before)
+        assert _same(tr.step(q[6])[0], twin.step(q[6])[0])
+
+
+def test_a_baseline_that_vouches_proves_no_pose_bound(model):
+    """NewtonSeparationTracker's ``certain`` is a heuristic: its pose bound is inf, not memory left over."""
+    X = circle_path(50)
+    q = ik(model, X, 1)
+    res = BASELINES["newton-separation"](model).track(q, X[0])
+    assert res.certain[1:].any()
+    assert np.all(np.isinf(res.pose_bound[1:]))
