@@ -22,14 +22,12 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from solver import Manipulator, Tracker, cached_map, circle_path, ik  # noqa: E402
-from solver.baselines import NewtonTracker  # noqa: E402
+from report import publish, table            # bench/ is on sys.path when a script there runs
+from solver import Manipulator, Tracker, cached_map, circle_path, ik
+from solver.baselines import NewtonTracker
 
 
 def _time_steps(tr, X, q, objects: bool) -> list:
@@ -84,13 +82,29 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     measure(50, 1)                                         # compiled and warm before the timing
     med = measure(args.n, args.repeats)
-    print(f"paper circle, {args.n} points, exact joints, {args.repeats} passes; medians (us):")
-    print(f"{'method':10s} {'kernel':>8s} {'step':>8s} {'objects':>8s} {'track':>8s} "
-          f"{'step/kernel':>12s} {'objects/kernel':>15s} {'track/kernels':>14s}")
+    rows, ratios = [], {}
     for name in ("tracker", "newton"):
         k, s, o, t = (med[name, w] for w in ("kernel", "step", "step (objects)", "track"))
-        print(f"{name:10s} {k:8.2f} {s:8.2f} {o:8.2f} {t:8.2f} {s / k:12.2f} {o / k:15.2f} "
-              f"{t / med[name, 'kernel mean']:14.3f}")
+        ratios[name] = (s / k, t / med[name, "kernel mean"])
+        rows.append((name, f"{k:.2f}", f"{s:.2f}", f"{o:.2f}", f"{t:.2f}", f"{s / k:.2f}x", f"{o / k:.2f}x",
+                     f"{t / med[name, 'kernel mean']:.3f}x"))
+    body = table(["method", "kernel (us)", "step (us)", "step, objects (us)", "track, per step (us)",
+                  "step / kernel", "objects / kernel", "track / kernels' sum"], rows)
+    print(f"paper circle, {args.n} points, exact joints, {args.repeats} passes; medians")
+    print(body)
+    note = (f"The paper circle, {args.n} points, exact joints, {args.repeats} passes, interleaved.  *kernel*: "
+            "the compiled step alone, timed by the CPU's cycle counter inside the compiled loop of `track`; "
+            "*step*: `step(q)` from Python (one compiled call that packs the flat state, steps and advances "
+            "it in place); *objects*: the reference path that packs and rebuilds a `TrackerState` in Python "
+            "at every step (every step before the compiled stepper; now only with the stuck-joint detector "
+            "or the encoder-grid watch on); *track*: `track` over the stream less its `reset`, per step, "
+            "against the mean kernel time.")
+    publish("step", body, note=note, command="python bench/bench_step.py " + " ".join(argv or sys.argv[1:]),
+            headline=[("tracker step from Python / its compiled kernel, default mode", f"{ratios['tracker'][0]:.2f}x",
+                       "<= 1.3x"),
+                      ("Newton step from Python / its compiled kernel", f"{ratios['newton'][0]:.2f}x", "<= 3x"),
+                      ("`track` over a stream / its kernels' sum: tracker, Newton",
+                       f"{ratios['tracker'][1]:.3f}x, {ratios['newton'][1]:.3f}x", "<= 1.05x")])
 
 
 if __name__ == "__main__":

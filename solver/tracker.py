@@ -1,9 +1,11 @@
 """Procedures 2-3: choose, at every step of a joint stream, the DK solution that is the robot.
 
 ``Tracker(model, map_tensor, mode=...)`` is constant (geometry, map, options);
-its mutable data is a :class:`TrackerState` (previous pose and joints, the
-scale of recent joint steps), replaced as a whole at every accepted step, so a
-rejected step leaves it untouched and a caller can save and restore it (an FMU
+its mutable data (previous pose and joints, the scale of recent joint steps, the
+proof's tubes...) is one flat array that one compiled call packs, steps and
+advances in place (:mod:`._kernels.stepper`); :attr:`state` is the same data as a
+:class:`TrackerState`, made when read.  A rejected input leaves it untouched, and
+a caller can save and restore it (:meth:`snapshot`, :meth:`restore`: an FMU
 rolling back a step does exactly that).
 
 Modes

@@ -8,10 +8,13 @@ step) can keep a reference and restore it.  :meth:`TrackerState.as_array` is
 its serialised form (a fixed number of floats, :data:`STATE_FLOATS`; the layout and the
 checks of a saved array are :mod:`solver.state_array`).
 
-A state packs itself for the compiled step (:meth:`TrackerState.pack`, the state
-pack of :mod:`solver._kernels.layout`) and makes the next state from the step's
-result pack (:meth:`TrackerState.after`); :meth:`StepInfo.from_result` reads the
-same result pack.
+A tracker keeps its data as that array and advances it in place, compiled
+(:mod:`solver._kernels.stepper`); a :class:`TrackerState` is made from it when
+read.  With the stuck-joint detector or the encoder-grid watch on, a step works on
+the object: it packs itself for the compiled step (:meth:`TrackerState.pack`, the
+state pack of :mod:`solver._kernels.layout`) and makes the next state from the
+step's result pack (:meth:`TrackerState.after`), which the compiled stepper follows
+float for float; :meth:`StepInfo.from_result` reads the same result pack.
 """
 from __future__ import annotations
 
