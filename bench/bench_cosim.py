@@ -20,7 +20,9 @@ present; ``--rebuild`` forces it).  Then, in one process (FMUs extracted and ins
    the median and mean over the steps, split into the slave's Python and the call overhead
    (fmpy's ctypes wrapper + pythonfmu's C wrapper + taking the GIL), the master's own overhead
    (copies between the calls, keeping the rows) and "where the time goes" as a table (mean us per
-   step and share; the means include the machine's noise, the medians do not).
+   step and share; the means include the machine's noise, the medians do not);
+3. the reference: the same loop's math (plant RK4, computed torque, Newton DK) as one compiled loop
+   without FMI (:mod:`reference_loop`), the limit the FMI loop is measured against, and the ratio.
 
 The slaves import the host's ``dynamics``, ``solver`` and ``fmu_src`` runtime (imported first, as
 the master does); the script also says whether the DK FMU's bundled copy of that runtime is the
@@ -40,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 import dynamics  # noqa: F401  (before any FMU, as the master does)
+import reference_loop                          # bench/ is on sys.path when a script there runs
 from cosim import FMU_NAMES, INSTANCES, ClosedLoop, Scenario, build_fmus
 from cosim.fmus.packaging import bundled_files
 from fmu_src.table_slave import TableSlave
@@ -198,7 +201,11 @@ def main(argv=None):
         finally:
             clock.restore()
     parts, total = _breakdown(calls, step, clock)
-    _report(sc, med, m, parts, total, args)
+    ref = reference_loop.measure(sc.t_end, sc.h, args.repeat)
+    print(f"\n3. the same loop compiled, without FMI (bench/reference_loop.py: plant RK4, computed torque, "
+          f"Newton DK): {ref['us']:.2f} us a step, {ref['real_time']:.0f}x real time (RMS joint error after "
+          f"0.5 s {ref['rms']:.3g} rad); the FMI loop takes {med['flags', 'wall'] * 1e6 / ref['us']:.1f}x as long")
+    _report(sc, med, m, parts, total, args, ref)
 
 
 def _timed_runs(loop, sc, repeat: int):
@@ -294,7 +301,7 @@ def _breakdown(calls, step, clock):
     return parts, total
 
 
-def _report(sc, med, metrics, parts, total, args):
+def _report(sc, med, metrics, parts, total, args, ref):
     """The closed loop's timings and where a step's time goes into docs/benchmarks.md (bench/report.py)."""
     from report import publish, table
     loop = []
@@ -302,8 +309,13 @@ def _report(sc, med, metrics, parts, total, args):
                        ("no flags", "without them (9 FMI calls, `flags=False`)")):
         for clock in ("wall", "cpu"):
             v, trk = med[key, clock], med["tracker", clock]
-            loop.append((f"{label}, {clock} time", f"{1e6 * v:.1f} us", f"{v / trk:.2f}x", f"{sc.h / v:.1f}x"))
-    body = (table(["closed loop per step", "time", "/ one in-process tracker step", "real time"], loop)
+            loop.append((f"{label}, {clock} time", f"{1e6 * v:.1f} us", f"{v / trk:.2f}x", f"{sc.h / v:.1f}x",
+                         f"{1e6 * v / ref['us']:.1f}x"))
+    loop.append(("reference: the same loop compiled without FMI (plant RK4, computed torque, Newton DK; "
+                 "`bench/reference_loop.py`), wall time", f"{ref['us']:.2f} us", f"{1e-6 * ref['us'] / med['tracker', 'wall']:.2f}x",
+                 f"{ref['real_time']:.0f}x", "1x"))
+    body = (table(["closed loop per step", "time", "/ one in-process tracker step", "real time",
+                   "/ the compiled reference loop"], loop)
             + f"\n\nLast run: RMS joint error after 0.5 s {metrics['rms_joint_error_after_0.5s']:.3e} rad, "
             f"max |DK pose - true pose| {metrics['max_dk_vs_true']:.1e}.\n\nWhere a step's time goes (one "
             "instrumented run, mean per step):\n\n"
@@ -313,7 +325,9 @@ def _report(sc, med, metrics, parts, total, args):
             f"{args.repeat} runs alternating with the in-process tracker on each run's joints; medians.",
             headline=[("closed loop through FMI at 1 ms: wall per step / one in-process tracker step; real time",
                        f"{1e6 * wall:.0f} us = {wall / trk:.2f}x; {sc.h / wall:.1f}x real time",
-                       "<= 4x, >= 10x real time")])
+                       "<= 4x, >= 30x real time"),
+                      ("the same loop compiled without FMI (Newton DK): real time; the FMI loop / it",
+                       f"{ref['real_time']:.0f}x; {1e6 * wall / ref['us']:.1f}x", "")])
 
 
 if __name__ == "__main__":

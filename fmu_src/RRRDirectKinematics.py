@@ -95,8 +95,8 @@ class RRRDirectKinematics(TableSlave):
         *sensor_parameters("rad"),
         *dk_outputs(("q1", "q2", "q3"), start_tolerance=_START_TOLERANCE, geometry_tolerance=_GEOMETRY_TOLERANCE),
     )
-    # _track: the TrackerState (the tracker's whole mutable data: previous pose and joints, the pose
-    # before, the joint-step scale, the step count); _committed: (q, outputs) of the last doStep (or of
+    # _track: the tracker's snapshot (Tracker.snapshot: its whole mutable data, a read-only flat array or
+    # a TrackerState: previous pose and joints, the pose before, the joint-step scale, the step count); _committed: (q, outputs) of the last doStep (or of
     # the initialization), what the outputs are whenever the inputs equal that q; _episode: status of the
     # last logged change (unreachable / singular episodes are logged once, at their start and end);
     # _since: (tracker step index, time) of the step since which the tracker cannot vouch, None while
@@ -104,10 +104,10 @@ class RRRDirectKinematics(TableSlave):
     STATE = ("_track", "_committed", "_episode", "_since")
     # _maps/_model: read and verified at instantiation; _tracker: built at initialization for
     # (posture, mode), rebuilt by set_state if a state of other parameters is set; _cache: the last
-    # tentative step, keyed by the q and the TrackerState object it started from (never stale)
+    # tentative step, keyed by the q and the snapshot object it started from (never stale)
     CONSTANT = ("_maps", "_model", "_tracker", "_cache")
     # a doStep's rollback keeps references: every STATE value is replaced, never changed in place
-    # (a TrackerState is frozen and its arrays are never written; the others are tuples and ints)
+    # (a snapshot is read-only, a TrackerState frozen; the others are tuples and ints)
     IMMUTABLE_STATE = True
     # step() publishes the outputs of the joints it stepped to, the current inputs
     EVALUATE_AFTER_STEP = False
@@ -229,7 +229,7 @@ class RRRDirectKinematics(TableSlave):
 
     def _initialize_tracker(self):
         self._tracker, q0 = self._start(log=True)
-        self._track = self._tracker.state
+        self._track = self._tracker.snapshot()
         self._cache = None
         self._initial_outputs(self._tracker, log=True)
         self._committed = (tuple(float(v) for v in q0), self._outputs())
@@ -341,12 +341,9 @@ class RRRDirectKinematics(TableSlave):
         if c is not None and c[0] == q and c[1] is st and c[5] == dt:
             return c[2], c[3], c[4]
         tr = self._tracker
-        tr.state = st
-        try:
-            X, info = tr.step(np.array(q, dtype=float), dt=dt)
-            after = tr.state
-        finally:
-            tr.state = st
+        tr.restore(st)                            # free when the tracker holds it (the last step's)
+        X, info = tr.step(np.array(q, dtype=float), dt=dt)
+        after = tr.snapshot()
         self._cache = (q, st, X, info, after, dt)
         return X, info, after
 
@@ -432,7 +429,9 @@ class RRRDirectKinematics(TableSlave):
     # ------------------------------------------------------------------ FMU state
     def get_state(self):
         snap = super().get_state()
-        snap["_track"] = None if self._track is None else self._track.as_array().tolist()
+        track = self._track
+        snap["_track"] = None if track is None else (
+            TrackerState.from_array(track) if isinstance(track, np.ndarray) else track).as_array().tolist()
         return snap
 
     def set_state(self, snapshot):

@@ -34,6 +34,7 @@ from .mapfile import FORMAT_VERSION, MapTensorFileError
 from .maptensor import MapTensor, label_poses
 from .ordering import DEFAULT_RULE, ORDERING_RULES
 from .start import START_TOLERANCE, StartInfo, UncertainStartWarning
+from .options import TrackerOptions
 from .tracker import Tracker
 from .tracker_state import CERTIFICATES, STATUS, TRUST, StepInfo, TrackerError, TrackerState, TrackResult
 from .trajectories import PAPER_CIRCLE, circle_path
@@ -47,6 +48,6 @@ __all__ = [
     "wrap_angle", "PAPER_CIRCLE", "circle_path",
     "MapTensor", "MapTensorFileError", "FORMAT_VERSION", "label_poses", "default_bounds", "default_grid",
     "grid_shape", "DEFAULT_STEP", "cached_map", "map_path", "cache_dir", "CACHE_ENV",
-    "Tracker", "TrackerState", "StepInfo", "TrackResult", "TrackerError", "STATUS", "CERTIFICATES", "TRUST",
+    "Tracker", "TrackerOptions", "TrackerState", "StepInfo", "TrackResult", "TrackerError", "STATUS", "CERTIFICATES", "TRUST",
     "StartInfo", "UncertainStartWarning", "START_TOLERANCE", "__version__",
 ]

@@ -7,9 +7,13 @@ shape and says exactly what was wrong otherwise ("q: expected (..., 3), got
 """
 from __future__ import annotations
 
+import math
+from typing import NamedTuple
+
 import numpy as np
 
-__all__ = ["SolverInputError", "GeometryError", "as_array", "check_posture", "check_instance"]
+__all__ = ["SolverInputError", "GeometryError", "as_array", "check_posture", "check_instance", "Bound",
+           "check_number"]
 
 
 class SolverInputError(ValueError):
@@ -115,3 +119,49 @@ def check_posture(posture) -> np.ndarray:
     if np.any((iarr < 1) | (iarr > 8)):
         raise SolverInputError(f"posture: expected an integer in 1..8, got {posture!r}")
     return iarr
+
+
+class Bound(NamedTuple):
+    """What a scalar option may be (a row of an options table, :func:`check_number`).
+
+    Attributes
+    ----------
+    integer : bool
+        An integer (a bool is not one), else a real number (finite).
+    low : float
+        The least value.
+    open : bool
+        ``low`` itself is refused (> low), else allowed (>= low).
+    none : bool
+        None is allowed (an option that is off).
+    unit : str
+        The unit, for the message ("rad", "s"; "" for none).
+    """
+
+    integer: bool = False
+    low: float = 0.0
+    open: bool = True
+    none: bool = False
+    unit: str = ""
+
+    def describe(self) -> str:
+        what = "an integer" if self.integer else "a number"
+        unit = f" ({self.unit})" if self.unit else ""
+        return f"{what}{unit} {'>' if self.open else '>='} {self.low:g}" + (" or None" if self.none else "")
+
+
+def check_number(name: str, value, bound: Bound, error=SolverInputError):
+    """``value`` as a Python float or int (or None) if it is what ``bound`` allows, else raise ``error``
+    (a ValueError subclass) with ``"<name>: expected <what>, got <value>"``.
+
+    The one check of the options tables (:class:`solver.options.TrackerOptions`...).
+    """
+    if value is None and bound.none:
+        return None
+    ok = isinstance(value, (int, np.integer)) if bound.integer else isinstance(value, (int, float, np.integer,
+                                                                                         np.floating))
+    if ok and not isinstance(value, (bool, np.bool_)):
+        v = int(value) if bound.integer else float(value)
+        if math.isfinite(v) and (v > bound.low if bound.open else v >= bound.low):
+            return v
+    raise error(f"{name}: expected {bound.describe()}, got {value!r}")

@@ -151,10 +151,11 @@ from ._kernels.anytime import ANY_CUT, ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON, 
 from ._kernels.clock import cycles_per_second
 from ._kernels.stepper import tracker_advance, tracker_track
 from ._kernels.tracker import tracker_step
-from .checks import SolverInputError, as_array
+from .checks import SolverInputError
 from .grid import default_bounds
 from .manipulator import Manipulator
 from .maptensor import MapTensor
+from .options import GATE, MAX_TESTS, REACQUIRE_BOXES, TrackerOptions
 from .ordering import rule_code
 from .as_built import as_built_pack, joint_width, tool_space_margin
 from .encoder_grid import encoder_bits, encoder_note, grid_tolerance
@@ -163,23 +164,10 @@ from .start import START_TOLERANCE, StartInfo, UncertainStartWarning, honest_sta
 from .tracker_state import TrackerError
 from .tracking import _TrackerBase
 
-__all__ = ["Tracker", "MAX_TESTS", "START_TOLERANCE", "StartInfo"]
+__all__ = ["Tracker", "TrackerOptions", "MAX_TESTS", "GATE", "REACQUIRE_BOXES", "START_TOLERANCE", "StartInfo"]
 
 #: Default mode: joint motion per continuation substep (rad), and the most substeps of a step.
 SUBSTEP_DQ, MAX_SUBSTEPS = 0.05, 16
-
-#: Krawczyk tests one chain of certificates may use (a step runs one chain, or one per real solution
-#: while the branch is unknown); beyond it the step is not certified.
-MAX_TESTS = 2000
-
-#: With measured joints (``joint_tolerance > 0``): a sample is refused as an outlier when its joint
-#: step differs from the one expected (constant joint velocity) by more than the noise allows,
-#: ``2 tol (1 + r)``, plus ``GATE`` times the envelope of recent differences, and that difference
-#: moves the pose more than noise could (see "Sensors").
-GATE = 4.0
-
-#: With measured joints: pose boxes one re-acquisition may examine (see "Sensors").
-REACQUIRE_BOXES = 10000
 
 #: With ``joint_tolerance = 0`` and a reset at joints off any encoder grid: the readings after it that are
 #: checked for one (an encoder stream is on its grid from its first reading).
@@ -208,6 +196,9 @@ class Tracker(_TrackerBase):
         Map of the tracker's posture, built for ``model`` (same geometry digest).
     mode : {"default", "paper"}
         See the module docstring.
+    options : TrackerOptions, optional
+        The options below as one checked object (:mod:`solver.options`); keywords given beside it
+        replace its fields.  Without it the keywords make it.  Kept as :attr:`options`.
     r : float, optional
         Procedure-2 radius (eq. 18); default ``map_tensor.default_radius()``.
     weights : array_like (3,), optional
@@ -254,86 +245,61 @@ class Tracker(_TrackerBase):
         step budget").  Measured overshoot: ``bench/bench_budget.py``.
     """
 
-    def __init__(self, model: Manipulator, map_tensor: MapTensor, mode: str = "default", r=None,
-                 weights=None, ambiguity_ratio: float = 0.25, jump_factor: float = 20.0,
-                 singular_tol: float = 1e-4, use_map: bool = True, strategy: int = _lay.STRATEGY_SEGMENT,
-                 segment_singular: float = 0.05, posture_certificate: bool = True, max_tests: int = MAX_TESTS,
-                 joint_tolerance: float = 0.0, gate: float = GATE, speed_bound=None,
-                 reacquire_boxes: int = REACQUIRE_BOXES, stuck_after: int = 0, start_tolerance=None,
-                 step_budget: float | None = None, geometry_tolerance=0.0):
+    def __init__(self, model: Manipulator, map_tensor: MapTensor, mode: str | None = None,
+                 options: TrackerOptions | None = None, **kwargs):
         super().__init__(model)
+        if mode is not None:
+            kwargs["mode"] = mode
+        if options is None:
+            options = TrackerOptions(**kwargs)
+        elif not isinstance(options, TrackerOptions):
+            raise TrackerError(f"options: expected a TrackerOptions or None, got {type(options).__name__}")
+        elif kwargs:
+            options = replace(options, **kwargs)
+        o = self.options = options
         try:
-            self.geometry_tolerance = _geometry_tolerance(model, geometry_tolerance)
+            self.geometry_tolerance = _geometry_tolerance(model, o.geometry_tolerance)
         except SolverInputError as exc:
             raise TrackerError(str(exc)) from None
-        if step_budget is not None and not (isinstance(step_budget, (int, float, np.floating, np.integer))
-                                            and not isinstance(step_budget, bool) and np.isfinite(step_budget)
-                                            and step_budget > 0):
-            raise TrackerError(f"step_budget: expected seconds > 0 or None, got {step_budget!r}")
-        self.step_budget = None if step_budget is None else float(step_budget)
-        if step_budget is not None:
+        self.step_budget = o.step_budget
+        if o.step_budget is not None:
             cycles_per_second()                 # calibrated now, not in the first step's budget
         self._anytime = np.zeros(ANY_SIZE)
-        if start_tolerance is None:
-            start_tolerance = start_tolerance_for(model)
-        r0 = as_array("start_tolerance", start_tolerance, (3,))
-        if r0.shape != (3,) or not np.all(r0 > 0):
-            raise TrackerError(f"start_tolerance: expected 3 half-widths > 0 (m, m, rad), got {start_tolerance!r}")
-        self.start_tolerance = r0.copy()
+        self.start_tolerance = np.array(start_tolerance_for(model) if o.start_tolerance is None
+                                        else o.start_tolerance, dtype=float)
         if not isinstance(map_tensor, MapTensor):
             raise TrackerError(f"map_tensor: expected a MapTensor, got {type(map_tensor).__name__}")
         if map_tensor.model.digest() != model.digest():
             raise TrackerError(f"map_tensor: built for geometry {map_tensor.model.name!r}, not for "
                                f"{model.name!r}")
-        if mode not in ("default", "paper"):
-            raise TrackerError(f"mode: expected 'default' or 'paper', got {mode!r}")
-        for key, val in (("ambiguity_ratio", ambiguity_ratio), ("jump_factor", jump_factor),
-                         ("singular_tol", singular_tol), ("max_tests", max_tests)):
-            if not (np.isfinite(val) and val > 0):
-                raise TrackerError(f"{key}: expected a positive number, got {val!r}")
-        for key, val in (("joint_tolerance", joint_tolerance), ("gate", gate)):
-            if not (isinstance(val, (int, float, np.floating, np.integer)) and np.isfinite(val) and val >= 0):
-                raise TrackerError(f"{key}: expected a number >= 0, got {val!r}")
-        self.joint_tolerance = float(joint_tolerance)
-        speed = (0.0, 0.0) if speed_bound is None else tuple(float(v) for v in as_array("speed_bound", speed_bound,
-                                                                                          (2,)))
-        if min(speed) < 0 or (speed_bound is not None and min(speed) <= 0):
-            raise TrackerError(f"speed_bound: expected (m/s, rad/s), both > 0, or None, got {speed_bound!r}")
-        self.speed_bound = None if speed_bound is None else speed
-        for key, val in (("reacquire_boxes", reacquire_boxes), ("stuck_after", stuck_after)):
-            if not (isinstance(val, (int, np.integer)) and not isinstance(val, bool) and val >= 0):
-                raise TrackerError(f"{key}: expected an integer >= 0, got {val!r}")
-        if stuck_after == 1:
-            raise TrackerError("stuck_after: expected 0 (off) or at least 2 identical readings, got 1")
-        if stuck_after and not joint_tolerance > 0:
-            raise TrackerError(f"stuck_after = {stuck_after}: needs joint_tolerance > 0 (measured joints); an "
-                               "exact joint at rest repeats its value")
-        self.stuck_after = int(stuck_after)
+        self.joint_tolerance = o.joint_tolerance
+        speed = (0.0, 0.0) if o.speed_bound is None else o.speed_bound
+        self.speed_bound = o.speed_bound
+        self.stuck_after = o.stuck_after
         # the robot as built (solver.as_built): a 3-RRR's legs carry a slack in the model pack, a 3-RPR's a
         # joint width on top of joint_tolerance; its tool point reaches a little beyond the model's
         self._joint_width = joint_width(model, self.geometry_tolerance)
         self._model_pack = as_built_pack(model, self.geometry_tolerance, self._model_pack)
         bounds = np.array(_tool_space(model if model.kind == "3-RRR" else replace(
-            model, rho_max=model.rho_max + float(joint_tolerance) + self._joint_width)), float)
+            model, rho_max=model.rho_max + o.joint_tolerance + self._joint_width)), float)
         bounds[:2] += np.array([-1.0, 1.0]) * tool_space_margin(self.geometry_tolerance)
         self.map = map_tensor
-        self.mode = mode
+        self.mode = o.mode
         self.posture = map_tensor.posture
-        self.name = f"tracker-{mode}" if use_map or mode == "paper" else "tracker-nomap"
-        w = map_tensor.default_weights if weights is None else as_array("weights", weights, (3,))
-        r = map_tensor.default_radius(w) if r is None else float(r)
+        self.name = f"tracker-{o.mode}" if o.use_map or o.mode == "paper" else "tracker-nomap"
+        w = map_tensor.default_weights if o.weights is None else np.array(o.weights)
+        r = map_tensor.default_radius(w) if o.r is None else o.r
         self._w = np.ascontiguousarray(w, dtype=float)
         self.r = r
         self._labels = np.ascontiguousarray(map_tensor.labels)
         self._map_pack = _lay.pack_map(map_tensor.origin, map_tensor.step, map_tensor.periodic, r * r, self._w)
         self._stencil = map_tensor._stencil(r, w)
-        self._params = _lay.pack_tracker_params(ambiguity_ratio, jump_factor, SUBSTEP_DQ, MAX_SUBSTEPS, singular_tol,
-                                                use_map, strategy, segment_singular,
-                                                map_tensor.posture - 1 if posture_certificate else -1,
-                                                int(max_tests), float(joint_tolerance) + self._joint_width,
-                                                float(gate),
-                                                bounds[:2].ravel(), speed, int(reacquire_boxes))
-        self._mode = _lay.MODE_PAPER if mode == "paper" else _lay.MODE_DEFAULT
+        self._params = _lay.pack_tracker_params(o.ambiguity_ratio, o.jump_factor, SUBSTEP_DQ, MAX_SUBSTEPS,
+                                                o.singular_tol, o.use_map, o.strategy, o.segment_singular,
+                                                map_tensor.posture - 1 if o.posture_certificate else -1,
+                                                o.max_tests, o.joint_tolerance + self._joint_width, o.gate,
+                                                bounds[:2].ravel(), speed, o.reacquire_boxes)
+        self._mode = _lay.MODE_PAPER if o.mode == "paper" else _lay.MODE_DEFAULT
         self._rule = rule_code(map_tensor.rule)
 
     def reset(self, X0, q0, warn: bool = True) -> StartInfo:

@@ -64,6 +64,7 @@ class _TrackerBase:
         self._flat = np.full(STATE_FLOATS, np.nan)
         self._live = False
         self._st: TrackerState | None = None
+        self._held = None                                   # the snapshot the flat state still equals, if any
         self._state_pack = np.empty(STATE_SIZE)
         self._out_real = np.empty(OUT_SIZE)
         self._out_real[OUT_N_TUBES] = 0.0                  # a baseline's step leaves no cover of tubes,
@@ -86,7 +87,7 @@ class _TrackerBase:
     def state(self, st: TrackerState | None) -> None:
         if st is not None and not isinstance(st, TrackerState):
             raise TrackerError(f"state: expected a TrackerState or None, got {type(st).__name__}")
-        self._st, self._live = st, False
+        self._st, self._live, self._held = st, False, None
 
     def snapshot(self):
         """The tracker's data now, for :meth:`restore`: a read-only copy of the flat state (cheap, about a
@@ -99,15 +100,18 @@ class _TrackerBase:
         snap = np.empty(STATE_FLOATS)
         copy_state(self._flat, snap, True)
         snap.flags.writeable = False
+        self._held = snap
         return snap
 
     def restore(self, snap) -> None:
         """Make the tracker's data a :meth:`snapshot` (of this tracker or one of the same options)."""
         if isinstance(snap, np.ndarray):
+            if snap is self._held and self._live:          # the tracker holds it still: nothing to copy
+                return
             if snap.shape != (STATE_FLOATS,):
                 raise TrackerError(f"snap: expected a snapshot of {STATE_FLOATS} floats, got shape {snap.shape}")
             copy_state(snap, self._flat, False)
-            self._st, self._live = None, True
+            self._st, self._live, self._held = None, True, snap if not snap.flags.writeable else None
         else:
             self.state = snap
 
@@ -189,6 +193,7 @@ class _TrackerBase:
             dt = np.nan
         elif not (np.isfinite(dt) and dt > 0):
             raise SolverInputError(f"dt: expected a positive time step in s, got {dt!r}")
+        self._held = None
         since = self._advance(q, float(dt), deadline, a)
         if since == NOT_FINITE:
             self._check_joints(q)                            # raises, naming q; nothing changed
@@ -288,13 +293,35 @@ class _TrackerBase:
             self._track_compiled(np.ascontiguousarray(q_stream, dtype=float), k, X, Xp, bound, out)
         return TrackResult(X=X, X_pred=Xp, pose_bound=bound, **out)
 
+    def track_many(self, q_streams, X0s) -> list:
+        """Track several joint streams, each from its own start (a batch of paths; each stream's loop
+        compiled, as :meth:`track`).
+
+        Parameters
+        ----------
+        q_streams : sequence of array_like, each shape (n_i, 3), or array_like (m, n, 3)
+            The streams' joints (rad); ``q_streams[i][0]`` is the configuration of ``X0s[i]``.
+        X0s : array_like, shape (m, 3)
+            The streams' start poses (m, m, rad).
+
+        Returns
+        -------
+        list of TrackResult
+            One per stream, in order; the tracker is left at the end of the last.
+        """
+        X0s = as_array("X0s", X0s, (3,))
+        if X0s.ndim != 2 or len(X0s) != len(q_streams):
+            raise SolverInputError(f"X0s: expected shape ({len(q_streams)}, 3), one start pose per stream, got "
+                                   f"{X0s.shape}")
+        return [self.track(q, X0) for q, X0 in zip(q_streams, X0s)]
+
     def _track_compiled(self, qs: np.ndarray, k0: int, X, Xp, bound, out: dict) -> None:
         """Steps ``k0``.. of :meth:`track` (joints ``qs`` (n, 3)) in one compiled loop, into its arrays."""
         n = len(qs)
         info_f, info_i = np.zeros((n, INFO_F_SIZE)), np.zeros((n, INFO_I_SIZE), dtype=np.int64)
         since, cut, cyc = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.int64)
         self._loop(qs, k0, self._flat_state(), X, Xp, info_f, info_i, bound, since, cut, cyc)
-        self._st = None
+        self._st, self._held = None, None
         rows = slice(k0, n)
         for key, col in _INFO_COLUMNS:
             out[key][rows] = info_i[rows, col]

@@ -159,3 +159,15 @@ def test_a_baseline_that_vouches_proves_no_pose_bound(model):
     res = BASELINES["newton-separation"](model).track(q, X[0])
     assert res.certain[1:].any()
     assert np.all(np.isinf(res.pose_bound[1:]))
+
+
+def test_track_many_is_track_on_each_stream(model, coarse_map1):
+    X1, X2 = circle_path(60), circle_path(40, (0.5, 0.3), 0.1, 0.2)
+    streams = [ik(model, X1, 1), ik(model, X2, 1)]
+    tr = Tracker(model, coarse_map1, start_tolerance=(1e-3, 1e-3, 5e-3))
+    many = tr.track_many(streams, [X1[0], X2[0]])
+    for res, q, X in zip(many, streams, (X1, X2)):
+        one = Tracker(model, coarse_map1, start_tolerance=(1e-3, 1e-3, 5e-3)).track(q, X[0])
+        assert _same(res.X, one.X) and _same(res.certain, one.certain) and _same(res.pose_bound, one.pose_bound)
+    with pytest.raises(SolverInputError, match="X0s"):
+        tr.track_many(streams, [X1[0]])

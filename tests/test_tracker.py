@@ -299,3 +299,29 @@ def test_state_packs_itself_and_reads_the_result_pack(model, maps):
     np.testing.assert_array_equal(taken.X, X[6])
     assert taken.X2 is st.X and taken.q2 is st.q and taken.steps == st.steps + 1 and taken.dt == 2e-3
     assert len(taken.candidates) == out_int[lay.I_N_CAND]
+
+
+def test_options_are_one_checked_object_the_keywords_make(model, coarse_map1):
+    from solver import TrackerOptions
+    from solver.checks import Bound, check_number
+    from solver.options import BOUNDS
+
+    by_keywords = Tracker(model, coarse_map1, joint_tolerance=1e-4, speed_bound=[0.5, 2.0], max_tests=np.int64(300))
+    opts = by_keywords.options
+    assert opts == TrackerOptions(joint_tolerance=1e-4, speed_bound=(0.5, 2.0), max_tests=300)
+    assert isinstance(opts.max_tests, int) and opts.speed_bound == (0.5, 2.0)
+    by_object = Tracker(model, coarse_map1, options=opts)
+    assert np.array_equal(by_object._params, by_keywords._params)
+    paper = Tracker(model, coarse_map1, mode="paper", options=opts)      # keywords replace fields
+    assert paper.mode == "paper" and paper.options.joint_tolerance == 1e-4 and opts.mode == "default"
+    # every scalar option of the table refuses what its bound refuses, by name
+    for name, bound in BOUNDS.items():
+        for bad in (bound.low - 1.0 if not bound.open else bound.low, float("nan"), "1", True,
+                    None if not bound.none else float("inf")):
+            with pytest.raises(TrackerError, match=f"^{name}: expected"):
+                TrackerOptions(**{name: bad})
+    assert check_number("k", np.int32(3), Bound(integer=True)) == 3
+    with pytest.raises(TrackerError, match="options"):
+        Tracker(model, coarse_map1, options={"joint_tolerance": 1e-4})
+    with pytest.raises(TypeError, match="bogus"):
+        Tracker(model, coarse_map1, bogus=1)

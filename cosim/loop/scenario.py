@@ -6,11 +6,19 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from solver import PAPER_CIRCLE
+from solver.checks import Bound, check_number
 
 __all__ = ["ORDERS", "Scenario", "robot_scenario"]
 
 #: The master algorithms of :meth:`cosim.ClosedLoop.run` (see :mod:`cosim.loop.master`).
 ORDERS = ("gauss-seidel", "jacobi", "omsimulator")
+
+
+#: The scalar fields and what each may be (:func:`solver.checks.check_number`).
+BOUNDS = {"t_end": Bound(unit="s"), "h": Bound(unit="s"), "bandwidth": Bound(unit="rad/s"), "damping": Bound(),
+          "plant_mass_scale": Bound(), "controller_mass_scale": Bound(), "period": Bound(unit="s"),
+          "radius": Bound(unit="m"), "ramp_time": Bound(open=False, unit="s"),
+          "plant_substeps": Bound(integer=True)}
 
 
 @dataclass(frozen=True)
@@ -63,11 +71,8 @@ class Scenario:
             raise ValueError(f"order: expected one of {ORDERS}, got {self.order!r}")
         if self.tracker_mode not in ("default", "paper"):
             raise ValueError(f"tracker_mode: expected 'default' or 'paper', got {self.tracker_mode!r}")
-        for key in ("t_end", "h", "bandwidth", "damping", "plant_mass_scale", "controller_mass_scale",
-                    "period", "radius"):
-            v = getattr(self, key)
-            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
-                raise ValueError(f"{key}: expected a positive number, got {v!r}")
+        for key, bound in BOUNDS.items():
+            check_number(key, getattr(self, key), bound, ValueError)
         if self.h > self.t_end:
             raise ValueError(f"h: expected a step no longer than t_end = {self.t_end}, got {self.h}")
 
