@@ -25,7 +25,6 @@ from __future__ import annotations
 import numpy as np
 
 from ._kernels import layout as _lay
-from ._kernels.baselines import baseline_step
 from ._kernels.stepper import baseline_advance, baseline_track
 from .manipulator import Manipulator
 from .ordering import DEFAULT_RULE, rule_code
@@ -50,12 +49,12 @@ class _Baseline(_TrackerBase):
         self._out_real[_lay.OUT_BOUND:_lay.OUT_BOUND + 3] = np.inf   # a baseline proves no pose bound
 
     def _kernel(self, q, state_pack, deadline):
-        baseline_step(self.kind, self._rule, q, state_pack, self._model_pack, self._sample_to_sextic, self._params,
-                      self._out_real, self._out_int)
+        baseline_advance(self.kind, self._rule, q, 0.0, self._flat, state_pack, self._model_pack,
+                         self._sample_to_sextic, self._params, self._out_real, self._out_int, True)
 
     def _advance(self, q, dt, deadline, a):
         return baseline_advance(self.kind, self._rule, q, dt, a, self._state_pack, self._model_pack,
-                                self._sample_to_sextic, self._params, self._out_real, self._out_int)
+                                self._sample_to_sextic, self._params, self._out_real, self._out_int, False)
 
     def _loop(self, qs, k0, a, X, Xp, info_f, info_i, bound, since, cut, cyc):
         baseline_track(self.kind, self._rule, qs, k0, a, self._state_pack, self._model_pack, self._sample_to_sextic,

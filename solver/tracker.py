@@ -150,7 +150,6 @@ from ._kernels import layout as _lay
 from ._kernels.anytime import ANY_CUT, ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON, ANY_SIZE, walk_floats
 from ._kernels.clock import cycles_per_second
 from ._kernels.stepper import tracker_advance, tracker_track
-from ._kernels.tracker import tracker_step
 from .checks import SolverInputError
 from .grid import default_bounds
 from .manipulator import Manipulator
@@ -379,13 +378,14 @@ class Tracker(_TrackerBase):
         else:
             anytime[:len(walk)] = walk
         anytime[ANY_DEADLINE] = deadline
-        tracker_step(self._mode, self._rule, q, state_pack, self._model_pack, self._sample_to_sextic, self._labels,
-                     self._map_pack, self._stencil, self._params, self._out_real, self._out_int, anytime)
+        tracker_advance(self._mode, self._rule, q, 0.0, deadline, self._flat, state_pack, self._model_pack,
+                        self._sample_to_sextic, self._labels, self._map_pack, self._stencil, self._params,
+                        self._out_real, self._out_int, anytime, True)
 
     def _advance(self, q, dt, deadline, a):
         return tracker_advance(self._mode, self._rule, q, dt, deadline, a, self._state_pack, self._model_pack,
                                self._sample_to_sextic, self._labels, self._map_pack, self._stencil, self._params,
-                               self._out_real, self._out_int, self._anytime)
+                               self._out_real, self._out_int, self._anytime, False)
 
     def _loop(self, qs, k0, a, X, Xp, info_f, info_i, bound, since, cut, cyc):
         budget = 0.0 if self.step_budget is None else self.step_budget * cycles_per_second()

@@ -223,11 +223,21 @@ def advance_state(a, q, dt, out_real, out_int, anytime, walks):
 
 @njit(cache=True)
 def tracker_advance(mode, rule, q, dt, deadline, a, pk, model_pack, sample_to_sextic, labels, map_pack, stencil,
-                    params, out_real, out_int, anytime):
+                    params, out_real, out_int, anytime, packed):
     """One tracker step (:func:`.tracker.tracker_step`) from the flat state ``a``, advanced in place:
     joints ``q`` (3,) rad, ``dt`` s after the last sample read (NaN: unknown), ``deadline`` a cycle count
     (0.0: none); ``pk`` the state pack (scratch).  Returns the step's ``uncertain_since``, or
-    :data:`NOT_FINITE` (nothing done, ``a`` unchanged) when ``q`` has a NaN or an infinity."""
+    :data:`NOT_FINITE` (nothing done, ``a`` unchanged) when ``q`` has a NaN or an infinity.
+
+    ``packed``: the caller wrote the state pack ``pk`` and the anytime pack (the step of a
+    :class:`solver.TrackerState` object, :meth:`solver.TrackerState.pack`): only the step runs, ``a`` is
+    not read nor written (returns 0).  The one entry point of the tracker's step: its machine code is
+    compiled and shipped once, not once per caller.
+    """
+    if packed:
+        tracker_step(mode, rule, q, pk, model_pack, sample_to_sextic, labels, map_pack, stencil, params, out_real,
+                     out_int, anytime)
+        return 0
     if not finite3(q):
         return NOT_FINITE
     pack_state(a, dt, pk)
@@ -238,9 +248,12 @@ def tracker_advance(mode, rule, q, dt, deadline, a, pk, model_pack, sample_to_se
 
 
 @njit(cache=True)
-def baseline_advance(kind, rule, q, dt, a, pk, model_pack, sample_to_sextic, params, out_real, out_int):
+def baseline_advance(kind, rule, q, dt, a, pk, model_pack, sample_to_sextic, params, out_real, out_int, packed):
     """One baseline step (:func:`.baselines.baseline_step`) from the flat state ``a``, advanced in place
     (arguments and result as :func:`tracker_advance`)."""
+    if packed:
+        baseline_step(kind, rule, q, pk, model_pack, sample_to_sextic, params, out_real, out_int)
+        return 0
     if not finite3(q):
         return NOT_FINITE
     pack_state(a, dt, pk)
@@ -274,7 +287,7 @@ def tracker_track(mode, rule, qs, k0, budget, a, pk, model_pack, sample_to_sexti
         c0 = cycles()
         deadline = float(c0) + budget if budget > 0.0 else 0.0
         since = tracker_advance(mode, rule, qs[k], math.nan, deadline, a, pk, model_pack, sample_to_sextic, labels,
-                                map_pack, stencil, params, out_real, out_int, anytime)
+                                map_pack, stencil, params, out_real, out_int, anytime, False)
         c1 = cycles()
         cut = deadline > 0.0 and out_int[I_CERTAIN] == 0 and anytime[ANY_CUT] > 0.0
         record(k, out_real, out_int, since, cut, c0, c1, X, X_pred, info_f, info_i, bound, since_out, cut_out, cyc)
@@ -287,7 +300,7 @@ def baseline_track(kind, rule, qs, k0, a, pk, model_pack, sample_to_sextic, para
     for k in range(k0, qs.shape[0]):
         c0 = cycles()
         since = baseline_advance(kind, rule, qs[k], math.nan, a, pk, model_pack, sample_to_sextic, params,
-                                 out_real, out_int)
+                                 out_real, out_int, False)
         c1 = cycles()
         record(k, out_real, out_int, since, False, c0, c1, X, X_pred, info_f, info_i, bound, since_out, cut_out,
                cyc)
