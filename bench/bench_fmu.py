@@ -14,8 +14,10 @@ that a ratio compares times measured in the same minutes of the same run.  Print
   value references and value buffers made once (what the master does), against the in-process
   ``Tracker.step(q, dt=h)`` on the same map and joints; ratio (target <= 1.5).  Also the cycle that
   reads all 11 outputs (three more calls), the same cycle through fmpy's convenience
-  ``setReal``/``getReal`` (which build ctypes arrays at every call), and whether the poses are
-  identical;
+  ``setReal``/``getReal`` (which build ctypes arrays at every call), the first cycle with the slave's
+  tracker on its ``TrackerState`` path (``Tracker._objects``: every step packed and rebuilt in Python,
+  the step before the compiled stepper; the same process, passes alternating), and whether the poses
+  are identical;
 - **DK for FMI 3.0**: the step of ``<build-dir>/fmi3/RRRDirectKinematics.fmu`` (``q``, ``pose`` arrays)
   beside the FMI 2.0 DK FMU's, in the same run (:mod:`fmu3_step`; target <= 1.2x);
 - **plant** and **controller**: the inputs of a closed-loop run (``cosim.ClosedLoop``,
@@ -61,7 +63,7 @@ def bench_dk(unit: FMUUnit, n: int, passes: int) -> dict:
     start = {"x0": X[0][0], "y0": X[0][1], "phi0": X[0][2], "q1": Q[0][0], "q2": Q[0][1], "q3": Q[0][2]}
     io = _io(unit)
     tracker = Tracker(model, MapTensor.load(Path(unit.unzip_dir) / "resources" / "maps" / "posture1.npz"))
-    t = {"minimal": [], "all": [], "convenience": [], "tracker": []}
+    t = {"minimal": [], "all": [], "convenience": [], "tracker": [], "objects": []}
     poses_fmu, poses_tr = np.empty((n, 3)), np.empty((n, 3))
 
     def fresh():
@@ -79,6 +81,11 @@ def bench_dk(unit: FMUUnit, n: int, passes: int) -> dict:
             t["tracker"].append(pc() - t0)
             poses_tr[k] = Xk
         _fmu_pass(unit.fmu, fresh(), rows, io, t["all"], None, everything=True)
+        Tracker._objects = True                # the slave's tracker (the host's class) on the TrackerState path
+        try:
+            _fmu_pass(unit.fmu, fresh(), rows, io, t["objects"], None, everything=False)
+        finally:
+            Tracker._objects = False
         fresh()
         q_list, x_list = list(io["q"][0]), list(io["x"][0])
         for k, q in enumerate(rows):
@@ -290,6 +297,8 @@ def main(argv=None):
     print(f"  FMU through fmpy's setReal/getReal (arrays per call)         {dk['convenience']:6.1f} us "
           f"(x{dk['convenience'] / dk['tracker']:.2f})")
     print(f"  FMU poses identical to the in-process tracker's: {dk['identical']}")
+    print(f"  the same FMU cycle with the tracker on its TrackerState path (every step packed and rebuilt in "
+          f"Python, as before the compiled stepper)  {dk['objects']:6.1f} us")
     print("\nDK for FMI 3.0 (build/fmi3, FMU3Slave) beside FMI 2.0 (FMU2Slave), same run, passes alternating, median:")
     print(f"  FMI 3.0: fmi3SetFloat64(q[3]) + fmi3DoStep + fmi3GetFloat64(pose[3])  {v3['fmi3']:6.1f} us")
     print(f"  FMI 2.0: fmi2SetReal(q1..q3) + fmi2DoStep + fmi2GetReal(x, y, phi)    {v3['fmi2']:6.1f} us")
@@ -328,6 +337,8 @@ def _report(dk_path, times, dk, others, args, v3):
             ("DK: `fmi2SetReal(q) + fmi2DoStep + fmi2GetReal(x, y, phi)` / in-process `Tracker.step`, medians",
              f"{dk['minimal']:.1f} / {dk['tracker']:.1f} us = {ratio:.2f}x", "<= 1.5x"),
             ("DK, reading all outputs (+ getInteger, getBoolean)", f"{dk['all']:.1f} us", ""),
+            ("DK: the same cycle with the tracker's TrackerState path (the step before the compiled stepper)",
+             f"{dk['objects']:.1f} us", ""),
             ("DK poses identical to the in-process tracker's", dk["identical"], "True"),
             ("DK for FMI 3.0: `fmi3SetFloat64(q) + fmi3DoStep + fmi3GetFloat64(pose)` / the FMI 2.0 cycle, medians",
              f"{v3['fmi3']:.1f} / {v3['fmi2']:.1f} us = {v3['fmi3'] / v3['fmi2']:.2f}x", "<= 1.2x"),

@@ -99,7 +99,7 @@ def main(argv=None) -> None:
             "at every step (every step before the compiled stepper; now only with the stuck-joint detector "
             "or the encoder-grid watch on); *track*: `track` over the stream less its `reset`, per step, "
             "against the mean kernel time.")
-    publish("step", body, note=note, command="python bench/bench_step.py " + " ".join(argv or sys.argv[1:]),
+    publish("step", body, note=note, command=" ".join(["python bench/bench_step.py", *(argv or sys.argv[1:])]),
             headline=[("tracker step from Python / its compiled kernel, default mode", f"{ratios['tracker'][0]:.2f}x",
                        "<= 1.3x"),
                       ("Newton step from Python / its compiled kernel", f"{ratios['newton'][0]:.2f}x", "<= 3x"),

@@ -122,7 +122,7 @@ def main(argv=None) -> None:
     rows.append(("whole step", f"{np.median(total):.2f}", f"{total.mean():.2f}", "100 %"))
     body = table(["phase", "median (us)", "mean (us)", "share"], rows)
     print(body)
-    publish("profile", body, command="python bench/profile_step.py " + " ".join(argv or sys.argv[1:]),
+    publish("profile", body, command=" ".join(["python bench/profile_step.py", *(argv or sys.argv[1:])]),
             note=f"The tracker's step (default mode, exact joints) on the paper circle, {args.n} points, "
                  f"{args.repeats} passes, timed phase by phase inside compiled code (a bench-only copy of "
                  "`tracker_step`'s sequence with cycle-counter reads between phases; its poses equal "

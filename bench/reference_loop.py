@@ -43,7 +43,7 @@ def closed_loop(n, h, t0, plant, ctrl, bits, x, newton_kind, rule, a, pk, model_
         for i in range(3):
             q[i] = out_p[6 + i]
         baseline_advance(newton_kind, rule, q, h, a, pk, model_pack, sample_to_sextic, newton_params, out_real,
-                         out_int)
+                         out_int, False)
         if controller_step(ctrl, bits, t, q[0], q[1], q[2], out_p[9], out_p[10], out_p[11], out_real[0],
                            out_real[1], out_real[2], ASSEMBLY_TOL, out_c, work_c) != 0:
             return -(k + 1)

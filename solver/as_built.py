@@ -25,12 +25,14 @@ re-acquisition, which bound both. With 0 nothing changes, bit for bit.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ._kernels import layout as _lay
 from .geometry_tolerance import GeometryTolerance
 
-__all__ = ["as_built_pack", "joint_width", "tool_space_margin"]
+__all__ = ["as_built_pack", "joint_width", "reach_model"]
 
 
 def as_built_pack(model, tolerance: GeometryTolerance, pack) -> np.ndarray:
@@ -52,6 +54,14 @@ def joint_width(model, tolerance: GeometryTolerance) -> float:
     return float(np.max(tolerance.offset_bound()))
 
 
-def tool_space_margin(tolerance: GeometryTolerance) -> float:
-    """How far (m) a built robot's tool point can reach beyond the model's: its legs reach ``e_i`` farther."""
-    return 0.0 if tolerance.zero else float(np.max(tolerance.offset_bound()))
+def reach_model(model, tolerance: GeometryTolerance, joint_tolerance: float = 0.0):
+    """The model whose tool space holds every pose a tracker of ``model`` may meet (the box
+    re-acquisition searches, :func:`solver.grid.default_bounds`): a 3-RRR's distal links ``e_i`` longer
+    (at the built robot's pose the model's platform joint ``B_i`` is within ``l2_i + e_i`` of its elbow,
+    so within ``l1_i + l2_i + e_i`` of its motor: the reach discs of that model hold it, exactly); a
+    3-RPR's legs ``joint_tolerance + e`` longer.  ``model`` itself for a 3-RRR with zero tolerance."""
+    if model.kind == "3-RPR":
+        return replace(model, rho_max=model.rho_max + float(joint_tolerance) + joint_width(model, tolerance))
+    if tolerance.zero:
+        return model
+    return replace(model, l2=model.l2 + tolerance.offset_bound())

@@ -156,7 +156,7 @@ from .manipulator import Manipulator
 from .maptensor import MapTensor
 from .options import GATE, MAX_TESTS, REACQUIRE_BOXES, TrackerOptions
 from .ordering import rule_code
-from .as_built import as_built_pack, joint_width, tool_space_margin
+from .as_built import as_built_pack, joint_width, reach_model
 from .encoder_grid import encoder_bits, encoder_note, grid_tolerance
 from .geometry_tolerance import geometry_tolerance as _geometry_tolerance
 from .start import START_TOLERANCE, StartInfo, UncertainStartWarning, honest_start, start_tolerance_for
@@ -276,12 +276,11 @@ class Tracker(_TrackerBase):
         self.speed_bound = o.speed_bound
         self.stuck_after = o.stuck_after
         # the robot as built (solver.as_built): a 3-RRR's legs carry a slack in the model pack, a 3-RPR's a
-        # joint width on top of joint_tolerance; its tool point reaches a little beyond the model's
+        # joint width on top of joint_tolerance; the tool space re-acquisition searches is that of legs
+        # reaching that much farther (solver.as_built.reach_model)
         self._joint_width = joint_width(model, self.geometry_tolerance)
         self._model_pack = as_built_pack(model, self.geometry_tolerance, self._model_pack)
-        bounds = np.array(_tool_space(model if model.kind == "3-RRR" else replace(
-            model, rho_max=model.rho_max + o.joint_tolerance + self._joint_width)), float)
-        bounds[:2] += np.array([-1.0, 1.0]) * tool_space_margin(self.geometry_tolerance)
+        bounds = np.array(_tool_space(reach_model(model, self.geometry_tolerance, o.joint_tolerance)), float)
         self.map = map_tensor
         self.mode = o.mode
         self.posture = map_tensor.posture

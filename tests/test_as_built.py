@@ -283,3 +283,20 @@ def test_a_3rpr_as_built_is_tracked_with_its_exact_joint_width():
         assert silent(out, path.X) == 0
         assert sum(c for _, c, _ in out) >= 0.5 * len(out)
     assert nominal_silent > 0
+
+
+def test_the_tool_space_reacquisition_searches_holds_every_built_robots(model):
+    """The box re-acquisition searches (the reach of legs e_i longer, solver.as_built.reach_model) holds the
+    whole tool space of every robot built within the tolerance: corners of the tolerance box, 0.5 mm."""
+    from solver import default_bounds
+    from solver.as_built import reach_model
+    from solver.geometry_tolerance import built_robot, geometry_tolerance
+
+    tol = geometry_tolerance(model, 5e-4)
+    searched = default_bounds(reach_model(model, tol), step=(1e-4, 1e-4, 1e-4))
+    assert np.all(searched[:2, 0] < default_bounds(model, step=(1e-4, 1e-4, 1e-4))[:2, 0])
+    rng = np.random.default_rng(45)
+    for _ in range(12):
+        built = default_bounds(built_robot(model, 5e-4, rng, corner=True), step=(1e-4, 1e-4, 1e-4))
+        assert np.all(built[:2, 0] >= searched[:2, 0]) and np.all(built[:2, 1] <= searched[:2, 1])
+    assert reach_model(model, geometry_tolerance(model, 0.0)) is model

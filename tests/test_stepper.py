@@ -92,13 +92,19 @@ def test_track_runs_the_stream_compiled_with_the_step_loops_results(model):
             assert _same(fast.state.as_array(), ref.state.as_array())
 
 
-def test_a_snapshot_restores_the_state_and_the_steps_after_it(model, coarse_map1):
-    X = circle_path(80)
+def _tracked(model, maps, n_points, n_steps):
+    """(tracker, q): an exact-start tracker of the paper circle of ``n_points``, ``n_steps`` steps on."""
+    X = circle_path(n_points)
     q = ik(model, X, 1)
-    tr = Tracker(model, coarse_map1, start_tolerance=EXACT)
+    tr = Tracker(model, maps, start_tolerance=EXACT)
     tr.reset(X[0], q[0])
-    for k in range(1, 30):
+    for k in range(1, n_steps):
         tr.step(q[k])
+    return tr, q
+
+
+def test_a_snapshot_restores_the_state_and_the_steps_after_it(model, coarse_map1):
+    tr, q = _tracked(model, coarse_map1, 80, 30)
     snap = tr.snapshot()
     assert snap.flags.writeable is False
     assert _same(TrackerState.from_array(snap).as_array(), tr.state.as_array())
@@ -115,12 +121,7 @@ def test_a_snapshot_restores_the_state_and_the_steps_after_it(model, coarse_map1
 
 
 def test_a_state_set_as_an_object_is_the_one_the_compiled_step_continues(model, coarse_map1):
-    X = circle_path(60)
-    q = ik(model, X, 1)
-    tr = Tracker(model, coarse_map1, start_tolerance=EXACT)
-    tr.reset(X[0], q[0])
-    for k in range(1, 20):
-        tr.step(q[k])
+    tr, q = _tracked(model, coarse_map1, 60, 20)
     saved = tr.state                                         # made from the flat state when read
     x20 = tr.step(q[20])[0]
     tr.step(q[21])
