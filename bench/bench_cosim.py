@@ -13,7 +13,8 @@ present; ``--rebuild`` forces it).  Then, in one process (FMUs extracted and ins
    in-process pass of ``solver.Tracker.step(q, dt=h)`` over the joints of the same run (the
    closed loop's own DK path, same embedded map).  Prints the wall time per step of each
    (mean over a run, median over the runs), the real-time factor and the ratio of the loop's step
-   to one in-process tracker step (target: ratio <= 4, >= 10x real time);
+   to one in-process tracker step (target: >= 30x real time; the ratio to the compiled loop without
+   FMI of part 3 is the one that says how much FMI costs);
 2. one more run of the same loop (the same fmpy calls in the same order as ``ClosedLoop.run``) with
    a clock around every FMU call, and a clock inside every slave's ``do_step``, ``get_*`` and
    ``set_real`` (the Python code of the slave, what the FMU's C wrapper calls); prints per call
@@ -238,8 +239,7 @@ def _timed_runs(loop, sc, repeat: int):
             v = med[key, clock_name]
             ratio = v / trk
             print(f"     {key:8s}: {1e6 * v:6.1f} us per step = {sc.h / v:5.2f}x real time, {ratio:.2f}x the "
-                  f"tracker step  [target <= 4x and >= 10x real time: "
-                  f"{'meets' if ratio <= 4 and sc.h / v >= 10 else 'MISSES'}]")
+                  f"tracker step  [target >= 30x real time: {'meets' if sc.h / v >= 30 else 'MISSES'}]")
     print("   (CPU time leaves out what other processes took; on an idle machine the two agree)")
     return med, m
 
@@ -325,7 +325,7 @@ def _report(sc, med, metrics, parts, total, args, ref):
             f"{args.repeat} runs alternating with the in-process tracker on each run's joints; medians.",
             headline=[("closed loop through FMI at 1 ms: wall per step / one in-process tracker step; real time",
                        f"{1e6 * wall:.0f} us = {wall / trk:.2f}x; {sc.h / wall:.1f}x real time",
-                       "<= 4x, >= 30x real time"),
+                       ">= 30x real time"),
                       ("the same loop compiled without FMI (Newton DK): real time; the FMI loop / it",
                        f"{ref['real_time']:.0f}x; {1e6 * wall / ref['us']:.1f}x", "")])
 

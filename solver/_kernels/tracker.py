@@ -2,8 +2,8 @@
 
 One call does a whole step (all DK solutions, the predictor, procedure 2 on the map, the
 choice, the certificates), so the per-step cost is the work, not Python overhead.
-:class:`solver.Tracker` checks inputs, holds the state (which packs itself,
-:meth:`solver.tracker_state.TrackerState.pack`) and calls :func:`tracker_step`.
+:class:`solver.Tracker` checks inputs and calls :func:`.stepper.tracker_advance`, which packs
+its flat state, calls :func:`tracker_step` and advances the state.
 
 The step runs its phases in order, each reading and writing named fields of the packs
 of :mod:`.tracker_packs` (the options, model and map packs, the state pack, this step's
@@ -55,7 +55,7 @@ LINK_TESTS = 10
 LINK_GAP = 4.0
 
 
-@njit(cache=True)
+@njit(cache=False)      # compiled into its one caller, :func:`.stepper.tracker_advance` (cached there, shipped once)
 def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map_pack, stencil, params,
                  out_real, out_int, anytime):
     """One step of procedure 3 (``mode`` MODE_PAPER or MODE_DEFAULT); see :mod:`solver.tracker`.
