@@ -197,7 +197,8 @@ class Tracker(_TrackerBase):
         See the module docstring.
     options : TrackerOptions, optional
         The options below as one checked object (:mod:`solver.options`); keywords given beside it
-        replace its fields.  Without it the keywords make it.  Kept as :attr:`options`.
+        replace its fields.  Without it the keywords make it.  Kept as :attr:`options` (what the tracker
+        was given: :attr:`joint_tolerance` is the one in effect, which an encoder grid may set).
     r : float, optional
         Procedure-2 radius (eq. 18); default ``map_tensor.default_radius()``.
     weights : array_like (3,), optional
@@ -244,7 +245,7 @@ class Tracker(_TrackerBase):
         step budget").  Measured overshoot: ``bench/bench_budget.py``.
     """
 
-    def __init__(self, model: Manipulator, map_tensor: MapTensor, mode: str | None = None,
+    def __init__(self, model: Manipulator, map_tensor: MapTensor, mode: str | None = None, *,
                  options: TrackerOptions | None = None, **kwargs):
         super().__init__(model)
         if mode is not None:

@@ -341,7 +341,7 @@ class TrackerState:
     @classmethod
     def from_array(cls, a) -> "TrackerState":
         """Inverse of :meth:`as_array`; :class:`TrackerError` if ``a`` is not such an array."""
-        a = np.asarray(a, dtype=float)
+        a = np.array(a, dtype=float)            # a writable copy: a read-only array is another kernel signature
         if a.shape != (STATE_FLOATS,):
             raise TrackerError(f"state: expected {STATE_FLOATS} floats (X, q, X2, dq_scale, steps, dt, q2, "
                                f"candidates, ..., the clean state), got {np.array2string(a, threshold=40)}")

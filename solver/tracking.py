@@ -97,8 +97,9 @@ class _TrackerBase:
         canonical one, to save)."""
         if not self._live:
             return self._st
-        snap = np.empty(STATE_FLOATS)
-        copy_state(self._flat, snap, True)
+        buf = np.empty(STATE_FLOATS)
+        copy_state(self._flat, buf, True)
+        snap = buf.view()                                  # read-only; its buffer is what restore copies from
         snap.flags.writeable = False
         self._held = snap
         return snap
@@ -108,10 +109,17 @@ class _TrackerBase:
         if isinstance(snap, np.ndarray):
             if snap is self._held and self._live:          # the tracker holds it still: nothing to copy
                 return
-            if snap.shape != (STATE_FLOATS,):
-                raise TrackerError(f"snap: expected a snapshot of {STATE_FLOATS} floats, got shape {snap.shape}")
-            copy_state(snap, self._flat, False)
-            self._st, self._live, self._held = None, True, snap if not snap.flags.writeable else None
+            src = snap.base
+            if snap.flags.writeable or not (isinstance(src, np.ndarray) and src.shape == (STATE_FLOATS,)
+                                            and src.dtype == np.float64 and src.flags.writeable):
+                # not a snapshot: an array of the saved form, checked before it reaches the kernels
+                if snap.shape != (STATE_FLOATS,):
+                    raise TrackerError(f"snap: expected a snapshot or {STATE_FLOATS} floats of "
+                                       f"TrackerState.as_array, got shape {snap.shape}")
+                self.state = TrackerState.from_array(snap)
+                return
+            copy_state(src, self._flat, False)
+            self._st, self._live, self._held = None, True, snap
         else:
             self.state = snap
 
@@ -265,6 +273,12 @@ class _TrackerBase:
         q_stream = as_array("q_stream", q_stream, (3,))
         if q_stream.ndim != 2 or len(q_stream) < 1:
             raise SolverInputError(f"q_stream: expected shape (n, 3) with n >= 1, got {q_stream.shape}")
+        if self._limits is not None:                             # a 3-RPR's legs: checked before any step
+            out = np.flatnonzero(np.any((q_stream < self._limits[0]) | (q_stream > self._limits[1]), axis=1))
+            if len(out):
+                raise SolverInputError(f"q_stream: expected leg lengths within the joint limits [{self._limits[0]}, "
+                                       f"{self._limits[1]}] m, got {q_stream[out[0]].tolist()} at row {out[0]} "
+                                       f"({len(out)} rows outside)")
         n = len(q_stream)
         self.reset(X0, q_stream[0])
         out = {k: np.zeros(n, dtype=t) for k, t in STEP_FIELDS + (("seconds", float),)}

@@ -2,6 +2,8 @@
 import numpy as np
 import pytest
 
+from solver.baselines import BASELINES
+
 from experiments.rpr_scan import dk_all_scan
 from solver import MapTensor, Manipulator, SolverInputError, constraints, default_bounds, dk_all, ik, jacobians, \
     posture_of, singularity_measures
@@ -159,3 +161,9 @@ def test_legs_outside_the_joint_limits_are_refused_by_name(rpr, loop_map):
     assert tr.state is before
     _, info = tr.step(path.q[1], 1e-3)
     assert info.status == 0
+    # a whole stream (track's compiled loop): refused before any step, naming the row
+    bad = path.q.copy()
+    bad[5, 1] += rpr.rho_max
+    for tracker in (tr, BASELINES["newton"](rpr)):
+        with pytest.raises(SolverInputError, match="q_stream: expected leg lengths within the joint limits.*row 5"):
+            tracker.track(bad, path.X[0])

@@ -172,3 +172,46 @@ def test_track_many_is_track_on_each_stream(model, coarse_map1):
         assert _same(res.X, one.X) and _same(res.certain, one.certain) and _same(res.pose_bound, one.pose_bound)
     with pytest.raises(SolverInputError, match="X0s"):
         tr.track_many(streams, [X1[0]])
+
+
+def test_restore_checks_an_array_that_is_not_a_snapshot(model, coarse_map1):
+    """A saved array (TrackerState.as_array) is checked before it reaches the kernels (which do not check
+    their bounds): a corrupt one is refused by name, a valid one restores."""
+    tr, q = _tracked(model, coarse_map1, 60, 20)
+    saved = tr.state.as_array()
+    x20 = tr.step(q[20])[0]
+    from solver._kernels.state_layout import _N_CAND, _N_PAVE
+    corrupt = saved.copy()
+    corrupt[_N_CAND] = 7.0
+    with pytest.raises(TrackerError, match="state"):
+        tr.restore(corrupt)
+    corrupt = saved.copy()
+    corrupt[_N_PAVE] = 1e6
+    with pytest.raises(TrackerError, match="paving"):
+        tr.restore(corrupt)
+    tr.restore(saved)
+    assert _same(tr.step(q[20])[0], x20)
+
+
+def test_snapshots_reach_the_kernels_with_the_signatures_the_fmus_ship(model, coarse_map1):
+    """A read-only array is another numba signature (a compile in the host, on its thread): snapshots are
+    restored from their writable buffer and from_array copies; no kernel is typed read-only."""
+    from solver._kernels.anytime import walk_floats
+    from solver._kernels.stepper import copy_state
+    tr = Tracker(model, coarse_map1, start_tolerance=EXACT, step_budget=2e-5)   # walks in the state
+    X = circle_path(60)
+    q = ik(model, X, 1)
+    tr.reset(X[0], q[0])
+    snaps = []
+    for k in range(1, 40):
+        tr.step(q[k])
+        snaps.append(tr.snapshot())
+    arrays = [snap for snap in snaps if isinstance(snap, np.ndarray)]   # (the encoder-grid watch's: objects)
+    assert len(arrays) >= 30
+    for snap in arrays[::-1]:                          # restores that miss the held one: copies
+        tr.restore(snap)
+        TrackerState.from_array(snap)
+    from numba import types
+    for kernel in (copy_state, walk_floats):
+        for sig in kernel.signatures:
+            assert all(t.mutable for t in sig if isinstance(t, types.Array)), (kernel, sig)

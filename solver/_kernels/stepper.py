@@ -283,11 +283,12 @@ def tracker_track(mode, rule, qs, k0, budget, a, pk, model_pack, sample_to_sexti
                   out_real, out_int, anytime, X, X_pred, info_f, info_i, bound, since_out, cut_out, cyc):
     """Tracker steps to the joints ``qs[k0:]`` ((n, 3) rad) from the flat state ``a`` (at ``qs[k0 - 1]``), each
     with a budget of ``budget`` cycles (0.0: none); rows ``k0``.. of the result arrays (:func:`record`)."""
+    packed = k0 < 0                 # False, typed bool: a literal False would compile tracker_advance again
     for k in range(k0, qs.shape[0]):
         c0 = cycles()
         deadline = float(c0) + budget if budget > 0.0 else 0.0
         since = tracker_advance(mode, rule, qs[k], math.nan, deadline, a, pk, model_pack, sample_to_sextic, labels,
-                                map_pack, stencil, params, out_real, out_int, anytime, False)
+                                map_pack, stencil, params, out_real, out_int, anytime, packed)
         c1 = cycles()
         cut = deadline > 0.0 and out_int[I_CERTAIN] == 0 and anytime[ANY_CUT] > 0.0
         record(k, out_real, out_int, since, cut, c0, c1, X, X_pred, info_f, info_i, bound, since_out, cut_out, cyc)
@@ -297,10 +298,11 @@ def tracker_track(mode, rule, qs, k0, budget, a, pk, model_pack, sample_to_sexti
 def baseline_track(kind, rule, qs, k0, a, pk, model_pack, sample_to_sextic, params, out_real, out_int, X, X_pred,
                    info_f, info_i, bound, since_out, cut_out, cyc):
     """Baseline steps to the joints ``qs[k0:]`` (n, 3) from the flat state ``a``; as :func:`tracker_track`."""
+    packed = k0 < 0                 # False, typed bool (see tracker_track)
     for k in range(k0, qs.shape[0]):
         c0 = cycles()
         since = baseline_advance(kind, rule, qs[k], math.nan, a, pk, model_pack, sample_to_sextic, params,
-                                 out_real, out_int, False)
+                                 out_real, out_int, packed)
         c1 = cycles()
         record(k, out_real, out_int, since, False, c0, c1, X, X_pred, info_f, info_i, bound, since_out, cut_out,
                cyc)
