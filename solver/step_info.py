@@ -12,7 +12,7 @@ import numpy as np
 from ._kernels import layout as _lay
 from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, I_AMBIGUOUS, I_CERTAIN, I_CERTIFICATE, I_JUMP, I_LABEL,
                               I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, I_TRUST, INFO_F_SIZE, OUT_BOUND, OUT_INFO,
-                              OUT_X, OUT_X_PRED, TRUST, TRUST_LOST)
+                              OUT_X, TRUST, TRUST_LOST)
 
 __all__ = ["StepInfo", "TrackResult", "STATUS", "CERTIFICATES", "TRUST", "NO_BOUND", "STEP_FIELDS"]
 
@@ -98,17 +98,13 @@ class StepInfo(NamedTuple):
     @classmethod
     def from_result(cls, out_real: np.ndarray, out_int: np.ndarray, uncertain_since: int) -> "StepInfo":
         """The step's information from its result pack (:mod:`solver._kernels.layout` ``OUT_*``, ``F_*``, ``I_*``)."""
-        i, f = out_int.tolist(), out_real[OUT_INFO:OUT_INFO + INFO_F_SIZE].tolist()   # Python numbers: quicker to read
-        return cls(i[I_LABEL], bool(i[I_NEAR_BORDER]), out_real[OUT_X_PRED:OUT_X_PRED + 3].copy(), i[I_N_REAL],
-                   f[F_COND], bool(i[I_AMBIGUOUS]), i[I_STATUS], bool(i[I_JUMP]), f[F_D_BEST], f[F_D_SECOND],
-                   bool(i[I_CERTAIN]), i[I_CERTIFICATE], i[I_N_CAND], uncertain_since,
-                   out_real[OUT_BOUND:OUT_BOUND + 3].copy() if i[I_CERTAIN] else NO_BOUND, i[I_TRUST])
+        return cls.pose_and_info(out_real, out_int, uncertain_since)[1]
 
     @classmethod
     def pose_and_info(cls, out_real: np.ndarray, out_int: np.ndarray, uncertain_since: int):
         """``(X, info)`` of a step from its result pack: the pose (3,) and :meth:`from_result`, the pose and
         ``X_pred`` views of one copy (the step's hot path)."""
-        i, f = out_int.tolist(), out_real[OUT_INFO:OUT_INFO + INFO_F_SIZE].tolist()
+        i, f = out_int.tolist(), out_real[OUT_INFO:OUT_INFO + INFO_F_SIZE].tolist()   # Python numbers: quicker to read
         xx = out_real[OUT_X:OUT_X + 6].copy()               # OUT_X_PRED follows OUT_X
         certain = i[I_CERTAIN] != 0
         return xx[:3], tuple.__new__(cls, (
