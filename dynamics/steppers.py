@@ -25,6 +25,7 @@ from ._checks import check_pair
 from ._packs import arm_pack, bodies_pack, circle_pack, gains_pack
 from ._kernels.layout import (BAD_SHAPE, CONTROLLER_OUT_SIZE, CONTROLLER_PHASE_REFERENCE, OUTSIDE, PLANT_OUT_SIZE,
                               PLANT_OUT_STATE, STEP_WORK_SIZE, refusal)
+from ._kernels.c_entry import IO_TOL, controller_entry, make_table, plant_entry
 from ._kernels.steps import controller_step, plant_step
 from .control import ComputedTorqueGains
 from .errors import DynamicsError, REASONS, outside_text, refused
@@ -85,6 +86,15 @@ class PlantStepper:
     def outputs(self, x, out) -> None:
         """The outputs of the state ``x`` into ``out`` (:meth:`step` with no substep)."""
         self.step(0.0, 0.0, 0.0, 0.0, 0, x, out)
+
+    def c_step(self, x, io, real, slots):
+        """The step for a C caller (the plant FMU's loader): ``(address, table)`` of
+        :func:`dynamics._kernels.c_entry.plant_entry` over the state ``x`` (6,), which it advances in
+        place, the scalars ``io`` (``c_entry.IO_SIZE``,: substeps in, time and count out) and the Real
+        value array ``real`` with the value references ``slots`` (``c_entry.PLANT_SLOTS`` order)."""
+        self._c_out = np.empty(self.OUT_SIZE)
+        table = make_table(self._bits, self._pack, self._work, self._c_out, io, real, slots, x)
+        return plant_entry().address, table
 
     def _refused(self, code, tau, out):
         status, k = refusal(code)
@@ -150,6 +160,15 @@ class ControllerStepper:
             if code == BAD_SHAPE:
                 raise SolverInputError(f"out: expected a float array of shape ({self.OUT_SIZE},), got {np.shape(out)}")
             raise self._refused(code, t, (q1, q2, q3), (dq1, dq2, dq3), (x, y, phi))
+
+    def c_step(self, io, real, slots):
+        """The law for a C caller (the controller FMU's loader): ``(address, table)`` of
+        :func:`dynamics._kernels.c_entry.controller_entry` (arguments as :meth:`PlantStepper.c_step`,
+        ``slots`` in ``c_entry.CONTROLLER_SLOTS`` order; ``io`` carries the assembly tolerance)."""
+        self._c_out = np.empty(self.OUT_SIZE)
+        io[IO_TOL] = ASSEMBLY_TOL
+        table = make_table(self._bits, self._pack, self._work, self._c_out, io, real, slots)
+        return controller_entry().address, table
 
     def _refused(self, code, t, q, dq, X):
         status, phase = refusal(code)

@@ -32,6 +32,7 @@ require(__file__)
 import numpy as np
 
 from fmu_src.table_slave import StepRefused, TableSlave, Var
+from fmu_src.table_lane import TableLane
 
 # Build constant: the robot (build_fmu.py --robot: name, description digest, geometry, [dynamics], start
 # pose, posture and reference circle {"center", "radius", "phi"}; None: the paper's robot, its circle).
@@ -43,7 +44,7 @@ _CIRCLE = BUILD_ROBOT["circle"] if BUILD_ROBOT else {"center": (0.45, 0.30), "ra
 _ABOUT = "" if BUILD_ROBOT is None else f"; robot {BUILD_ROBOT['name']!r} (description sha256 {BUILD_ROBOT['digest']})"
 
 
-class ComputedTorqueController(TableSlave):
+class ComputedTorqueController(TableLane, TableSlave):
     description = "Computed-torque control of the 3-RRR on a circle, model terms at the DK pose" + _ABOUT
     author = "rrr-dk"
 
@@ -89,7 +90,10 @@ class ComputedTorqueController(TableSlave):
     )
     # _stepper: the compiled step (dynamics.ControllerStepper); _out: its result buffer (scratch,
     # read right after every call)
-    CONSTANT = ("_model", "_params", "_gains", "_traj", "_stepper", "_out")
+    # _lane, _lane_io: the loader's fast lane (fmu_src.table_lane)
+    CONSTANT = ("_model", "_params", "_gains", "_traj", "_stepper", "_out", "_lane", "_lane_io")
+    LANE_SLOTS = ("q1", "q2", "q3", "dq1", "dq2", "dq3", "x", "y", "phi", "tau1", "tau2", "tau3", "x_ref", "y_ref",
+                  "phi_ref_out", "q1_ref", "q2_ref", "q3_ref")
     # no STATE: a doStep's rollback is the table values (references)
     IMMUTABLE_STATE = True
 
@@ -113,6 +117,15 @@ class ComputedTorqueController(TableSlave):
         self._stepper = ControllerStepper(self._params, self._model, self._gains, self._traj)
         self._out = np.empty(self._stepper.OUT_SIZE)
         self._reference(self.time_start())       # the outputs at initialization are the reference only
+        if self._lane_wanted():                   # behind the C loader: the hot calls without Python
+            try:
+                from dynamics._kernels.c_entry import IO_SIZE, IO_STEPS, IO_TIME
+                lane = self._lane_made()
+                io, slots = np.zeros(IO_SIZE), self._lane_slots()
+                step, table = self._stepper.c_step(io, lane.real, slots)
+                self._lane_connect(step, table, io, IO_TIME, IO_STEPS, slots)
+            except Exception as exc:  # noqa: BLE001 - no lane: every call on the Python path
+                self._lane_failed(exc)
 
     def time_start(self):
         return float(getattr(self, "_time", 0.0) or 0.0)

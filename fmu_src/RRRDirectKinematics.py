@@ -27,6 +27,7 @@ from pythonfmu.enums import Fmi2Status
 
 from fmu_src.dk_variables import NO_BOUND, dk_outputs, initial_pose, sensor_parameters
 from fmu_src.table_slave import TableSlave, Var
+from fmu_src.dk_lane import DKLane  # noqa: I001 - after table_slave (it installs the kernel cache)
 from solver import (HOME_POSE, START_TOLERANCE, STATUS, Manipulator, MapTensor, MapTensorFileError, Tracker, TrackerState, dk_all,
                     ik, jacobians, wrap_angle)
 from solver._kernels.clock import cycles_per_second
@@ -64,7 +65,7 @@ def _home_joints(posture):
     return [float(v) for v in q]
 
 
-class RRRDirectKinematics(TableSlave):
+class RRRDirectKinematics(DKLane, TableSlave):
     """Direct kinematics of a 3-RRR (the paper's Table 1, or the robot of the build) by the basic-regions tracker."""
 
     description = ("Direct kinematics of the planar 3-RRR parallel manipulator with basic regions: "
@@ -104,8 +105,9 @@ class RRRDirectKinematics(TableSlave):
     STATE = ("_track", "_committed", "_episode", "_since")
     # _maps/_model: read and verified at instantiation; _tracker: built at initialization for
     # (posture, mode), rebuilt by set_state if a state of other parameters is set; _cache: the last
-    # tentative step, keyed by the q and the snapshot object it started from (never stale)
-    CONSTANT = ("_maps", "_model", "_tracker", "_cache")
+    # tentative step, keyed by the q and the snapshot object it started from (never stale); _lane,
+    # _lane_io: the loader's fast lane (fmu_src.dk_lane), made once per instance
+    CONSTANT = ("_maps", "_model", "_tracker", "_cache", "_lane", "_lane_io")
     # a doStep's rollback keeps references: every STATE value is replaced, never changed in place
     # (a snapshot is read-only, a TrackerState frozen; the others are tuples and ints)
     IMMUTABLE_STATE = True
@@ -233,6 +235,7 @@ class RRRDirectKinematics(TableSlave):
         self._cache = None
         self._initial_outputs(self._tracker, log=True)
         self._committed = (tuple(float(v) for v in q0), self._outputs())
+        self._dk_lane_connect()                      # behind the C loader: the hot calls without Python
 
     def _start(self, log):
         """A tracker for the parameters, reset by its honest start (see the readme, "Initialization"):
@@ -446,3 +449,4 @@ class RRRDirectKinematics(TableSlave):
                                       self._tracker.stuck_after, tuple(self._tracker.start_tolerance.tolist()),
                                       self._tracker.geometry_tolerance) != self._options()):
             self._tracker = self._make_tracker(self.posture, self.mode)
+            self._dk_lane_connect()                  # the lane steps the new tracker

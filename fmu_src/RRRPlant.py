@@ -29,6 +29,7 @@ from dataclasses import replace
 import numpy as np
 
 from fmu_src.table_slave import StepRefused, TableSlave, Var
+from fmu_src.table_lane import TableLane
 
 # Build constant: the robot (build_fmu.py --robot: name, description digest, geometry as
 # Manipulator.to_dict(), [dynamics] as DynamicParameters.to_dict(), start pose and posture; None: the
@@ -39,7 +40,7 @@ _POSTURE = int(BUILD_ROBOT["posture"]) if BUILD_ROBOT else 1
 _ABOUT = "" if BUILD_ROBOT is None else f"; robot {BUILD_ROBOT['name']!r} (description sha256 {BUILD_ROBOT['digest']})"
 
 
-class RRRPlant(TableSlave):
+class RRRPlant(TableLane, TableSlave):
     description = "Planar 3-RRR rigid-body dynamics (task-space form, RK4), motor torques in, joints out" + _ABOUT
     author = "rrr-dk"
 
@@ -77,7 +78,10 @@ class RRRPlant(TableSlave):
     STATE = ("_x",)
     # _stepper: the compiled step (dynamics.PlantStepper); _bufs: two result buffers the steps write
     # in turn, _views: their first six values (the state after the step)
-    CONSTANT = ("_model", "_params", "_stepper", "_bufs", "_views")
+    # _lane, _lane_io, _lane_x: the loader's fast lane (fmu_src.table_lane) and the state it advances
+    CONSTANT = ("_model", "_params", "_stepper", "_bufs", "_views", "_lane", "_lane_io", "_lane_x")
+    LANE_SLOTS = ("tau1", "tau2", "tau3", "q1", "q2", "q3", "dq1", "dq2", "dq3", "x_true", "y_true", "phi_true",
+                  "energy")
     # a doStep's rollback keeps a reference to _x: a step writes the buffer _x does not view and then
     # makes _x that buffer's view (the compiled step never writes its input state)
     IMMUTABLE_STATE = True
@@ -103,11 +107,28 @@ class RRRPlant(TableSlave):
         self._views = (self._bufs[0][:6], self._bufs[1][:6])
         self._x = np.array([self.x0, self.y0, self.phi0, 0.0, 0.0, 0.0])
         self._outputs()
+        if self._lane_wanted() and not self._init_mode:   # behind the C loader: the hot calls without Python
+            try:
+                from dynamics._kernels.c_entry import IO_SIZE, IO_STEPS, IO_SUBSTEPS, IO_TIME
+                lane = self._lane_made()
+                self._lane_x, io = np.empty(6), np.zeros(IO_SIZE)
+                io[IO_SUBSTEPS] = int(self.substeps)
+                slots = self._lane_slots()
+                step, table = self._stepper.c_step(self._lane_x, io, lane.real, slots)
+                self._lane_connect(step, table, io, IO_TIME, IO_STEPS, slots)
+            except Exception as exc:  # noqa: BLE001 - no lane: every call on the Python path
+                self._lane_failed(exc)
 
     def initial_outputs(self):
         """In Initialization Mode: q, dq, the true pose and the energy of the initial state (what a
         host passes on to the DK FMU before exitInitializationMode)."""
         self.on_initialized()
+
+    def _lane_after_steps(self):
+        self._x = self._lane_x.copy()                   # the state the lane advanced (a new array: rollbacks)
+
+    def _lane_before_steps(self):
+        self._lane_x[:] = self._x
 
     def _free(self):
         """Index of the result buffer that ``_x`` does not view (the next step writes it)."""

@@ -147,9 +147,9 @@ from dataclasses import replace
 import numpy as np
 
 from ._kernels import layout as _lay
-from ._kernels.anytime import ANY_CUT, ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON, ANY_SIZE, walk_floats
+from ._kernels.anytime import ANY_CUT, ANY_SIZE, walk_floats
 from ._kernels.clock import cycles_per_second
-from ._kernels.stepper import tracker_advance, tracker_track
+from ._kernels.stepper import tracker_track
 from .checks import SolverInputError
 from .grid import default_bounds
 from .manipulator import Manipulator
@@ -161,6 +161,7 @@ from .encoder_grid import encoder_bits, encoder_note, grid_tolerance
 from .geometry_tolerance import geometry_tolerance as _geometry_tolerance
 from .start import START_TOLERANCE, StartInfo, UncertainStartWarning, honest_start, start_tolerance_for
 from .tracker_state import TrackerError
+from .tracker_entry import CEntry
 from .tracking import _TrackerBase
 
 __all__ = ["Tracker", "TrackerOptions", "MAX_TESTS", "GATE", "REACQUIRE_BOXES", "START_TOLERANCE", "StartInfo"]
@@ -185,7 +186,7 @@ def _tool_space(model: Manipulator) -> np.ndarray:
     return _TOOL_SPACE[key]
 
 
-class Tracker(_TrackerBase):
+class Tracker(CEntry, _TrackerBase):
     """The basic-regions DK tracker (procedures 2-3) of one posture.
 
     Parameters
@@ -290,7 +291,7 @@ class Tracker(_TrackerBase):
         r = map_tensor.default_radius(w) if o.r is None else o.r
         self._w = np.ascontiguousarray(w, dtype=float)
         self.r = r
-        self._labels = np.ascontiguousarray(map_tensor.labels)
+        self._labels = np.array(map_tensor.labels, dtype=np.int8, order="C")   # writable: the kernels' one type
         self._map_pack = _lay.pack_map(map_tensor.origin, map_tensor.step, map_tensor.periodic, r * r, self._w)
         self._stencil = map_tensor._stencil(r, w)
         self._params = _lay.pack_tracker_params(o.ambiguity_ratio, o.jump_factor, SUBSTEP_DQ, MAX_SUBSTEPS,
@@ -300,6 +301,7 @@ class Tracker(_TrackerBase):
                                                 bounds[:2].ravel(), speed, o.reacquire_boxes)
         self._mode = _lay.MODE_PAPER if o.mode == "paper" else _lay.MODE_DEFAULT
         self._rule = rule_code(map_tensor.rule)
+        self._entry_table()                     # the compiled step's C entry point (solver.tracker_entry)
 
     def reset(self, X0, q0, warn: bool = True) -> StartInfo:
         """Start tracking from an approximate configuration: the honest start.
@@ -370,22 +372,6 @@ class Tracker(_TrackerBase):
         self._watch -= 1
         if self._encoder_tolerance(q, f"the reading of step {self.state.steps + 1}", stacklevel=4):
             self._watch = 0
-
-    def _kernel(self, q, state_pack, deadline):
-        anytime, walk = self._anytime, self.state.walk
-        if walk is None:
-            anytime[ANY_N] = anytime[ANY_K_ON] = anytime[ANY_R_ON] = 0.0
-        else:
-            anytime[:len(walk)] = walk
-        anytime[ANY_DEADLINE] = deadline
-        tracker_advance(self._mode, self._rule, q, 0.0, deadline, self._flat, state_pack, self._model_pack,
-                        self._sample_to_sextic, self._labels, self._map_pack, self._stencil, self._params,
-                        self._out_real, self._out_int, anytime, True)
-
-    def _advance(self, q, dt, deadline, a):
-        return tracker_advance(self._mode, self._rule, q, dt, deadline, a, self._state_pack, self._model_pack,
-                               self._sample_to_sextic, self._labels, self._map_pack, self._stencil, self._params,
-                               self._out_real, self._out_int, self._anytime, False)
 
     def _loop(self, qs, k0, a, X, Xp, info_f, info_i, bound, since, cut, cyc):
         budget = 0.0 if self.step_budget is None else self.step_budget * cycles_per_second()

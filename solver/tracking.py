@@ -123,6 +123,10 @@ class _TrackerBase:
         else:
             self.state = snap
 
+    def flat_advanced(self) -> None:
+        """The live flat state was advanced in place by a C caller (:meth:`solver.Tracker.c_step`)."""
+        self._st, self._held = None, None
+
     def _flat_state(self) -> np.ndarray:
         """The live flat state (made from the TrackerState when that was set); TrackerError without one."""
         if not self._live:

@@ -57,22 +57,29 @@
 
 /* ---- the wrapper's functions: name, the states that allow it, the transition, parameters, arguments ---- */
 
-#define FMI2_FUNCTIONS(X) \
-    X(fmi2SetupExperiment, S_INSTANTIATED, T_NONE, (fmi2Component c, fmi2Boolean tolDef, fmi2Real tol, \
-      fmi2Real t0, fmi2Boolean stopDef, fmi2Real t1), (c, tolDef, tol, t0, stopDef, t1)) \
-    X(fmi2EnterInitializationMode, S_INSTANTIATED, T_ENTER, (fmi2Component c), (c)) \
-    X(fmi2ExitInitializationMode, S_INITIALIZATION_MODE, T_EXIT, (fmi2Component c), (c)) \
-    X(fmi2Terminate, S_STEP_COMPLETE | S_STEP_FAILED, T_TERMINATE, (fmi2Component c), (c)) \
-    X(fmi2Reset, S_ANY, T_RESET, (fmi2Component c), (c)) \
+/* the hot calls of a step: the fast lane answers them when it can (fast_lane.h) */
+#define FMI2_HOT(X) \
     X(fmi2GetReal, S_GET, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real v[]), \
       (c, vr, n, v)) \
     X(fmi2GetInteger, S_GET, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Integer v[]), \
       (c, vr, n, v)) \
     X(fmi2GetBoolean, S_GET, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Boolean v[]), \
       (c, vr, n, v)) \
-    X(fmi2GetString, S_GET, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String v[]), \
-      (c, vr, n, v)) \
     X(fmi2SetReal, S_SET, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Real v[]), \
+      (c, vr, n, v)) \
+    X(fmi2DoStep, S_STEP_COMPLETE, T_STEP, (fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noPrior), \
+      (c, t, h, noPrior))
+
+#define FMI2_FUNCTIONS(X) FMI2_HOT(X) FMI2_OTHER(X)
+
+#define FMI2_OTHER(X) \
+    X(fmi2SetupExperiment, S_INSTANTIATED, T_NONE, (fmi2Component c, fmi2Boolean tolDef, fmi2Real tol, \
+      fmi2Real t0, fmi2Boolean stopDef, fmi2Real t1), (c, tolDef, tol, t0, stopDef, t1)) \
+    X(fmi2EnterInitializationMode, S_INSTANTIATED, T_ENTER, (fmi2Component c), (c)) \
+    X(fmi2ExitInitializationMode, S_INITIALIZATION_MODE, T_EXIT, (fmi2Component c), (c)) \
+    X(fmi2Terminate, S_STEP_COMPLETE | S_STEP_FAILED, T_TERMINATE, (fmi2Component c), (c)) \
+    X(fmi2Reset, S_ANY, T_RESET, (fmi2Component c), (c)) \
+    X(fmi2GetString, S_GET, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2String v[]), \
       (c, vr, n, v)) \
     X(fmi2SetInteger, S_SET, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, \
       const fmi2Integer v[]), (c, vr, n, v)) \
@@ -93,8 +100,6 @@
       const fmi2Integer order[], const fmi2Real v[]), (c, vr, n, order, v)) \
     X(fmi2GetRealOutputDerivatives, S_ANY, T_NONE, (fmi2Component c, const fmi2ValueReference vr[], size_t n, \
       const fmi2Integer order[], fmi2Real v[]), (c, vr, n, order, v)) \
-    X(fmi2DoStep, S_STEP_COMPLETE, T_STEP, (fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noPrior), \
-      (c, t, h, noPrior)) \
     X(fmi2CancelStep, 0u /* stepInProgress: never (no fmi2Pending) */, T_NONE, (fmi2Component c), (c)) \
     X(fmi2GetStatus, S_ANY, T_NONE, (fmi2Component c, const fmi2StatusKind k, fmi2Status* v), (c, k, v)) \
     X(fmi2GetRealStatus, S_ANY, T_NONE, (fmi2Component c, const fmi2StatusKind k, fmi2Real* v), (c, k, v)) \
@@ -180,6 +185,7 @@ EXPORT void fmi2FreeInstance(fmi2Component c)
 {
     Instance* in = c;
     if (!loaded || !in) return;
+    in->lane = NULL;                              /* the slave and its arrays go with the instance */
     /* pythonfmu 0.7's wrapper may crash (SIGSEGV in clearLogBuffer) freeing an instance whose slave
      * left a message queued since its last call (one logged in its constructor): an empty get
      * reaches Python (TableSlave answers it in every state), and the wrapper hands the queue on. */
@@ -195,20 +201,62 @@ EXPORT fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean on, size_t n,
     return loaded && c ? fmi2_debug_logging((Instance*)c, on, n, categories) : fmi2Error;
 }
 
-/* every other function: a component (only a loaded wrapper hands one out), the state table, the
- * wrapper with its own component (the inner ``c`` shadows the parameter), the new state */
+/* every function: a component (only a loaded wrapper hands one out), the state table, the fast lane's
+ * pull before and push after (fast_lane.h), the wrapper with its own component (the inner ``c``
+ * shadows the parameter), the new state */
 #define FORWARD(name, allowed, transition, params, args) \
-    EXPORT fmi2Status name params \
+    static fmi2Status forward_##name params \
     { \
         Instance* in = c; \
         if (!loaded || !in) return fmi2Error; \
         if (!fmi2_admit(in, #name, (allowed))) return fmi2Error; \
+        if (in->lane && lane_before_python(in->lane)) lane_drop(in, "its pull raised"); \
+        if ((transition) == T_RESET) in->lane = NULL;     /* the slave starts afresh: a new lane, if any */ \
         fmi2_begin(in); \
         fmi2Status status; \
         { \
             fmi2Component c = in->real; \
             status = real_##name args; \
         } \
-        return fmi2_settle(in, (transition), status); \
+        status = fmi2_settle(in, (transition), status); \
+        if (in->lane && lane_after_python(in->lane)) lane_drop(in, "its push raised"); \
+        return status; \
     }
 FMI2_FUNCTIONS(FORWARD)
+
+#define EXPORT_FORWARD(name, allowed, transition, params, args) \
+    EXPORT fmi2Status name params { return forward_##name args; }
+FMI2_OTHER(EXPORT_FORWARD)
+
+/* the hot calls: the fast lane when it is open and serves every value reference, else Python */
+#define LANE_OPEN(in) (loaded && (in) && lane_open((in)->lane, (in)->cs.state == S_STEP_COMPLETE))
+
+EXPORT fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, const fmi2Real v[])
+{
+    Instance* in = c;
+    return LANE_OPEN(in) && lane_set_real(in->lane, vr, n, v) ? fmi2OK : forward_fmi2SetReal(c, vr, n, v);
+}
+
+EXPORT fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Real v[])
+{
+    Instance* in = c;
+    return LANE_OPEN(in) && lane_get_real(in->lane, vr, n, v) ? fmi2OK : forward_fmi2GetReal(c, vr, n, v);
+}
+
+EXPORT fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Integer v[])
+{
+    Instance* in = c;
+    return LANE_OPEN(in) && lane_get_integer(in->lane, vr, n, v) ? fmi2OK : forward_fmi2GetInteger(c, vr, n, v);
+}
+
+EXPORT fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t n, fmi2Boolean v[])
+{
+    Instance* in = c;
+    return LANE_OPEN(in) && lane_get_boolean(in->lane, vr, n, v) ? fmi2OK : forward_fmi2GetBoolean(c, vr, n, v);
+}
+
+EXPORT fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noPrior)
+{
+    Instance* in = c;
+    return LANE_OPEN(in) && lane_do_step(in->lane, t, h) ? fmi2OK : forward_fmi2DoStep(c, t, h, noPrior);
+}

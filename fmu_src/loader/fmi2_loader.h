@@ -8,6 +8,7 @@
 
 #include <stddef.h>
 
+#include "fast_lane.h"
 #include "loader_common.h"
 
 /* FMI 2.0 types (fmi2TypesPlatform.h, fmi2FunctionTypes.h), "default" platform */
@@ -46,6 +47,7 @@ typedef struct {
     fmi2CallbackFunctions mine;  /* given to the wrapper: logger fmi2_relay, environment this Instance */
     char name[256];              /* the instance name */
     const char* model;           /* the modelIdentifier (this library's file name) */
+    Lane* lane;                  /* the slave's fast lane (fast_lane.h); NULL: every call goes to Python */
 } Instance;
 
 /* 1 if ``call`` is allowed in the instance's state (``allowed``: S_* bits); else log why, return 0 */
@@ -57,6 +59,8 @@ fmi2Status fmi2_settle(Instance* in, Transition t, fmi2Status status);
 /* the logger given to the wrapper: consumes the slave's hand-off, relays the rest as the host asked */
 void fmi2_relay(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status, fmi2String category,
                 fmi2String message, ...);
+/* stop using the instance's fast lane (logged with ``why``): every call goes to Python from now on */
+void lane_drop(Instance* in, const char* why);
 /* a message of the loader itself to the host's logger (always: they explain a refused call) */
 void fmi2_say(Instance* in, fmi2Status status, const char* fmt, ...);
 /* fmi2SetDebugLogging, answered by the loader (the wrapper keeps logging everything to fmi2_relay) */

@@ -71,10 +71,25 @@ void fmi2_relay(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status
                      in->name, text);
         return;
     }
+    if (category && !strcmp(category, LANE_CATEGORY)) {
+        char why[256];
+        in->lane = lane_take(text, why, sizeof why);
+        if (why[0])
+            fmi2_say(in, fmi2Warning, "%s instance '%s': no fast lane (%s); every call goes through Python",
+                     in->model, in->name, why);
+        return;
+    }
     int bit = category_bit(category);
     unsigned wanted = bit >= 0 ? 1u << bit : ALL_CATEGORIES;
     if (in->host.logger && (in->log_mask & wanted))
         in->host.logger(in->host.componentEnvironment, name, status, category, "%s", text);
+}
+
+void lane_drop(Instance* in, const char* why)
+{
+    in->lane = NULL;
+    fmi2_say(in, fmi2Warning, "%s instance '%s': fast lane dropped (%s); every call goes through Python", in->model,
+             in->name, why);
 }
 
 fmi2Status fmi2_debug_logging(Instance* in, fmi2Boolean on, size_t n, const fmi2String categories[])

@@ -221,7 +221,7 @@ def advance_state(a, q, dt, out_real, out_int, anytime, walks):
     return since
 
 
-@njit(cache=True)
+@njit(cache=False)  # compiled into its callers: the C entry point (c_entry) and the stream loop
 def tracker_advance(mode, rule, q, dt, deadline, a, pk, model_pack, sample_to_sextic, labels, map_pack, stencil,
                     params, out_real, out_int, anytime, packed):
     """One tracker step (:func:`.tracker.tracker_step`) from the flat state ``a``, advanced in place:
@@ -231,8 +231,9 @@ def tracker_advance(mode, rule, q, dt, deadline, a, pk, model_pack, sample_to_se
 
     ``packed``: the caller wrote the state pack ``pk`` and the anytime pack (the step of a
     :class:`solver.TrackerState` object, :meth:`solver.TrackerState.pack`): only the step runs, ``a`` is
-    not read nor written (returns 0).  The one entry point of the tracker's step: its machine code is
-    compiled and shipped once, not once per caller.
+    not read nor written (returns 0).  Compiled into its callers only (``cache=False``): the C entry point
+    :func:`.c_entry.entry`, which every step of a :class:`solver.Tracker` and the DK FMU's loader call,
+    and the stream loop :func:`tracker_track`; its machine code is cached and shipped inside them.
     """
     if packed:
         tracker_step(mode, rule, q, pk, model_pack, sample_to_sextic, labels, map_pack, stencil, params, out_real,

@@ -14,7 +14,8 @@
  * stdout: "python_before <0|1>" (whether Python's C API was in the process before the FMU was
  * instantiated), "python_after <0|1>", "seconds_instantiate <s>" (dlopen + fmi2Instantiate),
  * "seconds_initialize <s>" (setup, start values, enter/exit initialization), then one line per step:
- * t and the outputs (%.17g), then "end".
+ * t and the outputs (%.17g), then "seconds_step_median <s>" (the median step: set the inputs,
+ * fmi2DoStep, fmi2GetReal of the outputs) and "end".
  * With "life <cycles>" (the host life test) it prints no rows; in one process it runs the same
  * sequence <cycles> times, each with its own fmi2Instantiate/fmi2FreeInstance; then two instances
  * alive at once, stepped in turn; then fmi2Reset of one of them and a second run; every run must
@@ -193,6 +194,12 @@ static int life(Run* r, int cycles)
     return 0;
 }
 
+static int by_value(const void* a, const void* b)
+{
+    double x = *(const double*)a, y = *(const double*)b;
+    return (x > y) - (x < y);
+}
+
 int main(int argc, char** argv)
 {
     if (argc != 9 && !(argc == 11 && !strcmp(argv[9], "life"))) {
@@ -250,12 +257,20 @@ int main(int argc, char** argv)
     initialize(&r, c);
     printf("seconds_instantiate %.3f\nseconds_initialize %.3f\n", t1 - t0, now() - t1);
     double out[64];
+    double* seconds = malloc(sizeof(double) * (size_t)(r.steps > 0 ? r.steps : 1));
     for (int k = 0; k < r.steps; ++k) {
+        double s0 = now();
         step(&r, c, k, out);
+        seconds[k] = now() - s0;
         printf("%.17g", (k + 1) * r.h);
         for (size_t i = 0; i < r.n_out; ++i) printf(" %.17g", out[i]);
         printf("\n");
     }
+    if (r.steps > 0) {                 /* the median step: set the inputs, fmi2DoStep, get the outputs */
+        qsort(seconds, (size_t)r.steps, sizeof(double), by_value);
+        printf("seconds_step_median %.9f\n", seconds[r.steps / 2]);
+    }
+    free(seconds);
     check(r.f.terminate(c), "fmi2Terminate");
     r.f.free_instance(c);
     printf("end\n");

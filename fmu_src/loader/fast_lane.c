@@ -1,0 +1,140 @@
+/*
+ * The fast lane (fast_lane.h): the hot calls answered on the slave's arrays, and the two calls into
+ * Python that keep the slave's attributes and the arrays one state.
+ *
+ * Python is called only from here and only with the GIL taken (PyGILState_Ensure: any thread of the
+ * host, the interpreter started by the loader or the host's own); the functions are looked up in
+ * the process when the lane is handed over (the Python runtime is up by then: a slave is running).
+ */
+#define _GNU_SOURCE
+#include "fast_lane.h"
+
+#include <dlfcn.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+typedef int (*gil_ensure_fn)(void);
+typedef void (*gil_release_fn)(int);
+typedef void* (*call_fn)(void*, void*);
+typedef void (*decref_fn)(void*);
+typedef void (*void_fn)(void);
+
+static gil_ensure_fn gil_ensure;
+static gil_release_fn gil_release;
+static call_fn call_object;
+static decref_fn dec_ref;
+static void_fn print_error;
+
+static int resolve_python(void)
+{
+    if (gil_ensure) return 0;
+    gil_release = (gil_release_fn)dlsym(RTLD_DEFAULT, "PyGILState_Release");
+    call_object = (call_fn)dlsym(RTLD_DEFAULT, "PyObject_CallObject");
+    dec_ref = (decref_fn)dlsym(RTLD_DEFAULT, "Py_DecRef");
+    print_error = (void_fn)dlsym(RTLD_DEFAULT, "PyErr_Print");
+    gil_ensure = (gil_ensure_fn)dlsym(RTLD_DEFAULT, "PyGILState_Ensure");
+    return gil_ensure && gil_release && call_object && dec_ref && print_error ? 0 : -1;
+}
+
+Lane* lane_take(const char* text, char* why, size_t why_size)
+{
+    why[0] = '\0';
+    char* end = NULL;
+    unsigned long long address = strtoull(text, &end, 0);
+    if (!address) return NULL;
+    if (end == text || *end) {
+        snprintf(why, why_size, "unreadable lane address %s", text);
+        return NULL;
+    }
+    Lane* lane = (Lane*)(uintptr_t)address;
+    if (lane->version != LANE_VERSION) {
+        snprintf(why, why_size, "lane of layout version %lld, this loader reads version %d", (long long)lane->version,
+                 LANE_VERSION);
+        return NULL;
+    }
+    if (resolve_python()) {
+        snprintf(why, why_size, "the Python C API (PyGILState_Ensure, PyObject_CallObject) is not in the process");
+        return NULL;
+    }
+    return lane;
+}
+
+/* every value reference below n_vr with all bits of ``want``, none of ``stale`` while dirty */
+static int lane_serves(const Lane* lane, const unsigned vr[], size_t n, unsigned want)
+{
+    unsigned stale = lane->dirty ? LANE_OUTPUT : 0u;
+    if (n && !vr) return 0;                 /* the Python path answers a malformed call */
+    for (size_t i = 0; i < n; i++) {
+        if ((int64_t)vr[i] >= lane->n_vr) return 0;
+        unsigned f = lane->flags[vr[i]];
+        if ((f & want) != want || (f & stale)) return 0;
+    }
+    return 1;
+}
+
+int lane_set_real(Lane* lane, const unsigned vr[], size_t n, const double v[])
+{
+    if (n && !v) return 0;
+    if (!lane_serves(lane, vr, n, LANE_REAL | LANE_SET)) return 0;
+    for (size_t i = 0; i < n; i++) lane->real[vr[i]] = v[i];
+    lane->dirty = lane->py_stale = 1;
+    lane->fast_calls++;
+    return 1;
+}
+
+int lane_get_real(Lane* lane, const unsigned vr[], size_t n, double v[])
+{
+    if (n && !v) return 0;
+    if (!lane_serves(lane, vr, n, LANE_REAL)) return 0;
+    for (size_t i = 0; i < n; i++) v[i] = lane->real[vr[i]];
+    lane->fast_calls++;
+    return 1;
+}
+
+int lane_get_integer(Lane* lane, const unsigned vr[], size_t n, int v[])
+{
+    if (n && !v) return 0;
+    if (!lane_serves(lane, vr, n, LANE_INTEGER)) return 0;
+    for (size_t i = 0; i < n; i++) v[i] = lane->integer[vr[i]];
+    lane->fast_calls++;
+    return 1;
+}
+
+int lane_get_boolean(Lane* lane, const unsigned vr[], size_t n, int v[])
+{
+    if (n && !v) return 0;
+    if (!lane_serves(lane, vr, n, LANE_BOOLEAN)) return 0;
+    for (size_t i = 0; i < n; i++) v[i] = lane->boolean[vr[i]];
+    lane->fast_calls++;
+    return 1;
+}
+
+int lane_do_step(Lane* lane, double t, double h)
+{
+    if (lane->step(lane->table, LANE_CMD_PUBLISH, t, h) != 0) return 0;
+    lane->dirty = 0;
+    lane->py_stale = 1;
+    lane->fast_steps++;
+    return 1;
+}
+
+static int call_python(void* method)
+{
+    int gil = gil_ensure();
+    void* result = call_object(method, NULL);
+    if (result)
+        dec_ref(result);
+    else
+        print_error();          /* the traceback to stderr; the loader drops the lane */
+    gil_release(gil);
+    return result ? 0 : -1;
+}
+
+int lane_before_python(Lane* lane)
+{
+    if (!lane->py_stale) return 0;
+    return call_python(lane->pull);
+}
+
+int lane_after_python(Lane* lane) { return call_python(lane->push); }

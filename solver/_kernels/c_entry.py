@@ -1,0 +1,191 @@
+"""The tracker's step as one C entry point: a compiled function a C caller runs without the interpreter.
+
+:func:`entry` is a numba ``cfunc`` of C signature ``int64 step(int64 *table, int64 cmd, double t,
+double h)``.  ``table`` holds the addresses and shapes of the tracker's arrays (:func:`make_table`;
+the rows ``T_*``), so the same machine code serves
+
+- :data:`CMD_ADVANCE`: :func:`.stepper.tracker_advance` on the flat state, joints ``io[IO_Q:IO_Q+3]``,
+  ``io[IO_DT]`` s after the last sample, deadline ``io[IO_DEADLINE]`` (cycles; 0: none); returns the
+  step's ``uncertain_since`` (or :data:`.stepper.NOT_FINITE`).  What :meth:`solver.Tracker.step` calls
+  (through ctypes: one call of three scalars instead of a 17-argument numba dispatch);
+- :data:`CMD_PACKED`: the step of a caller that wrote the state and anytime packs itself (the
+  TrackerState path, :meth:`solver.TrackerState.pack`);
+- :data:`CMD_PUBLISH`: a *guarded* step a C host (the DK FMU's loader) takes at time ``t`` over ``h``
+  seconds: the joints are read from a value array at the slots ``SLOT_Q*``, the step's outputs are
+  written to the value arrays at the other slots (:data:`SLOTS`), and the step is *undone* (the flat
+  state restored, :data:`FALL_BACK` returned) whenever it is not routine: joints or times not finite,
+  a status other than ``io[IO_EPISODE]`` (an episode to log), an output not finite.  The caller then
+  takes the same step on its Python path, which logs and refuses as it always did.
+
+The one entry point is also what keeps the step's machine code compiled, cached and shipped once:
+:func:`.stepper.tracker_advance` is compiled into this function only (and into the stream loops,
+which FMUs never call).
+
+Shapes are fixed by the table: a C caller cannot hand a wrong array to the kernels, it can only
+hand a wrong address, which is why the table is built here from live numpy arrays and kept with them.
+"""
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+from numba import carray, cfunc, njit, types
+
+from .anytime import ANY_CUT
+from .clock import cycles
+from .pointers import address_pointer
+from .layout import (F_COND, I_AMBIGUOUS, I_CERTAIN, I_LABEL, I_N_REAL, I_NEAR_BORDER, I_STATUS, I_TRUST, OUT_BOUND,
+                     OUT_INFO, OUT_X)
+from .stepper import copy_state, tracker_advance
+
+__all__ = ["entry", "make_table", "CMD_ADVANCE", "CMD_PACKED", "CMD_PUBLISH", "FALL_BACK", "IO_SIZE", "SLOTS",
+           "N_ARRAYS"]
+
+CMD_ADVANCE, CMD_PACKED, CMD_PUBLISH = 0, 1, 2
+#: What a :data:`CMD_PUBLISH` step returns when it undid itself (the caller takes the step its own way).
+FALL_BACK = 1
+
+# the arrays of the table, 4 int64 each: address, then up to three dimensions
+(T_A, T_PK, T_MODEL, T_S2S, T_LABELS, T_MAP, T_STENCIL, T_PARAMS, T_OUT_REAL, T_OUT_INT, T_ANYTIME, T_IO, T_BACKUP,
+ T_REAL, T_INT, T_BOOL, T_SLOTS) = range(17)
+N_ARRAYS = 17
+T_MODE, T_RULE = 4 * N_ARRAYS, 4 * N_ARRAYS + 1      # two integers after the arrays
+TABLE_SIZE = 4 * N_ARRAYS + 2
+
+# the scalars a call reads and writes (float64 array ``io``)
+IO_Q, IO_DT, IO_DEADLINE = 0, 3, 4                   # in: joints (rad), time since the last sample (s), deadline
+IO_SHARE, IO_RATE, IO_EPISODE = 5, 6, 7              # publish, in: budget share of h, cycles per second, status
+IO_SINCE_STEP, IO_SINCE_TIME = 8, 9                  # publish, in/out: the uncertain episode (NaN: none), its time
+IO_TIME, IO_NO_BOUND, IO_STEPS = 10, 11, 12          # publish, out: t + h; in: the bound of no bound; out: count
+IO_SIZE = 13
+
+#: The slots of a published step: value references in the caller's value arrays (float64 ``real``,
+#: int32 ``integer``, int32 ``boolean``), in this order.
+SLOTS = ("q1", "q2", "q3", "x", "y", "phi", "region", "near_border", "n_real", "ambiguous", "status", "cond",
+         "certain", "uncertain_since", "x_bound", "y_bound", "phi_bound", "trust", "out_of_budget")
+(S_Q1, S_Q2, S_Q3, S_X, S_Y, S_PHI, S_REGION, S_NEAR, S_N_REAL, S_AMBIGUOUS, S_STATUS, S_COND, S_CERTAIN, S_SINCE,
+ S_XB, S_YB, S_PHIB, S_TRUST, S_OOB) = range(len(SLOTS))
+
+
+@njit(cache=False)                  # compiled into the entry point only
+def _publish(tb, t, h, a, pk, model, s2s, labels, mp, stencil, params, out_real, out_int, anytime, io):
+    """The guarded step of :data:`CMD_PUBLISH` (see the module doc); 0 when published."""
+    backup = carray(address_pointer(tb[4 * T_BACKUP]), (tb[4 * T_BACKUP + 1],), np.float64)
+    real = carray(address_pointer(tb[4 * T_REAL]), (tb[4 * T_REAL + 1],), np.float64)
+    integer = carray(address_pointer(tb[4 * T_INT]), (tb[4 * T_INT + 1],), np.int32)
+    boolean = carray(address_pointer(tb[4 * T_BOOL]), (tb[4 * T_BOOL + 1],), np.int32)
+    slots = carray(address_pointer(tb[4 * T_SLOTS]), (tb[4 * T_SLOTS + 1],), np.int64)
+    if not (math.isfinite(t) and math.isfinite(h) and h >= 0.0):
+        return FALL_BACK
+    q = io[IO_Q:IO_Q + 3]
+    for i in range(3):
+        q[i] = real[slots[S_Q1 + i]]
+    dt = h if h > 0.0 else math.nan
+    share = io[IO_SHARE]
+    deadline = float(cycles()) + share * h * io[IO_RATE] if share > 0.0 and h > 0.0 else 0.0
+    copy_state(a, backup, True)
+    since = tracker_advance(tb[T_MODE], tb[T_RULE], q, dt, deadline, a, pk, model, s2s, labels, mp, stencil, params,
+                            out_real, out_int, anytime, h < 0.0)          # a typed False (see stepper)
+    certain = out_int[I_CERTAIN] != 0
+    cond = out_real[OUT_INFO + F_COND]
+    fine = since >= -1 and out_int[I_STATUS] == io[IO_EPISODE] and math.isfinite(cond)
+    for i in range(3):
+        fine = fine and math.isfinite(out_real[OUT_X + i]) and (not certain or math.isfinite(out_real[OUT_BOUND + i]))
+    if not fine:
+        copy_state(backup, a, False)
+        return FALL_BACK
+    if certain:
+        io[IO_SINCE_STEP] = math.nan
+    elif io[IO_SINCE_STEP] != since:                      # a new episode (NaN != anything): it begins now
+        io[IO_SINCE_STEP] = since
+        io[IO_SINCE_TIME] = t + h
+    for i in range(3):
+        real[slots[S_X + i]] = out_real[OUT_X + i]
+        real[slots[S_XB + i]] = out_real[OUT_BOUND + i] if certain else io[IO_NO_BOUND]
+    real[slots[S_COND]] = cond
+    real[slots[S_SINCE]] = -1.0 if certain else io[IO_SINCE_TIME]
+    integer[slots[S_REGION]] = out_int[I_LABEL]
+    integer[slots[S_N_REAL]] = out_int[I_N_REAL]
+    integer[slots[S_STATUS]] = out_int[I_STATUS]
+    integer[slots[S_TRUST]] = out_int[I_TRUST]
+    boolean[slots[S_NEAR]] = 1 if out_int[I_NEAR_BORDER] != 0 else 0
+    boolean[slots[S_AMBIGUOUS]] = 1 if out_int[I_AMBIGUOUS] != 0 else 0
+    boolean[slots[S_CERTAIN]] = 1 if certain else 0
+    boolean[slots[S_OOB]] = 1 if deadline > 0.0 and not certain and anytime[ANY_CUT] > 0.0 else 0
+    io[IO_TIME] = t + h
+    io[IO_STEPS] += 1.0
+    return 0
+
+
+def _step(table, cmd, t, h):
+    """The entry point's body (module doc)."""
+    tb = carray(table, (TABLE_SIZE,), np.int64)
+    a = carray(address_pointer(tb[4 * T_A]), (tb[4 * T_A + 1],), np.float64)
+    pk = carray(address_pointer(tb[4 * T_PK]), (tb[4 * T_PK + 1],), np.float64)
+    model = carray(address_pointer(tb[4 * T_MODEL]), (tb[4 * T_MODEL + 1],), np.float64)
+    s2s = carray(address_pointer(tb[4 * T_S2S]), (tb[4 * T_S2S + 1], tb[4 * T_S2S + 2], tb[4 * T_S2S + 3]), np.float64)
+    labels = carray(address_pointer(tb[4 * T_LABELS]), (tb[4 * T_LABELS + 1], tb[4 * T_LABELS + 2], tb[4 * T_LABELS + 3]),
+                    np.int8)
+    mp = carray(address_pointer(tb[4 * T_MAP]), (tb[4 * T_MAP + 1],), np.float64)
+    stencil = carray(address_pointer(tb[4 * T_STENCIL]), (tb[4 * T_STENCIL + 1], tb[4 * T_STENCIL + 2]), np.int64)
+    params = carray(address_pointer(tb[4 * T_PARAMS]), (tb[4 * T_PARAMS + 1],), np.float64)
+    out_real = carray(address_pointer(tb[4 * T_OUT_REAL]), (tb[4 * T_OUT_REAL + 1],), np.float64)
+    out_int = carray(address_pointer(tb[4 * T_OUT_INT]), (tb[4 * T_OUT_INT + 1],), np.int64)
+    anytime = carray(address_pointer(tb[4 * T_ANYTIME]), (tb[4 * T_ANYTIME + 1],), np.float64)
+    io = carray(address_pointer(tb[4 * T_IO]), (tb[4 * T_IO + 1],), np.float64)
+    if cmd == CMD_PUBLISH:
+        if tb[4 * T_SLOTS] == 0:
+            return FALL_BACK
+        return _publish(tb, t, h, a, pk, model, s2s, labels, mp, stencil, params, out_real, out_int, anytime, io)
+    return tracker_advance(tb[T_MODE], tb[T_RULE], io[IO_Q:IO_Q + 3], io[IO_DT], io[IO_DEADLINE], a, pk, model, s2s,
+                           labels, mp, stencil, params, out_real, out_int, anytime, cmd == CMD_PACKED)
+
+
+_SIGNATURE = types.int64(types.voidptr, types.int64, types.float64, types.float64)
+
+
+@lru_cache(maxsize=None)
+def entry():
+    """The compiled entry point (numba ``CFunc``, cached on disk; made on first use, not at import: a
+    process that never steps a tracker never loads it).  ``entry().address`` is its C address,
+    ``entry().ctypes`` a ctypes function."""
+    return cfunc(_SIGNATURE, cache=True)(_step)
+
+
+def _row(table: np.ndarray, k: int, array: np.ndarray) -> None:
+    if not (array.flags.c_contiguous and array.flags.writeable):
+        raise ValueError(f"entry table row {k}: expected a C-contiguous writable array, got flags "
+                         f"{array.flags.c_contiguous, array.flags.writeable}")
+    table[4 * k] = array.ctypes.data
+    table[4 * k + 1:4 * k + 1 + array.ndim] = array.shape
+
+
+def make_table(mode: int, rule: int, arrays: dict) -> np.ndarray:
+    """The table (TABLE_SIZE,) int64 of :func:`entry` for a tracker's ``arrays`` (name -> array: ``a``,
+    ``pk``, ``model``, ``s2s``, ``labels``, ``map``, ``stencil``, ``params``, ``out_real``, ``out_int``,
+    ``anytime``, ``io``, ``backup``; a publishing caller adds ``real``, ``integer``, ``boolean``, ``slots``
+    with :func:`set_rows`).  The caller keeps the arrays alive as long as the table."""
+    table = np.zeros(TABLE_SIZE, dtype=np.int64)
+    set_rows(table, arrays)
+    table[T_MODE], table[T_RULE] = int(mode), int(rule)
+    return table
+
+
+_ROWS = {"a": T_A, "pk": T_PK, "model": T_MODEL, "s2s": T_S2S, "labels": T_LABELS, "map": T_MAP,
+         "stencil": T_STENCIL, "params": T_PARAMS, "out_real": T_OUT_REAL, "out_int": T_OUT_INT,
+         "anytime": T_ANYTIME, "io": T_IO, "backup": T_BACKUP, "real": T_REAL, "integer": T_INT, "boolean": T_BOOL,
+         "slots": T_SLOTS}
+_DTYPES = {"labels": np.int8, "stencil": np.int64, "out_int": np.int64, "integer": np.int32, "boolean": np.int32,
+           "slots": np.int64}
+_NDIM = {"s2s": 3, "labels": 3, "stencil": 2}
+
+
+def set_rows(table: np.ndarray, arrays: dict) -> None:
+    """Point the rows of ``table`` named in ``arrays`` at those arrays (dtype and dimensions checked)."""
+    for name, array in arrays.items():
+        want = np.dtype(_DTYPES.get(name, np.float64))
+        if not isinstance(array, np.ndarray) or array.dtype != want or array.ndim != _NDIM.get(name, 1):
+            raise ValueError(f"entry table {name!r}: expected a {_NDIM.get(name, 1)}-D {want} array, got "
+                             f"{getattr(array, 'dtype', type(array).__name__)} {getattr(array, 'shape', '')}")
+        _row(table, _ROWS[name], array)

@@ -1,0 +1,83 @@
+"""The tracker's step through its compiled C entry point (:mod:`solver._kernels.c_entry`): the mixin
+:class:`CEntry` of :class:`solver.Tracker`.
+
+Every step of a tracker is one call of the same machine code: in process through ctypes (the joints,
+the time step and the deadline written into the tracker's scalars ``io``, one call of four scalars
+instead of a 17-argument numba dispatch), and from a C caller (the DK FMU's loader) directly, on
+the same flat state.  The table that the entry point reads holds the addresses of the tracker's
+arrays, which live as long as the tracker.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ._kernels.anytime import ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON
+from ._kernels.c_entry import CMD_ADVANCE, CMD_PACKED, IO_DEADLINE, IO_DT, IO_SIZE, entry, make_table, set_rows
+from ._kernels.state_layout import STATE_FLOATS
+
+__all__ = ["CEntry"]
+
+
+class CEntry:
+    """Mixin of :class:`solver.Tracker`: its compiled step through the C entry point (module doc)."""
+
+    def _entry_table(self) -> None:
+        """The entry point's table over the tracker's arrays (made once, at construction)."""
+        self._io = np.zeros(IO_SIZE)
+        self._table = make_table(self._mode, self._rule, dict(
+            a=self._flat, pk=self._state_pack, model=self._model_pack, s2s=self._sample_to_sextic, labels=self._labels,
+            map=self._map_pack, stencil=self._stencil, params=self._params, out_real=self._out_real,
+            out_int=self._out_int, anytime=self._anytime, io=self._io))
+        self._table_address = self._table.ctypes.data
+        self._call = None                       # entry().ctypes, on the first step
+
+    def _kernel(self, q, state_pack, deadline):
+        anytime, walk = self._anytime, self.state.walk
+        if walk is None:
+            anytime[ANY_N] = anytime[ANY_K_ON] = anytime[ANY_R_ON] = 0.0
+        else:
+            anytime[:len(walk)] = walk
+        anytime[ANY_DEADLINE] = deadline
+        if state_pack is not self._state_pack:
+            self._state_pack[:] = state_pack
+        self._io[:3] = q
+        self._io[IO_DEADLINE] = deadline
+        (self._call or self._entry())(self._table_address, CMD_PACKED, 0.0, 0.0)
+
+    def _advance(self, q, dt, deadline, a):
+        io = self._io
+        io[:3] = q
+        io[IO_DT] = dt
+        io[IO_DEADLINE] = deadline
+        return (self._call or self._entry())(self._table_address, CMD_ADVANCE, 0.0, 0.0)
+
+    def c_step(self, real, integer, boolean, slots):
+        """The compiled step for a C caller that publishes steps into value arrays (the DK FMU's loader):
+        ``(address, table)`` of :func:`solver._kernels.c_entry.entry` with command ``CMD_PUBLISH``, which
+        reads the joints at ``real[slots[0:3]]`` and writes the outputs at the other ``slots``
+        (``c_entry.SLOTS``; ``real`` float64, ``integer`` and ``boolean`` int32, by value reference).
+        The caller keeps the arrays alive, sets ``io`` (:attr:`c_io`) and steps only when
+        :meth:`c_ready` (no stuck-joint detector, encoder-grid watch or joint limits in Python)."""
+        self._backup = np.empty(STATE_FLOATS)
+        table = self._table.copy()
+        set_rows(table, dict(backup=self._backup, real=real, integer=integer, boolean=boolean, slots=slots))
+        if self._call is None:
+            self._entry()
+        return entry().address, table
+
+    @property
+    def c_io(self) -> np.ndarray:
+        """The scalars a C call reads and writes (float64 (IO_SIZE,), ``c_entry.IO_*``)."""
+        return self._io
+
+    def c_ready(self) -> bool:
+        """Whether a C caller may step now: the live flat state is the whole step (made live here)."""
+        if self._watch or self.stuck_after or self._objects or self._limits is not None:
+            return False
+        self._flat_state()
+        return True
+
+    def _entry(self):
+        """The C entry point (:func:`solver._kernels.c_entry.entry`) as a ctypes function, loaded once."""
+        self._call = entry().ctypes
+        return self._call

@@ -1,0 +1,158 @@
+"""The DK FMU's fast lane (fmu_src/fast_lane.py, fmu_src/dk_lane.py, fmu_src/loader/fast_lane.c): the
+loader answers fmi2SetReal of the joints, fmi2DoStep and fmi2Get* on the slave's arrays with the
+compiled step, without the interpreter, and gives what the Python path gives, bit for bit.
+
+The reference is the same FMU with the lane off (``RRR_DK_FAST_LANE=0``), stepped side by side in
+one process; the slaves are found in the process (they are Python objects of this interpreter) to
+read how many calls the lane answered.
+"""
+from __future__ import annotations
+
+import gc
+import math
+
+import numpy as np
+import pytest
+from fmpy.fmi1 import FMICallException
+
+from cosim import Scenario
+from cosim_support import fmus, loop  # noqa: F401 (fixtures)
+from dk_fmu_support import BOUND, BUDGET, CERTAINTY, H, OUTPUTS, Q, circle_start, tracker_rows
+from dk_fmu_support import built, fmu, hygiene, make, map1, tmp, unzipdir  # noqa: F401 (fixtures)
+
+ALL = (*OUTPUTS, *CERTAINTY, *BOUND, *BUDGET)
+
+
+def _slave(name, model="RRRDirectKinematics"):
+    """The live slave of class ``model`` and instance ``name`` in this process."""
+    found = [o for o in gc.get_objects()
+             if type(o).__name__ == model and getattr(o, "instance_name", None) == name]
+    assert len(found) == 1, found
+    return found[0]
+
+
+def _excursion():
+    """The circle with q2 driven out of the joint space and back (an unreachable episode: two status
+    changes the Python path logs) from sample 100."""
+    ramp = np.concatenate([np.arange(16), np.arange(14, -1, -1)]) * 0.05
+    excursion = np.repeat(Q[100][None], len(ramp), axis=0)
+    excursion[:, 1] += ramp
+    return np.concatenate([Q[:100], excursion, Q[101:260]])
+
+
+def _run(m, stream, probe_every=0):
+    """Every output after each doStep; with ``probe_every``, also the outputs read between setting the
+    joints and the doStep (direct feedthrough: a tentative step) every so many samples."""
+    rows = []
+    for k, q in enumerate(stream):
+        m.set_q(q)
+        if probe_every and k % probe_every == 0:
+            rows.append(tuple(m.get_values(ALL)))
+        m.fmu.doStep(m.t, H)
+        m.t += H
+        rows.append(tuple(m.get_values(ALL)))
+    return rows
+
+
+def _pair(make, monkeypatch, **start):
+    fast = make("fast", **circle_start(), **start)
+    monkeypatch.setenv("RRR_DK_FAST_LANE", "0")
+    slow = make("slow", **circle_start(), **start)
+    monkeypatch.delenv("RRR_DK_FAST_LANE")
+    return fast, slow
+
+
+def test_the_lane_takes_the_routine_steps_and_gives_the_python_paths_results(make, map1, monkeypatch):
+    stream = _excursion()
+    fast, slow = _pair(make, monkeypatch)
+    rows = _run(fast, stream, probe_every=7)
+    assert rows == _run(slow, stream, probe_every=7)
+    assert rows[-1][:len(OUTPUTS)] == tracker_rows(map1, stream)[-1]
+    steps, calls = _slave("fast").lane_counts
+    assert _slave("slow").lane_counts == (0, 0)
+    # every step but the two that change the episode (logged by Python) and the first after them
+    assert len(stream) - 6 <= steps < len(stream)
+    assert calls > 3 * steps                     # the joints' sets and the gets of each step
+    # the episode is logged once each way, as on the Python path
+    for m in (fast, slow):
+        texts = [msg for _, msg in m.messages]
+        assert sum("no real direct-kinematics solution" in t for t in texts) == 1
+        assert sum("ok again" in t for t in texts) == 1
+
+
+def test_a_state_saved_after_lane_steps_restores_them(make, monkeypatch):
+    fast, slow = _pair(make, monkeypatch)
+    _run(fast, Q[:150])
+    _run(slow, Q[:150])
+    state = fast.fmu.getFMUstate()                # the slave reads the lane's steps first
+    first = _run(fast, Q[150:260])
+    fast.fmu.setFMUstate(state)
+    fast.fmu.freeFMUstate(state)
+    fast.t = 150 * H
+    again = _run(fast, Q[150:260])
+    assert again == first == _run(slow, Q[150:260])
+    assert _slave("fast").lane_counts[0] >= 2 * 110 + 140
+
+
+def test_a_refused_input_goes_to_python_and_keeps_the_state(make, monkeypatch):
+    fast, slow = _pair(make, monkeypatch)
+    for m in (fast, slow):
+        _run(m, Q[:50])
+        m.set_q((math.nan, Q[50][1], Q[50][2]))
+        with pytest.raises(FMICallException):    # fmi2Discard: the Python path refuses it
+            m.fmu.doStep(m.t, H)
+    assert tuple(fast.get_values(ALL)) == tuple(slow.get_values(ALL))
+    assert fast.get_values(["status"]) == [3]
+
+
+def test_the_lane_stays_closed_with_the_stuck_joint_detector(make):
+    m = make("stuck", stuck_after=5, **circle_start())
+    _run(m, Q[:40])
+    assert _slave("stuck").lane_counts[0] == 0     # the detector runs in Python: every step there
+
+
+def test_the_lane_layout_is_the_loaders():
+    """fmu_src/fast_lane.py mirrors fmu_src/loader/fast_lane.h: the struct's fields in order and their
+    sizes, the version, the category, the flag bits and the step's command."""
+    import ctypes
+    import re
+    from pathlib import Path
+
+    from fmu_src import fast_lane
+    from solver._kernels.c_entry import CMD_PUBLISH
+
+    header = (Path(__file__).resolve().parents[1] / "fmu_src" / "loader" / "fast_lane.h").read_text()
+    body = re.search(r"typedef struct \{(.*?)\} Lane;", header, re.S).group(1)
+    fields = re.findall(r"^\s*[\w\s\*\(\)]*?\(?\*?(\w+)\)?(?:\([^)]*\))?;", body, re.M)
+    assert fields == [name for name, _ in fast_lane.LaneStruct._fields_]
+    assert all(ctypes.sizeof(t) == 8 for _, t in fast_lane.LaneStruct._fields_)     # int64 and pointers
+    defines = dict(re.findall(r"#define (LANE_\w+) (\S+)", header))
+    assert int(defines["LANE_VERSION"]) == fast_lane.VERSION
+    assert defines["LANE_CATEGORY"] == f'"{fast_lane.LANE_CATEGORY}"'
+    assert int(defines["LANE_CMD_PUBLISH"]) == CMD_PUBLISH
+    for name in ("REAL", "INTEGER", "BOOLEAN", "SET", "OUTPUT"):
+        assert int(defines[f"LANE_{name}"].rstrip("u")) == getattr(fast_lane, name)
+
+
+def test_the_closed_loop_through_the_lanes_is_the_python_paths(loop, monkeypatch):
+    """Plant, controller and DK each behind their lane (fmu_src.table_lane; the plant's and the
+    controller's compiled steps dynamics._kernels.c_entry) give the closed loop of the Python path
+    bit for bit, and the lanes take every step."""
+    from dynamics._kernels.c_entry import CONTROLLER_SLOTS, PLANT_SLOTS
+    from fmu_src.ComputedTorqueController import ComputedTorqueController
+    from fmu_src.RRRPlant import RRRPlant
+
+    assert RRRPlant.LANE_SLOTS == PLANT_SLOTS and ComputedTorqueController.LANE_SLOTS == CONTROLLER_SLOTS
+    sc = Scenario(t_end=0.4)
+    fast = loop.run(sc)
+    n = len(fast.t) - 1
+    slaves = [o for o in gc.get_objects() if hasattr(o, "lane_counts") and hasattr(o, "instance_name")
+              and type(o).__name__ in ("RRRPlant", "ComputedTorqueController", "RRRDirectKinematics")]
+    steps = {type(o).__name__: o.lane_counts[0] for o in slaves if o.lane_counts[0]}
+    assert set(steps) == {"RRRPlant", "ComputedTorqueController", "RRRDirectKinematics"}, steps
+    assert all(k >= n - 3 for k in steps.values()), (steps, n)
+    monkeypatch.setenv("RRR_DK_FAST_LANE", "0")
+    slow = loop.run(sc)
+    assert set(fast.columns) == set(slow.columns)
+    for name, column in fast.columns.items():
+        assert np.array_equal(column, slow.columns[name], equal_nan=True), name
