@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import itertools
 import logging
 import os
 import shutil
@@ -41,6 +42,27 @@ __all__ = ["FMUUnit", "InstantiationError", "extracted", "remove_extracted", "fm
 _EXTRACTED: dict = {}
 #: Model descriptions of extracted folders given by the caller: folder -> model description.
 _DESCRIPTIONS: dict = {}
+# fmpy's logger proxy (which formats the printf-style messages ctypes cannot) keeps one Python logger
+# per process, the last one installed: with a logger per unit, every FMU's messages went to the unit
+# made last.  So one logger for all units, which finds the unit by the componentEnvironment the FMU
+# passes back (a token per unit).
+_UNIT_LOGS: dict[int, list] = {}
+_TOKENS = itertools.count(1)
+_LOGGER = []
+
+
+def _shared_logger():
+    """The one fmi2 logger callback of every unit (made once): appends ``(status, message)`` to the
+    messages of the unit whose token is the componentEnvironment."""
+    if not _LOGGER:
+        from fmpy.fmi2 import fmi2CallbackLoggerTYPE
+
+        def logger(env, _instance, status, _category, message):
+            messages = _UNIT_LOGS.get(env or 0)
+            if messages is not None:
+                messages.append((int(status), message.decode("utf-8", "replace") if message else ""))
+        _LOGGER.append(fmi2CallbackLoggerTYPE(logger))
+    return _LOGGER[0]
 
 
 def extracted(path) -> tuple[str, object]:
@@ -221,20 +243,19 @@ class FMUUnit:
         self._instantiate()
 
     def _make_callbacks(self):
+        """This unit's callbacks: the shared logger (:func:`_shared_logger`) with this unit's token as the
+        componentEnvironment, which every FMU passes back to its logger."""
         import fmpy
-        from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
-                               fmi2CallbackLoggerTYPE)
+        from fmpy.fmi2 import fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions
         from fmpy.logging import addLoggerProxy
 
-        messages = self.messages
-
-        def logger(_component, _instance, status, _category, message):
-            messages.append((int(status), message.decode("utf-8", "replace") if message else ""))
-
+        token = next(_TOKENS)
+        _UNIT_LOGS[token] = self.messages
         callbacks = fmi2CallbackFunctions()
-        callbacks.logger = fmi2CallbackLoggerTYPE(logger)
+        callbacks.logger = _shared_logger()
         callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(fmpy.calloc)
         callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(fmpy.free)
+        callbacks.componentEnvironment = token
         addLoggerProxy(byref(callbacks))          # formats the printf-style message
         return callbacks
 
