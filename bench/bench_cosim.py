@@ -9,7 +9,8 @@ present; ``--rebuild`` forces it).  Then, in one process (FMUs extracted and ins
    the master itself (:meth:`cosim.ClosedLoop.run`, timed as ``python -m cosim``
    times it: the step loop and the result's columns, FMUs initialized), with the DK's flags
    (status, region... as ``python -m cosim`` records them) and without
-   (``flags=False``: one set, doStep and get per FMU and step); each run alternates with an
+   (``flags=False``: one set, doStep and get per FMU and step) and with the loader's fast lanes off
+   (``RRR_DK_FAST_LANE=0``: every FMI call through the slaves' Python); each run alternates with an
    in-process pass of ``solver.Tracker.step(q, dt=h)`` over the joints of the same run (the
    closed loop's own DK path, same embedded map).  Prints the wall time per step of each
    (mean over a run, median over the runs), the real-time factor and the ratio of the loop's step
@@ -216,10 +217,15 @@ def _timed_runs(loop, sc, repeat: int):
     tracker = Tracker(Manipulator.paper(), MapTensor.load(Path(dk_dir) / "resources" / "maps" / "posture1.npz"))
     print(f"\n1. the master's loop (ClosedLoop.run, as `python -m cosim`), {repeat} runs each, "
           f"alternating with the in-process tracker on each run's joints:")
-    per = {(key, clock): [] for key in ("flags", "no flags", "tracker") for clock in ("wall", "cpu")}
+    per = {(key, clock): [] for key in ("flags", "no flags", "no lanes", "tracker") for clock in ("wall", "cpu")}
     for r in range(repeat):
-        for key, kw in (("flags", {}), ("no flags", {"flags": False})):
-            res = loop.run(sc, **kw)
+        for key, kw in (("flags", {}), ("no flags", {"flags": False}), ("no lanes", {})):
+            if key == "no lanes":                         # every FMI call through the slaves' Python
+                os.environ["RRR_DK_FAST_LANE"] = "0"
+            try:
+                res = loop.run(sc, **kw)
+            finally:
+                os.environ.pop("RRR_DK_FAST_LANE", None)
             per[key, "wall"].append(res.wall_seconds / sc.n_steps)
             per[key, "cpu"].append(res.cpu_seconds / sc.n_steps)
             wall, cpu = tracker_pass(tracker, res, sc.h)
@@ -227,7 +233,8 @@ def _timed_runs(loop, sc, repeat: int):
             per["tracker", "cpu"].append(cpu)
         m = res.metrics()
         print(f"   run {r + 1}: wall per step {1e6 * per['flags', 'wall'][-1]:.1f} us with flags, "
-              f"{1e6 * per['no flags', 'wall'][-1]:.1f} without, tracker {1e6 * per['tracker', 'wall'][-1]:.1f} us"
+              f"{1e6 * per['no flags', 'wall'][-1]:.1f} without, {1e6 * per['no lanes', 'wall'][-1]:.1f} without "
+              f"the fast lanes, tracker {1e6 * per['tracker', 'wall'][-1]:.1f} us"
               f"  (RMS joint error after 0.5 s {m['rms_joint_error_after_0.5s']:.3e} rad, "
               f"max |DK - true| {m['max_dk_vs_true']:.1e})")
     med = {k: float(np.median(v)) for k, v in per.items()}
@@ -235,7 +242,7 @@ def _timed_runs(loop, sc, repeat: int):
         trk = med["tracker", clock_name]
         print(f"   {clock_name} time (median of the runs' mean per step), one in-process tracker step "
               f"{1e6 * trk:.1f} us:")
-        for key in ("flags", "no flags"):
+        for key in ("flags", "no flags", "no lanes"):
             v = med[key, clock_name]
             ratio = v / trk
             print(f"     {key:8s}: {1e6 * v:6.1f} us per step = {sc.h / v:5.2f}x real time, {ratio:.2f}x the "
@@ -284,11 +291,11 @@ def _breakdown(calls, step, clock):
     # where the time goes (means: they add up to the wall time)
     total = step.mean()
     step_of = lambda k: [r for r in rows if r[2] == "do_step" and r[1] == FMU_NAMES[k]]   # noqa: E731
-    groups = [("DK doStep: slave (tracker, checks, snapshot)", step_of(0), 4),
-              ("controller doStep: slave (compiled law + reference)", step_of(1), 4),
-              ("plant doStep: slave (compiled RK4 + outputs)", step_of(2), 4),
-              ("8 get/set calls: slave Python", [r for r in rows if r[2] != "do_step"], 4),
-              ("11 fmpy calls: fmpy + ctypes + pythonfmu C wrapper", rows, 5)]
+    # whole calls: behind the loader's fast lanes the compiled steps run inside them, without Python
+    groups = [("DK doStep, whole call (the tracker's compiled step inside)", step_of(0), 3),
+              ("controller doStep, whole call (the compiled law inside)", step_of(1), 3),
+              ("plant doStep, whole call (the compiled RK4 inside)", step_of(2), 3),
+              ("8 get/set calls, whole calls", [r for r in rows if r[2] != "do_step"], 3)]
     print("\n   where the time goes (mean per 1 ms step; wall budget for 10x real time: 100 us)")
     print(f"   | {'part':55s} | {'us/step':>7s} | {'share':>6s} |")
     print(f"   |{'-' * 57}|{'-' * 9}|{'-' * 8}|")
@@ -298,6 +305,9 @@ def _breakdown(calls, step, clock):
         print(f"   | {name:55s} | {v:7.1f} | {100 * v / total:5.1f}% |")
     acc = sum(v for _, v in parts)
     print(f"   | {'total (instrumented; clocks add ~2 us)':55s} | {total:7.1f} | {100 * acc / total:5.1f}% |")
+    python = float(sum(r[4].mean() for r in rows))
+    print(f"   of which the slaves' Python inside the calls: {python:.1f} us a step (0 when the fast lanes "
+          "answer every call)")
     return parts, total
 
 
@@ -306,7 +316,8 @@ def _report(sc, med, metrics, parts, total, args, ref):
     from report import publish, table
     loop = []
     for key, label in (("flags", "with the DK's Integer/Boolean outputs (11 FMI calls)"),
-                       ("no flags", "without them (9 FMI calls, `flags=False`)")):
+                       ("no flags", "without them (9 FMI calls, `flags=False`)"),
+                       ("no lanes", "with the flags, the loader's fast lanes off (`RRR_DK_FAST_LANE=0`)")):
         for clock in ("wall", "cpu"):
             v, trk = med[key, clock], med["tracker", clock]
             loop.append((f"{label}, {clock} time", f"{1e6 * v:.1f} us", f"{v / trk:.2f}x", f"{sc.h / v:.1f}x",
