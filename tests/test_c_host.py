@@ -71,6 +71,27 @@ def test_c_host_runs_the_fmu_without_python_as_fmpy_does(fmus, host, tmp_path, n
         assert np.max(np.abs(a[:, 1:4] - circle_path(STEPS))) <= 1e-9
 
 
+@pytest.mark.parametrize("name", list(OUTPUTS))
+def test_c_host_fast_lane_gives_the_python_paths_rows(fmus, host, tmp_path, name):
+    """In a host without Python of its own (the loader started it), the loader's fast lane answers the
+    steps on the slave's arrays, calling into Python only at the border with the GIL it takes itself:
+    the same rows, bit for bit, as with the lane off (every call through the slave's Python)."""
+    folder, guid, inputs, outputs, starts = _case(name, fmus[name], tmp_path)
+    args = [str(host), folder, name, guid, repr(H), str(STEPS), inputs, outputs, starts]
+    runs = {lane: subprocess.run(args, capture_output=True, text=True, timeout=600, cwd=str(tmp_path),
+                                 env=no_python_env(RRR_DK_FAST_LANE=lane)) for lane in ("report", "0")}
+    for lane, run in runs.items():
+        assert run.returncode == 0 and run.stdout.rstrip().endswith("end"), (lane, run.stderr[-3000:])
+        assert "fast lane dropped" not in run.stderr and "no fast lane" not in run.stderr, run.stderr[-2000:]
+    assert np.array_equal(output_table(runs["report"].stdout), output_table(runs["0"].stdout))
+    # the lane answered the steps (the slave's count at fmi2Terminate); none without it
+    import re
+
+    counts = re.findall(r"the fast lane answered (\d+) doSteps", runs["report"].stderr)
+    assert len(counts) == 1 and int(counts[0]) >= STEPS - 3, runs["report"].stderr[-2000:]
+    assert "the fast lane answered" not in runs["0"].stderr
+
+
 def test_c_host_with_another_python_or_none(fmus, host, tmp_path):
     """$RRR_DK_PYTHON comes first (here the test's own interpreter); a wrong one is tried, named in a
     warning with why it failed, and the recorded interpreter runs the FMU instead."""
