@@ -61,7 +61,12 @@ class TableLane:
             self.log(lane.hand_over(), Fmi2Status.ok, category=LANE_CATEGORY)
 
     def _lane_wanted(self) -> bool:
-        """Whether this instance runs behind the FMI 2.0 loader and may have a lane."""
+        """Whether this instance runs behind the FMI 2.0 loader and may have a lane; also in the kernel
+        warm-up's child (``RRR_DK_FAST_LANE=warm-up``, :func:`fmu_src.kernel_warmup.replay`), which makes
+        the lane without a loader so that the compiled steps it calls are compiled there, never on a
+        host's thread."""
+        if os.environ.get("RRR_DK_FAST_LANE", "").strip() == "warm-up":
+            return True
         return bool(self._loader) and available(self.resources)
 
     def _lane_slots(self) -> np.ndarray:

@@ -83,32 +83,18 @@ int lane_set_real(Lane* lane, const unsigned vr[], size_t n, const double v[])
     return 1;
 }
 
-int lane_get_real(Lane* lane, const unsigned vr[], size_t n, double v[])
-{
-    if (n && !v) return 0;
-    if (!lane_serves(lane, vr, n, LANE_REAL)) return 0;
-    for (size_t i = 0; i < n; i++) v[i] = lane->real[vr[i]];
-    lane->fast_calls++;
-    return 1;
-}
-
-int lane_get_integer(Lane* lane, const unsigned vr[], size_t n, int v[])
-{
-    if (n && !v) return 0;
-    if (!lane_serves(lane, vr, n, LANE_INTEGER)) return 0;
-    for (size_t i = 0; i < n; i++) v[i] = lane->integer[vr[i]];
-    lane->fast_calls++;
-    return 1;
-}
-
-int lane_get_boolean(Lane* lane, const unsigned vr[], size_t n, int v[])
-{
-    if (n && !v) return 0;
-    if (!lane_serves(lane, vr, n, LANE_BOOLEAN)) return 0;
-    for (size_t i = 0; i < n; i++) v[i] = lane->boolean[vr[i]];
-    lane->fast_calls++;
-    return 1;
-}
+/* a get of one type: every value reference served, else 0 (the call goes to Python) */
+#define LANE_GET(name, type, array, bit) \
+    int name(Lane* lane, const unsigned vr[], size_t n, type v[]) \
+    { \
+        if ((n && !v) || !lane_serves(lane, vr, n, (bit))) return 0; \
+        for (size_t i = 0; i < n; i++) v[i] = lane->array[vr[i]]; \
+        lane->fast_calls++; \
+        return 1; \
+    }
+LANE_GET(lane_get_real, double, real, LANE_REAL)
+LANE_GET(lane_get_integer, int, integer, LANE_INTEGER)
+LANE_GET(lane_get_boolean, int, boolean, LANE_BOOLEAN)
 
 int lane_do_step(Lane* lane, double t, double h)
 {
