@@ -344,6 +344,9 @@ class FMUUnit:
             pass
         self.fmu.fmi2FreeInstance(self.fmu.component)
         self.fmu = None
+        for token, messages in list(_UNIT_LOGS.items()):     # this unit's log is its own list now
+            if messages is self.messages:
+                del _UNIT_LOGS[token]
 
     def __enter__(self):
         return self

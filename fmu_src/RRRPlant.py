@@ -128,7 +128,10 @@ class RRRPlant(TableLane, TableSlave):
         self._x = self._lane_x.copy()                   # the state the lane advanced (a new array: rollbacks)
 
     def _lane_before_steps(self):
+        from dynamics._kernels.c_entry import IO_SUBSTEPS
+
         self._lane_x[:] = self._x
+        self._lane_io[0][IO_SUBSTEPS] = int(self.substeps)      # (a set FMU state may carry another)
 
     def _free(self):
         """Index of the result buffer that ``_x`` does not view (the next step writes it)."""

@@ -29,8 +29,8 @@ from . import kernel_cache
 
 kernel_cache.install()    # before the first import of solver: its kernels find the FMU's shipped cache
 
-from solver._kernels.c_entry import (IO_EPISODE, IO_NO_BOUND, IO_Q, IO_RATE, IO_SHARE,  # noqa: E402
-                                     IO_SINCE_STEP, IO_SINCE_TIME, IO_STEPS, IO_TIME, SLOTS)
+from solver._kernels.c_entry import (IO_DONE, IO_EPISODE, IO_LAST_H, IO_LAST_Q, IO_NO_BOUND, IO_RATE,  # noqa: E402
+                                     IO_SHARE, IO_SINCE_STEP, IO_SINCE_TIME, IO_STEPS, IO_TIME, SLOTS)
 from solver._kernels.clock import cycles_per_second  # noqa: E402
 
 from .dk_variables import NO_BOUND  # noqa: E402
@@ -71,10 +71,18 @@ class DKLane(TableLane):
         self._track = tracker.snapshot()
         since = io[IO_SINCE_STEP]
         self._since = None if math.isnan(since) else (int(since), float(io[IO_SINCE_TIME]))
-        # the joints of the last lane step (the compiled step copied them into io; the inputs may
-        # already hold the next sample) and its outputs, which the arrays still hold
-        self._committed = (tuple(io[IO_Q:IO_Q + 3].tolist()), self._outputs())
+        # the joints of the last lane step (the compiled step kept them; the inputs may already hold
+        # the next sample) and its outputs, which the arrays still hold
+        self._committed = (tuple(io[IO_LAST_Q:IO_LAST_Q + 3].tolist()), self._outputs())
         self._cache = None
+        # the budget of that step, as step() leaves it (what a tentative evaluate() then has)
+        share, h = float(self.step_budget_share), float(io[IO_LAST_H])
+        tracker.step_budget = share * h if share > 0.0 and h > 0.0 else None
+
+    def _lane_checked(self, io) -> None:
+        if io[IO_DONE] != 1.0:              # a compiled kernel raised: the flat state is not the committed one
+            self._tracker.flat_advanced()    # (restore(_track) copies it back before any step)
+            io[IO_DONE] = 1.0
 
     def _lane_before_steps(self) -> None:
         io = self._tracker.c_io

@@ -33,7 +33,7 @@ __all__ = ["FastLane", "LaneStruct", "LANE_CATEGORY", "VERSION", "available"]
 LANE_CATEGORY = "rrrdkFastLane"
 #: the layout version of :class:`LaneStruct` (the loader's LANE_VERSION)
 VERSION = 1
-REAL, INTEGER, BOOLEAN, SET, OUTPUT = 1, 2, 4, 8, 16
+REAL, INTEGER, BOOLEAN, SET, OUTPUT, DIRTIES = 1, 2, 4, 8, 16, 32
 _TYPE_BIT = {"Real": REAL, "Integer": INTEGER, "Boolean": BOOLEAN}
 
 
@@ -66,9 +66,11 @@ class FastLane:
     pull, push : callable
         The slave's methods the loader calls before and after a call it forwards to Python (kept
         alive here: the loader holds their addresses).
+    marks_dirty : set of int
+        Value references whose set makes the outputs of direct feedthrough stale.
     """
 
-    def __init__(self, table, pull, push):
+    def __init__(self, table, pull, push, marks_dirty=frozenset()):
         n = len(table)
         self.real = np.zeros(n)
         self.integer = np.zeros(n, dtype=np.int32)
@@ -80,6 +82,8 @@ class FastLane:
                 bits |= SET
             if v.is_output and v.depends_on:      # direct feedthrough: stale once an input is set
                 bits |= OUTPUT
+            if vr in marks_dirty:                 # its set makes them stale (the slave's _marks_dirty)
+                bits |= DIRTIES
             self.flags[vr] = bits
         self._attrs = [(vr, v.attr, v.type) for vr, v in enumerate(table) if v.type in _TYPE_BIT]
         self._read = [(vr, v.attr, v.type) for vr, v in enumerate(table)

@@ -45,7 +45,8 @@ class TableLane:
     def _lane_made(self) -> FastLane:
         """The slave's lane: its value arrays (made on first use, kept for the instance's life)."""
         if self._lane is None:
-            self._lane = FastLane(type(self)._table, self._lane_pull, self._lane_push)
+            cls = type(self)
+            self._lane = FastLane(cls._table, self._lane_pull, self._lane_push, cls._marks_dirty)
         return self._lane
 
     def _lane_connect(self, step: int, table: np.ndarray, io: np.ndarray, io_time: int, io_steps: int,
@@ -87,13 +88,14 @@ class TableLane:
             lane = self._lane
             lane.read(self)
             io, io_time, io_steps, _ = self._lane_io
+            self._lane_checked(io)
             if io[io_steps]:
                 io[io_steps] = 0.0
                 self._time = float(io[io_time])
                 self._lane_after_steps()
             self._dirty = bool(lane.struct.dirty)
             lane.struct.py_stale = 0
-        except Exception as exc:  # noqa: BLE001 - never into the host: the lane closes
+        except BaseException as exc:  # noqa: BLE001 - never into the host: the lane closes
             self._lane_close(exc)
 
     def _lane_push(self) -> None:
@@ -111,7 +113,7 @@ class TableLane:
                 s.dirty = int(bool(self._dirty))
             s.enabled = int(ok)
             s.py_stale = 0
-        except Exception as exc:  # noqa: BLE001 - never into the host: the lane closes
+        except BaseException as exc:  # noqa: BLE001 - never into the host: the lane closes
             self._lane_close(exc)
 
     def _lane_close(self, exc: Exception) -> None:
@@ -124,6 +126,9 @@ class TableLane:
                           self.instance_name, type(exc).__name__, exc)
 
     # ---------------------------------------------------------------- hooks (a slave overrides them)
+    def _lane_checked(self, io) -> None:
+        """In a pull, before anything else: a compiled step that raised (its state unspecified)."""
+
     def _lane_ready(self) -> bool:
         """Whether the compiled step is the whole step now (besides the state and the flags)."""
         return True
@@ -139,7 +144,7 @@ class TableLane:
         if self._lane is not None and os.environ.get("RRR_DK_FAST_LANE", "").strip() == "report":
             steps, calls = self.lane_counts
             msg = f"instance {self.instance_name!r}: the fast lane answered {steps} doSteps and {calls} get/set calls"
-            self.log(msg, Fmi2Status.ok)
+            self.log(msg.replace("%", "%%"), Fmi2Status.ok)     # the wrapper's text is a printf format
             self._pylog.warning("%s", msg)              # stderr: a host without a logger shows it too
 
     @property

@@ -12,7 +12,9 @@ from __future__ import annotations
 import numpy as np
 
 from ._kernels.anytime import ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON
-from ._kernels.c_entry import CMD_ADVANCE, CMD_PACKED, IO_DEADLINE, IO_DT, IO_SIZE, entry, make_table, set_rows
+from ._kernels.c_entry import (CMD_ADVANCE, CMD_PACKED, IO_DEADLINE, IO_DONE, IO_DT, IO_SIZE, entry, make_table,
+                               set_rows)
+from .tracker_state import TrackerError
 from ._kernels.state_layout import STATE_FLOATS
 
 __all__ = ["CEntry"]
@@ -43,13 +45,36 @@ class CEntry:
         self._io[:3] = q
         self._io[IO_DEADLINE] = deadline
         (self._call or self._entry())(self._table_address, CMD_PACKED, 0.0, 0.0)
+        if self._io[IO_DONE] != 1.0:
+            self._failed()
 
     def _advance(self, q, dt, deadline, a):
         io = self._io
         io[:3] = q
         io[IO_DT] = dt
         io[IO_DEADLINE] = deadline
-        return (self._call or self._entry())(self._table_address, CMD_ADVANCE, 0.0, 0.0)
+        since = (self._call or self._entry())(self._table_address, CMD_ADVANCE, 0.0, 0.0)
+        if io[IO_DONE] != 1.0:
+            self._failed()
+        return since
+
+    def _failed(self):
+        """A compiled kernel raised inside the entry point (numba printed it): the step's data is not
+        to be trusted; the tracker starts again only from reset()."""
+        self._st, self._live, self._held = None, False, None
+        raise TrackerError(f"{self.name}: the compiled step failed (its error is printed above); the tracker's "
+                           "state is discarded: call reset(X0, q0)")
+
+    def __getstate__(self):
+        # the table holds this tracker's array addresses: a copy (pickle, deepcopy) makes its own
+        state = dict(self.__dict__)
+        for name in ("_table", "_table_address", "_call", "_backup"):
+            state.pop(name, None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._entry_table()
 
     def c_step(self, real, integer, boolean, slots):
         """The compiled step for a C caller that publishes steps into value arrays (the DK FMU's loader):

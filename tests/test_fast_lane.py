@@ -121,7 +121,7 @@ def test_the_lane_layout_is_the_loaders():
     from pathlib import Path
 
     from fmu_src import fast_lane
-    from solver._kernels.c_entry import CMD_PUBLISH
+    from solver._kernels.c_entry import CMD_PUBLISH, PUBLISHED
 
     header = (Path(__file__).resolve().parents[1] / "fmu_src" / "loader" / "fast_lane.h").read_text()
     body = re.search(r"typedef struct \{(.*?)\} Lane;", header, re.S).group(1)
@@ -131,8 +131,8 @@ def test_the_lane_layout_is_the_loaders():
     defines = dict(re.findall(r"#define (LANE_\w+) (\S+)", header))
     assert int(defines["LANE_VERSION"]) == fast_lane.VERSION
     assert defines["LANE_CATEGORY"] == f'"{fast_lane.LANE_CATEGORY}"'
-    assert int(defines["LANE_CMD_PUBLISH"]) == CMD_PUBLISH
-    for name in ("REAL", "INTEGER", "BOOLEAN", "SET", "OUTPUT"):
+    assert int(defines["LANE_CMD_PUBLISH"]) == CMD_PUBLISH and int(defines["LANE_PUBLISHED"]) == PUBLISHED
+    for name in ("REAL", "INTEGER", "BOOLEAN", "SET", "OUTPUT", "DIRTIES"):
         assert int(defines[f"LANE_{name}"].rstrip("u")) == getattr(fast_lane, name)
 
 

@@ -215,3 +215,27 @@ def test_snapshots_reach_the_kernels_with_the_signatures_the_fmus_ship(model, co
     for kernel in (copy_state, walk_floats):
         for sig in kernel.signatures:
             assert all(t.mutable for t in sig if isinstance(t, types.Array)), (kernel, sig)
+
+
+def test_a_copied_or_pickled_tracker_steps_on_its_own_arrays(model, coarse_map1):
+    """The C entry point's table holds a tracker's array addresses: a deep copy or an unpickled tracker
+    makes its own (it would step the original's data, or freed memory, otherwise)."""
+    import copy
+    import pickle
+
+    X = circle_path(80)
+    q = ik(model, X, 1)
+    tr = Tracker(model, coarse_map1)
+    tr.reset(X[0], q[0], warn=False)
+    for k in range(1, 20):
+        tr.step(q[k])
+    twins = [copy.deepcopy(tr), pickle.loads(pickle.dumps(tr))]
+    rows = [[(X_.tolist(), info.certain) for X_, info in (t.step(q[k]) for k in range(20, 60))] for t in twins]
+    before = tr.snapshot().copy()
+    reference = [(X_.tolist(), info.certain) for X_, info in (tr.step(q[k]) for k in range(20, 60))]
+    assert rows[0] == rows[1] == reference
+    assert twins[0]._table[0] != tr._table[0] and twins[1]._table[0] != tr._table[0]
+    canonical = [TrackerState.from_array(t.snapshot()).as_array() for t in (*twins, tr)]
+    assert np.array_equal(canonical[0], canonical[1], equal_nan=True)
+    assert np.array_equal(canonical[0], canonical[2], equal_nan=True)
+    assert not np.array_equal(before, np.asarray(tr.snapshot()))

@@ -7,7 +7,7 @@ of the stepper's arrays (rows ``T_*``, 4 int64 each) and its posture bits; the i
 the caller's Real value array at ``slots[:n_in]`` and the outputs written at ``slots[n_in:]``.
 A step that the compiled step refuses, or whose inputs, times or outputs are not finite, changes
 nothing and returns :data:`FALL_BACK`: the caller takes it on its Python path, which refuses it with
-the reason.
+the reason; a step taken returns :data:`PUBLISHED`.
 
 - plant: inputs tau1..tau3 (N m); ``n = io[IO_SUBSTEPS]`` RK4 steps of ``h / n`` from the state
   ``x`` (6,), written back into ``x`` when the step is taken; outputs q1..q3, dq1..dq3, x_true, y_true,
@@ -29,10 +29,10 @@ from .layout import PLANT_OUT_DQ, PLANT_OUT_ENERGY, PLANT_OUT_Q, PLANT_OUT_STATE
 from .steps import controller_step, plant_step
 
 __all__ = ["plant_entry", "controller_entry", "make_table", "PLANT_SLOTS", "CONTROLLER_SLOTS", "CMD_PUBLISH",
-           "FALL_BACK", "IO_SIZE", "IO_TIME", "IO_STEPS", "IO_SUBSTEPS", "IO_TOL"]
+           "FALL_BACK", "PUBLISHED", "IO_SIZE", "IO_TIME", "IO_STEPS", "IO_SUBSTEPS", "IO_TOL"]
 
 CMD_PUBLISH = 2                      # the loader's LANE_CMD_PUBLISH (solver._kernels.c_entry.CMD_PUBLISH)
-FALL_BACK = 1
+FALL_BACK, PUBLISHED = 1, 2          # solver._kernels.c_entry's (the loader's LANE_PUBLISHED)
 T_PACK, T_WORK, T_X, T_OUT, T_IO, T_REAL, T_SLOTS = range(7)
 T_BITS = 28
 TABLE_SIZE = 29
@@ -75,7 +75,7 @@ def _plant(table, cmd, t, h):
         real[slots[3 + i]] = out[_PLANT_FROM[i]]
     io[IO_TIME] = t + h
     io[IO_STEPS] += 1.0
-    return 0
+    return PUBLISHED
 
 
 def _controller(table, cmd, t, h):
@@ -100,7 +100,7 @@ def _controller(table, cmd, t, h):
         real[slots[9 + i]] = out[i]
     io[IO_TIME] = t + h
     io[IO_STEPS] += 1.0
-    return 0
+    return PUBLISHED
 
 
 @lru_cache(maxsize=None)

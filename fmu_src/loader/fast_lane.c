@@ -29,12 +29,15 @@ static void_fn print_error;
 static int resolve_python(void)
 {
     if (gil_ensure) return 0;
-    gil_release = (gil_release_fn)dlsym(RTLD_DEFAULT, "PyGILState_Release");
-    call_object = (call_fn)dlsym(RTLD_DEFAULT, "PyObject_CallObject");
-    dec_ref = (decref_fn)dlsym(RTLD_DEFAULT, "Py_DecRef");
-    print_error = (void_fn)dlsym(RTLD_DEFAULT, "PyErr_Print");
-    gil_ensure = (gil_ensure_fn)dlsym(RTLD_DEFAULT, "PyGILState_Ensure");
-    return gil_ensure && gil_release && call_object && dec_ref && print_error ? 0 : -1;
+    gil_release_fn release = (gil_release_fn)dlsym(RTLD_DEFAULT, "PyGILState_Release");
+    call_fn call = (call_fn)dlsym(RTLD_DEFAULT, "PyObject_CallObject");
+    decref_fn decref = (decref_fn)dlsym(RTLD_DEFAULT, "Py_DecRef");
+    void_fn print = (void_fn)dlsym(RTLD_DEFAULT, "PyErr_Print");
+    gil_ensure_fn ensure = (gil_ensure_fn)dlsym(RTLD_DEFAULT, "PyGILState_Ensure");
+    if (!(release && call && decref && print && ensure)) return -1;      /* none published: tried again later */
+    gil_release = release, call_object = call, dec_ref = decref, print_error = print;
+    gil_ensure = ensure;                                                  /* last: the mark of all resolved */
+    return 0;
 }
 
 Lane* lane_take(const char* text, char* why, size_t why_size)
@@ -77,8 +80,11 @@ int lane_set_real(Lane* lane, const unsigned vr[], size_t n, const double v[])
 {
     if (n && !v) return 0;
     if (!lane_serves(lane, vr, n, LANE_REAL | LANE_SET)) return 0;
-    for (size_t i = 0; i < n; i++) lane->real[vr[i]] = v[i];
-    lane->dirty = lane->py_stale = 1;
+    for (size_t i = 0; i < n; i++) {
+        lane->real[vr[i]] = v[i];
+        if (lane->flags[vr[i]] & LANE_DIRTIES) lane->dirty = 1;     /* as the slave's set marks it */
+    }
+    if (n) lane->py_stale = 1;
     lane->fast_calls++;
     return 1;
 }
@@ -98,7 +104,10 @@ LANE_GET(lane_get_boolean, int, boolean, LANE_BOOLEAN)
 
 int lane_do_step(Lane* lane, double t, double h)
 {
-    if (lane->step(lane->table, LANE_CMD_PUBLISH, t, h) != 0) return 0;
+    if (lane->step(lane->table, LANE_CMD_PUBLISH, t, h) != LANE_PUBLISHED) {
+        lane->py_stale = 1;     /* the slave looks at the step's state before it takes the step itself */
+        return 0;
+    }
     lane->dirty = 0;
     lane->py_stale = 1;
     lane->fast_steps++;

@@ -13,9 +13,10 @@
  *    attributes, its committed state and whether the lane may serve now, ``enabled``).
  * The lane serves only in stepComplete, with ``enabled`` set, and only calls whose every value
  * reference it may serve (``flags``); an output while an input was set since the last step
- * (``dirty``: direct feedthrough) goes to Python.  Its step returns non-zero (FALL_BACK) when the
- * step is not routine (an episode to log, a value not finite): it has undone itself and the loader
- * forwards the doStep to Python, which takes the same step and logs or refuses as it always does.
+ * (``dirty``: direct feedthrough) goes to Python.  Its step returns LANE_PUBLISHED when it took the
+ * step; otherwise (FALL_BACK: not routine, an episode to log, a value not finite; it has undone itself;
+ * or 0: a compiled kernel raised) the loader forwards the doStep to Python, which takes the same step
+ * from the committed state and logs or refuses as it always does.
  */
 #ifndef RRR_DK_FAST_LANE_H
 #define RRR_DK_FAST_LANE_H
@@ -34,9 +35,12 @@
 #define LANE_BOOLEAN 4u   /* a Boolean variable */
 #define LANE_SET 8u       /* settable in stepComplete (an input) */
 #define LANE_OUTPUT 16u   /* an output of direct feedthrough: stale while dirty */
+#define LANE_DIRTIES 32u  /* an input whose set makes the outputs of direct feedthrough stale */
 
-/* the command of the compiled step that takes a published step (solver/_kernels/c_entry.py CMD_PUBLISH) */
+/* the command of the compiled step that takes a published step (solver/_kernels/c_entry.py CMD_PUBLISH),
+ * and what it returns when it published (PUBLISHED; anything else: the call goes to Python) */
 #define LANE_CMD_PUBLISH 2
+#define LANE_PUBLISHED 2
 
 typedef struct {
     int64_t version;          /* LANE_VERSION */
@@ -48,7 +52,7 @@ typedef struct {
     int32_t* integer;         /* Integer values */
     int32_t* boolean;         /* Boolean values (fmi2Boolean: int) */
     uint8_t* flags;           /* LANE_* bits by value reference */
-    int64_t (*step)(void* table, int64_t cmd, double t, double h);   /* 0: stepped; else fall back */
+    int64_t (*step)(void* table, int64_t cmd, double t, double h);   /* LANE_PUBLISHED, else fall back */
     void* table;              /* the step's table */
     void* pull;               /* PyObject*: the slave's bound method that reads the arrays */
     void* push;               /* PyObject*: the slave's bound method that writes them */

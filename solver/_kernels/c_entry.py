@@ -17,6 +17,10 @@ the rows ``T_*``), so the same machine code serves
   a status other than ``io[IO_EPISODE]`` (an episode to log), an output not finite.  The caller then
   takes the same step on its Python path, which logs and refuses as it always did.
 
+A kernel that raises (numba's error model: a division by zero, say) makes the cfunc print the error
+and return 0; ``io[IO_DONE]`` then stays 0.0, which every caller checks: :meth:`solver.Tracker.step`
+raises, the loader's lane takes the step on the Python path from the committed state.
+
 The one entry point is also what keeps the step's machine code compiled, cached and shipped once:
 :func:`.stepper.tracker_advance` is compiled into this function only (and into the stream loops,
 which FMUs never call).
@@ -39,12 +43,13 @@ from .layout import (F_COND, I_AMBIGUOUS, I_CERTAIN, I_LABEL, I_N_REAL, I_NEAR_B
                      OUT_INFO, OUT_X)
 from .stepper import copy_state, tracker_advance
 
-__all__ = ["entry", "make_table", "CMD_ADVANCE", "CMD_PACKED", "CMD_PUBLISH", "FALL_BACK", "IO_SIZE", "SLOTS",
+__all__ = ["entry", "make_table", "CMD_ADVANCE", "CMD_PACKED", "CMD_PUBLISH", "FALL_BACK", "PUBLISHED", "IO_SIZE", "SLOTS",
            "N_ARRAYS"]
 
 CMD_ADVANCE, CMD_PACKED, CMD_PUBLISH = 0, 1, 2
-#: What a :data:`CMD_PUBLISH` step returns when it undid itself (the caller takes the step its own way).
-FALL_BACK = 1
+#: What a :data:`CMD_PUBLISH` step returns when it undid itself (the caller takes the step its own way),
+#: and when it published (anything else, 0 from a cfunc whose kernel raised included, is not published).
+FALL_BACK, PUBLISHED = 1, 2
 
 # the arrays of the table, 4 int64 each: address, then up to three dimensions
 (T_A, T_PK, T_MODEL, T_S2S, T_LABELS, T_MAP, T_STENCIL, T_PARAMS, T_OUT_REAL, T_OUT_INT, T_ANYTIME, T_IO, T_BACKUP,
@@ -58,7 +63,9 @@ IO_Q, IO_DT, IO_DEADLINE = 0, 3, 4                   # in: joints (rad), time si
 IO_SHARE, IO_RATE, IO_EPISODE = 5, 6, 7              # publish, in: budget share of h, cycles per second, status
 IO_SINCE_STEP, IO_SINCE_TIME = 8, 9                  # publish, in/out: the uncertain episode (NaN: none), its time
 IO_TIME, IO_NO_BOUND, IO_STEPS = 10, 11, 12          # publish, out: t + h; in: the bound of no bound; out: count
-IO_SIZE = 13
+IO_DONE = 13                                         # out: 1.0 when the call ran to its end (0.0: it raised)
+IO_LAST_Q, IO_LAST_H = 14, 17                        # publish, out: joints (3) and h of the last published step
+IO_SIZE = 18
 
 #: The slots of a published step: value references in the caller's value arrays (float64 ``real``,
 #: int32 ``integer``, int32 ``boolean``), in this order.
@@ -70,7 +77,7 @@ SLOTS = ("q1", "q2", "q3", "x", "y", "phi", "region", "near_border", "n_real", "
 
 @njit(cache=False)                  # compiled into the entry point only
 def _publish(tb, t, h, a, pk, model, s2s, labels, mp, stencil, params, out_real, out_int, anytime, io):
-    """The guarded step of :data:`CMD_PUBLISH` (see the module doc); 0 when published."""
+    """The guarded step of :data:`CMD_PUBLISH` (see the module doc); :data:`PUBLISHED` or :data:`FALL_BACK`."""
     backup = carray(address_pointer(tb[4 * T_BACKUP]), (tb[4 * T_BACKUP + 1],), np.float64)
     real = carray(address_pointer(tb[4 * T_REAL]), (tb[4 * T_REAL + 1],), np.float64)
     integer = carray(address_pointer(tb[4 * T_INT]), (tb[4 * T_INT + 1],), np.int32)
@@ -113,9 +120,12 @@ def _publish(tb, t, h, a, pk, model, s2s, labels, mp, stencil, params, out_real,
     boolean[slots[S_AMBIGUOUS]] = 1 if out_int[I_AMBIGUOUS] != 0 else 0
     boolean[slots[S_CERTAIN]] = 1 if certain else 0
     boolean[slots[S_OOB]] = 1 if deadline > 0.0 and not certain and anytime[ANY_CUT] > 0.0 else 0
+    for i in range(3):
+        io[IO_LAST_Q + i] = q[i]
+    io[IO_LAST_H] = h
     io[IO_TIME] = t + h
     io[IO_STEPS] += 1.0
-    return 0
+    return PUBLISHED
 
 
 def _step(table, cmd, t, h):
@@ -134,12 +144,16 @@ def _step(table, cmd, t, h):
     out_int = carray(address_pointer(tb[4 * T_OUT_INT]), (tb[4 * T_OUT_INT + 1],), np.int64)
     anytime = carray(address_pointer(tb[4 * T_ANYTIME]), (tb[4 * T_ANYTIME + 1],), np.float64)
     io = carray(address_pointer(tb[4 * T_IO]), (tb[4 * T_IO + 1],), np.float64)
+    io[IO_DONE] = 0.0
     if cmd == CMD_PUBLISH:
         if tb[4 * T_SLOTS] == 0:
             return FALL_BACK
-        return _publish(tb, t, h, a, pk, model, s2s, labels, mp, stencil, params, out_real, out_int, anytime, io)
-    return tracker_advance(tb[T_MODE], tb[T_RULE], io[IO_Q:IO_Q + 3], io[IO_DT], io[IO_DEADLINE], a, pk, model, s2s,
-                           labels, mp, stencil, params, out_real, out_int, anytime, cmd == CMD_PACKED)
+        r = _publish(tb, t, h, a, pk, model, s2s, labels, mp, stencil, params, out_real, out_int, anytime, io)
+    else:
+        r = tracker_advance(tb[T_MODE], tb[T_RULE], io[IO_Q:IO_Q + 3], io[IO_DT], io[IO_DEADLINE], a, pk, model, s2s,
+                            labels, mp, stencil, params, out_real, out_int, anytime, cmd == CMD_PACKED)
+    io[IO_DONE] = 1.0           # (a kernel that raised returns 0 from the cfunc, with this still 0.0)
+    return r
 
 
 _SIGNATURE = types.int64(types.voidptr, types.int64, types.float64, types.float64)
