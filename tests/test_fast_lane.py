@@ -160,3 +160,25 @@ def test_the_closed_loop_through_the_lanes_is_the_python_paths(loop, monkeypatch
     assert set(fast.columns) == set(slow.columns)
     for name, column in fast.columns.items():
         assert np.array_equal(column, slow.columns[name], equal_nan=True), name
+
+
+def test_zero_and_uneven_step_sizes_through_the_lane(make, monkeypatch):
+    """doStep with h = 0 (the joints read again, no time passes) and uneven h: the lane's steps are the
+    Python path's, bit for bit (dt = h, or unknown for h = 0, as the slave's step passes it)."""
+    fast, slow = _pair(make, monkeypatch)
+    sizes = [H, H, 0.0, 2 * H, H / 2, 0.0, H] * 6
+    rows = {}
+    for name, m in (("fast", fast), ("slow", slow)):
+        out, t = [], 0.0
+        for k, h in enumerate(sizes):
+            m.set_q(Q[k])
+            m.fmu.doStep(t, h)
+            t += h
+            out.append(tuple(m.get_values(ALL)))
+        rows[name] = out
+    assert rows["fast"] == rows["slow"]
+    status = [r[ALL.index("status")] for r in rows["fast"]]
+    changes = sum(a != b for a, b in zip([0, *status], status))      # each taken by Python (it logs them)
+    from solver.tracker import GRID_WATCH      # the first readings after an exact start: the encoder-grid watch
+
+    assert _slave("fast").lane_counts[0] == len(sizes) - changes - GRID_WATCH
