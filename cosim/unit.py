@@ -249,7 +249,7 @@ class FMUUnit:
         from fmpy.fmi2 import fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions
         from fmpy.logging import addLoggerProxy
 
-        token = next(_TOKENS)
+        token = self._log_token = next(_TOKENS)
         _UNIT_LOGS[token] = self.messages
         callbacks = fmi2CallbackFunctions()
         callbacks.logger = _shared_logger()
@@ -344,9 +344,7 @@ class FMUUnit:
             pass
         self.fmu.fmi2FreeInstance(self.fmu.component)
         self.fmu = None
-        for token, messages in list(_UNIT_LOGS.items()):     # this unit's log is its own list now
-            if messages is self.messages:
-                del _UNIT_LOGS[token]
+        _UNIT_LOGS.pop(self._log_token, None)               # this unit's log is its own list now
 
     def __enter__(self):
         return self

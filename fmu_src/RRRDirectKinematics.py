@@ -16,8 +16,6 @@ from fmu_src.wrapper_refs import hold_globals
 hold_globals(globals())   # pythonfmu's wrapper releases a reference to this module's globals per instantiation
 require(__file__)
 
-import hashlib
-import json
 import math
 from pathlib import Path
 
@@ -28,7 +26,8 @@ from pythonfmu.enums import Fmi2Status
 from fmu_src.dk_variables import NO_BOUND, dk_outputs, initial_pose, sensor_parameters
 from fmu_src.table_slave import TableSlave, Var
 from fmu_src.dk_lane import DKLane  # noqa: I001 - after table_slave (it installs the kernel cache)
-from solver import (HOME_POSE, START_TOLERANCE, STATUS, Manipulator, MapTensor, MapTensorFileError, Tracker, TrackerState, dk_all,
+from fmu_src.dk_maps import load_maps
+from solver import (HOME_POSE, START_TOLERANCE, STATUS, Manipulator, Tracker, TrackerState, dk_all,
                     ik, jacobians, wrap_angle)
 from solver._kernels.clock import cycles_per_second
 from solver.geometry_tolerance import geometry_tolerance
@@ -118,7 +117,7 @@ class RRRDirectKinematics(DKLane, TableSlave):
     # ------------------------------------------------------------------ instantiation
     def setup(self):
         try:
-            self._maps, self._model = self._load_maps(Path(self.resources) / self.MAP_DIR)
+            self._maps, self._model = load_maps(Path(self.resources) / self.MAP_DIR, type(self).__name__)
         except Exception as exc:
             # instantiation fails (fmi2Instantiate returns NULL; pythonfmu logs the exception with status
             # fmi2Fatal when loggingOn): say why on Python logging too, fmpy.simulate_fmu shows no log
@@ -130,46 +129,6 @@ class RRRDirectKinematics(DKLane, TableSlave):
         self._episode = 0
         self._since = None
         self._cache = None
-
-    @classmethod
-    def _load_maps(cls, folder: Path):
-        """Read resources/maps/manifest.json and every map it lists; refuse anything that does not check out."""
-        where = f"{cls.__name__}: embedded map tensors ({folder})"
-        manifest = folder / "manifest.json"
-        try:
-            entries = json.loads(manifest.read_text())["maps"]
-        except FileNotFoundError:
-            raise MapTensorFileError(f"{where}: resources/{cls.MAP_DIR}/manifest.json is missing "
-                                     "(FMU not built by build_fmu.py, or damaged)") from None
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise MapTensorFileError(f"{where}: unreadable manifest.json ({type(exc).__name__}: {exc})") from None
-        if not entries:
-            raise MapTensorFileError(f"{where}: manifest.json lists no map")
-        maps, model = {}, None
-        for entry in entries:
-            try:
-                posture, name, size, sha = int(entry["posture"]), str(entry["file"]), entry["bytes"], entry["sha256"]
-            except (KeyError, TypeError, ValueError) as exc:
-                raise MapTensorFileError(f"{where}: malformed manifest entry {entry!r} ({exc})") from None
-            path = folder.parent / name
-            if not path.is_file():
-                raise MapTensorFileError(f"{where}: the map of posture {posture}, resources/{name}, is missing")
-            data = path.read_bytes()
-            digest = hashlib.sha256(data).hexdigest()
-            if len(data) != size or digest != sha:
-                raise MapTensorFileError(
-                    f"{where}: the map of posture {posture}, resources/{name}, is truncated or modified: "
-                    f"{len(data)} bytes, sha256 {digest[:16]}...; the build recorded {size} bytes, "
-                    f"sha256 {str(sha)[:16]}...")
-            try:
-                mt = MapTensor.load(path, posture=posture)
-            except MapTensorFileError as exc:
-                raise MapTensorFileError(f"{where}: {exc}") from None
-            if model is not None and mt.model.digest() != model.digest():
-                raise MapTensorFileError(f"{where}: the maps were built for different geometries")
-            model = mt.model
-            maps[posture] = mt
-        return maps, model
 
     def _sensor_options(self):
         """(joint_tolerance, speed_bound, stuck_after) of the parameters, checked."""
