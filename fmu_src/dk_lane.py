@@ -51,11 +51,15 @@ class DKLane(TableLane):
             return
         try:
             lane = self._lane_made()
-            slots = np.array([self.VR[name] for name in (*self.JOINTS, *SLOTS[3:])], dtype=np.int64)
+            slots = self._lane_slots()
             step, table = self._tracker.c_step(lane.real, lane.integer, lane.boolean, slots)
             self._lane_connect(step, table, self._tracker.c_io, IO_TIME, IO_STEPS, slots)
         except Exception as exc:  # noqa: BLE001 - no lane: every call on the Python path, as before
             self._lane_failed(exc)
+
+    def _lane_slots(self) -> np.ndarray:
+        # the compiled step's slots: this slave's joint inputs (a subclass may rename them), then the outputs
+        return np.array([self.VR[name] for name in (*self.JOINTS, *SLOTS[3:])], dtype=np.int64)
 
     def _lane_ready(self) -> bool:
         tracker = self._tracker
