@@ -6,7 +6,7 @@ import pytest
 from conftest import coarse_map, pose_distance
 from experiments.sensors import Sensor
 from solver import Tracker, dk_all, ik, wrap_angle
-from solver._kernels.eliminant import Q_SIZE, eliminant, eliminant_certificate, joint_box_elbows
+from solver._kernels.eliminant import PHI_STEP, Q_SIZE, eliminant, eliminant_certificate, joint_box_elbows, run_box
 from solver._kernels.exclusion import EXCLUSION_COVERS, exclusion_cover
 from solver._kernels.kinematics import geometry
 from solver._kernels.tube import TUBE_SIZE, tube_test
@@ -167,3 +167,24 @@ def test_the_tracker_stays_certain_through_a_needle_the_tubes_cannot_hold(model)
             assert np.all(err <= info.pose_bound), k
         n_certain += info.certain
     assert n_certain >= 0.6 * (len(q) - 1)          # 117 of 159 (the tube covers alone: 0, coarse map)
+
+
+def test_the_enclosure_of_a_run_stops_at_the_deadline(model, geo):
+    """The pose enclosure of a long run (the needle next to a fold, 30 intervals) spends up to
+    REFINE_EVALS interval evaluations: it stops at a deadline that has passed (a cycle count of 1) and
+    says so (False), where without one it closes; the certificate that needs it refuses too.  (A step
+    budget bounds this search: before it did not, and steps ran a millisecond over 500 us.)"""
+    M, l1, l2sq, b = geo
+    q0 = ik(model, NEAR_FOLD, 3) + TOL * np.array([0.3, -0.5, 0.2])
+    X0 = min(dk_all(model, q0).real_poses(), key=lambda p: pose_distance(p, NEAR_FOLD))
+    D0, D1 = np.empty((3, Q_SIZE)), np.empty((3, Q_SIZE))
+    joint_box_elbows(q0, np.full(3, TOL), M, l1, D0, D1)
+    n = int(np.ceil(0.3 / PHI_STEP))
+    edges = X0[2] - 0.15 + 0.3 * np.arange(n + 1) / n
+    run = np.column_stack([edges[:-1], edges[1:]])
+    ev, box = np.empty(10), np.empty(6)
+    assert run_box(run, n, D0, D1, b, l2sq, ev, box)
+    assert box[4] <= X0[2] <= box[5]
+    assert not run_box(run, n, D0, D1, b, l2sq, ev, box, 1.0)
+    assert not eliminant_certificate(X0[2], q0, np.full(3, TOL), X0[2] - 0.15, X0[2] + 0.15, M, l1, l2sq, b,
+                                     box, 1.0)

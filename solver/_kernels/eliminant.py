@@ -262,16 +262,18 @@ def eliminant_certificate(phi_c, qc, tol, plo, phi, M, l1, l2sq, b, bound_box, d
             r_lo, r_hi = run[0, 0], run[n_run - 1, 1]
             mine = r_lo <= phi_c <= r_hi if phi_c == phi_c else False
             if mine or (end_signs(r_lo, r_hi, D0, D1, b, l2sq, ev) != 1 and not (
-                    posture_bits >= 0 and run_box(run, n_run, D0, D1, b, l2sq, ev, other)
+                    posture_bits >= 0 and run_box(run, n_run, D0, D1, b, l2sq, ev, other, deadline)
                     and posture_misses(other, qc, eps, posture_bits, M, l1, l2sq, b))):
                 # the run of the solution (or, with phi_c NaN, the one run that may hold a root in the
                 # posture): at most one root per joint vector
                 if found or not (mine or phi_c != phi_c):
                     return False                       # another run may hold a root
-                if not run_box(run, n_run, D0, D1, b, l2sq, ev, bound_box):
+                if not run_box(run, n_run, D0, D1, b, l2sq, ev, bound_box, deadline):
                     return False
                 found = True
             cur_on, n_run = False, 0
+            if expired(deadline):                      # a run's enclosure is not free: the budget first
+                return False
         if done:
             break
         if free:
@@ -303,11 +305,12 @@ REFINE_EVALS = 192
 
 
 @njit(cache=True)
-def run_box(run, n, D0, D1, b, l2sq, ev, box):
+def run_box(run, n, D0, D1, b, l2sq, ev, box, deadline=0.0):
     """The pose box (6,) over the run's intervals ``run[:n]``: each interval is halved where that lets a half
     drop (``f`` cannot vanish on it: no root there), within :data:`REFINE_EVALS` evaluations, the narrowest
     a hundredth of the interval; ``P = n / delta`` is enclosed over the pieces left (False when ``delta``
-    may vanish on one), phi is their span (False when no piece is left: the run holds no root)."""
+    may vanish on one), phi is their span (False when no piece is left: the run holds no root).  False too
+    when the ``deadline`` (:mod:`.clock`) passes first: the box is then unknown."""
     box[0], box[1], box[2], box[3] = np.inf, -np.inf, np.inf, -np.inf
     box[4], box[5] = np.inf, -np.inf
     stack = np.empty((64, 2))
@@ -321,6 +324,8 @@ def run_box(run, n, D0, D1, b, l2sq, ev, box):
             lo, hi = stack[top, 0], stack[top, 1]
             eliminant(0.5 * (lo + hi), 0.5 * (hi - lo), D0, D1, b, l2sq, ev)
             budget -= 1
+            if budget % 16 == 0 and expired(deadline):
+                return False
             if ev[0] > 0.0 or ev[1] < 0.0:
                 continue                               # f cannot vanish here: no root, no pose
             if budget > 2 and hi - lo > least and top + 2 <= stack.shape[0]:
