@@ -182,3 +182,83 @@ def test_zero_and_uneven_step_sizes_through_the_lane(make, monkeypatch):
     from solver.tracker import GRID_WATCH      # the first readings after an exact start: the encoder-grid watch
 
     assert _slave("fast").lane_counts[0] == len(sizes) - changes - GRID_WATCH
+
+
+def test_two_instances_step_on_two_threads_at_once(make, monkeypatch):
+    """FMI lets a host call two instances from two threads at once: their lanes step them concurrently
+    (the compiled step runs without the interpreter; the slave's pull and push take the GIL from the
+    host's thread), and each gives the Python path's results, bit for bit, episodes logged included."""
+    import threading
+
+    a, b = make("a", **circle_start()), make("b", **circle_start())
+    monkeypatch.setenv("RRR_DK_FAST_LANE", "0")
+    slow = make("slow", **circle_start())
+    monkeypatch.delenv("RRR_DK_FAST_LANE")
+    stream = _excursion()
+    rows, errors, barrier = {}, [], threading.Barrier(2)
+
+    def run(name, m):
+        try:
+            barrier.wait()
+            rows[name] = _run(m, stream, probe_every=5)
+        except BaseException as e:          # noqa: BLE001 (the main thread reports it)
+            errors.append(e)
+
+    threads = [threading.Thread(target=run, args=(n, m)) for n, m in (("a", a), ("b", b))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
+    reference = _run(slow, stream, probe_every=5)
+    assert rows["a"] == reference and rows["b"] == reference
+    for name in ("a", "b"):
+        assert _slave(name).lane_counts[0] >= len(stream) - 6
+
+
+def test_a_step_budget_through_the_lane(make, monkeypatch):
+    """With a budget of 100 ns a step (step_budget_share 1e-4 at h = 1 ms) every search does its least
+    and stops: the lane's steps are the Python path's, bit for bit, out of budget and not certain;
+    given time (h = 10 s: 1 ms), both close the proof at the same step."""
+    fast, slow = _pair(make, monkeypatch, step_budget_share=1e-4)
+    rows = [_run(m, Q[:20]) for m in (fast, slow)]
+    assert rows[0] == rows[1]
+    flags = [(r[ALL.index("certain")], r[ALL.index("out_of_budget")]) for r in rows[0]]
+    assert flags[:3] == [(False, True)] * 3
+    assert _slave("fast").lane_counts[0] >= 17
+    for m in (fast, slow):
+        m.set_q(Q[20])
+        m.fmu.doStep(m.t, 10.0)
+    assert tuple(fast.get_values(ALL)) == tuple(slow.get_values(ALL))
+    assert fast.get_values(["certain", "out_of_budget"]) == [True, False]
+
+
+def test_the_plants_state_saved_after_lane_steps_restores_them(fmus):
+    """The plant FMU behind its lane (its RK4 substeps compiled, called by the loader): an FMU state saved
+    after lane steps holds them (the slave pulls the lane's state first), and restored, the same torques
+    give the same trajectory, bit for bit."""
+    from cosim.unit import FMUUnit
+
+    unit = FMUUnit(fmus["RRRPlant"], "plant-lane")
+    try:
+        unit.initialize(0.0, {})
+        names = ["q1", "q2", "q3", "dq1", "dq2", "dq3", "x_true", "y_true", "phi_true"]
+
+        def run(k0, n):
+            out = []
+            for k in range(k0, k0 + n):
+                unit.set_values({"tau1": 0.2 * math.sin(k / 20), "tau2": -0.1, "tau3": 0.05 * math.cos(k / 15)})
+                unit.fmu.doStep(k * H, H)
+                out.append(tuple(unit.get_values(names)))
+            return out
+
+        run(0, 50)
+        state = unit.fmu.getFMUstate()
+        first = run(50, 40)
+        unit.fmu.setFMUstate(state)
+        unit.fmu.freeFMUstate(state)
+        assert run(50, 40) == first
+        assert first[-1] != first[0]                                   # the plant moved
+        assert _slave("plant-lane", "RRRPlant").lane_counts[0] >= 120
+    finally:
+        unit.close()
