@@ -15,6 +15,10 @@ A slave uses it in three steps (``fmu_src/RRRDirectKinematics.py``)::
     lane.connect(step_address, table)         # the compiled step and its table
     self.log(lane.hand_over(), category=LANE_CATEGORY)   # the loader takes the lane from the logger
 
+The FMI 3.0 loader serves the same arrays by FMI 3.0 value reference: an FMI 3.0 variable made of
+consecutive core variables (an array, ``fmu_src/fmi3_adapter.py``) is read and set there in one
+piece (:meth:`FastLane.map3`).
+
 Set ``RRR_DK_FAST_LANE=0`` in the host's environment to keep every call on the Python path (the
 reference the lane is tested against).
 """
@@ -22,17 +26,17 @@ from __future__ import annotations
 
 import ctypes
 import os
-import sys
-from pathlib import Path
 
 import numpy as np
+
+from .fmi_states import behind_loader
 
 __all__ = ["FastLane", "LaneStruct", "LANE_CATEGORY", "VERSION", "available"]
 
 #: the logger category of the hand-over (the loader's LANE_CATEGORY)
 LANE_CATEGORY = "rrrdkFastLane"
 #: the layout version of :class:`LaneStruct` (the loader's LANE_VERSION)
-VERSION = 1
+VERSION = 2
 REAL, INTEGER, BOOLEAN, SET, OUTPUT, DIRTIES = 1, 2, 4, 8, 16, 32
 _TYPE_BIT = {"Real": REAL, "Integer": INTEGER, "Boolean": BOOLEAN}
 
@@ -44,16 +48,17 @@ class LaneStruct(ctypes.Structure):
                 ("dirty", ctypes.c_int64), ("n_vr", ctypes.c_int64), ("real", ctypes.c_void_p),
                 ("integer", ctypes.c_void_p), ("boolean", ctypes.c_void_p), ("flags", ctypes.c_void_p),
                 ("step", ctypes.c_void_p), ("table", ctypes.c_void_p), ("pull", ctypes.c_void_p),
-                ("push", ctypes.c_void_p), ("fast_steps", ctypes.c_int64), ("fast_calls", ctypes.c_int64)]
+                ("push", ctypes.c_void_p), ("fast_steps", ctypes.c_int64), ("fast_calls", ctypes.c_int64),
+                ("n_vr3", ctypes.c_int64), ("first3", ctypes.c_void_p), ("count3", ctypes.c_void_p)]
 
 
 def available(resources) -> bool:
-    """Whether an instance of the FMU whose ``resources`` folder this is can have a lane: behind the FMI
-    2.0 loader (pythonfmu's wrapper beside it in ``binaries/linux64``; the FMI 3.0 loader has no lane
-    yet), and ``RRR_DK_FAST_LANE`` is not ``0``."""
-    if os.environ.get("RRR_DK_FAST_LANE", "1").strip() == "0" or not sys.platform.startswith("linux"):
+    """Whether an instance of the FMU whose ``resources`` folder this is can have a lane: behind the
+    project's FMI 2.0 or FMI 3.0 loader (:func:`fmu_src.fmi_states.behind_loader`), and
+    ``RRR_DK_FAST_LANE`` is not ``0``."""
+    if os.environ.get("RRR_DK_FAST_LANE", "1").strip() == "0":
         return False
-    return bool(resources) and (Path(resources).parent / "binaries" / "linux64" / "libpythonfmu-export.so").is_file()
+    return behind_loader(resources)
 
 
 class FastLane:
@@ -110,6 +115,24 @@ class FastLane:
         self._table = table
         self.struct.step = step
         self.struct.table = table.ctypes.data
+
+    def map3(self, first: np.ndarray, count: np.ndarray) -> None:
+        """The FMI 3.0 value references over the lane's: FMI 3.0 value reference k is the lane's
+        ``first[k] .. first[k] + count[k] - 1`` (``first[k]`` < 0: not served by the lane).
+
+        Parameters
+        ----------
+        first, count : array_like of int, shape (n_vr3,)
+        """
+        first, count = np.ascontiguousarray(first, dtype=np.int64), np.ascontiguousarray(count, dtype=np.int64)
+        n = len(self.flags)
+        if first.shape != count.shape or first.ndim != 1 or np.any((first >= 0) & ((count <= 0) | (first + count > n))):
+            raise ValueError(f"map3: expected first and count (n,) int within the lane's {n} value references, got "
+                             f"{first.tolist()} and {count.tolist()}")
+        self._map3 = (first, count)            # kept alive: the loader reads them
+        self.struct.n_vr3 = len(first)
+        self.struct.first3 = first.ctypes.data
+        self.struct.count3 = count.ctypes.data
 
     def write(self, slave) -> None:
         """The slave's variables into the arrays (a push)."""

@@ -48,6 +48,7 @@ from pythonfmu3.enums import Fmi3Causality, Fmi3Initial, Fmi3Status, Fmi3Variabi
 from pythonfmu3.fmi3slave import Fmi3StepResult
 from pythonfmu3.variables import Dimension
 
+from .fast_lane import LANE_CATEGORY
 from .fmi_states import (ERROR, HAND_OFF_CATEGORY, INITIALIZATION_MODE, INSTANTIATED, STEP_COMPLETE, STEP_FAILED,
                          TERMINATED)
 
@@ -147,6 +148,7 @@ class Fmi3Adapter:
         self.core = self.CORE(fmi_strict="logger" in kwargs, **core_kwargs)
         for name, value in self.START.items():
             setattr(self.core, name, value)
+        self.core._lane_map3 = self._map3()       # the core's fast lane, if any, serves the FMI 3.0 calls
         self.modelName = type(self).__name__
         for attr in ("description", "author", "version", "license", "default_experiment"):
             setattr(self, attr, getattr(self.CORE, attr, None))
@@ -155,6 +157,16 @@ class Fmi3Adapter:
             self.register_variable(self._variable(vr, row, table.get(row.core[0]) if row.core else None),
                                    nested=False)
         self._relay()
+
+    @classmethod
+    def _map3(cls):
+        """(first, count) by FMI 3.0 value reference: the core value references a variable is made of, when
+        they are consecutive (what the loader's fast lane can serve in one piece); first -1 otherwise."""
+        first, count = [-1] * len(cls.ROWS), [0] * len(cls.ROWS)
+        for vr, core in cls._core_vrs.items():
+            if list(core) == list(range(core[0], core[0] + len(core))):
+                first[vr], count[vr] = core[0], len(core)
+        return first, count
 
     def to_xml(self, *args, **kwargs):
         """pythonfmu3's model description (in process, not an FMI call: it reads the start values with
@@ -331,8 +343,8 @@ class Fmi3Adapter:
         the core escapes '%' for FMI 2.0's printf-style logger, FMI 3.0's takes the text as it is)."""
         queue = self.core.log_queue
         for m in queue:
-            if m.category == HAND_OFF_CATEGORY:          # the core's hand-off, for the C loader only
-                self.log(m.msg.replace("%%", "%"), Fmi3Status(int(m.status)), HAND_OFF_CATEGORY)
+            if m.category in (HAND_OFF_CATEGORY, LANE_CATEGORY):     # the core's hand-offs, for the C loader only
+                self.log(m.msg.replace("%%", "%"), Fmi3Status(int(m.status)), m.category)
                 continue
             category = m.category if m.category in self.log_categories else None
             self.log(m.msg.replace("%%", "%"), Fmi3Status(int(m.status)), category)

@@ -41,12 +41,18 @@ class TableLane:
     #: the slave's variables in the order of its compiled step's slots
     LANE_SLOTS: tuple = ()
     _lane = None
+    #: (first, count): the FMI 3.0 value references over this slave's (an FMI 3.0 adapter sets it,
+    #: :meth:`fmu_src.fast_lane.FastLane.map3`); None behind the FMI 2.0 loader
+    _lane_map3 = None
 
     def _lane_made(self) -> FastLane:
         """The slave's lane: its value arrays (made on first use, kept for the instance's life)."""
         if self._lane is None:
             cls = type(self)
-            self._lane = FastLane(cls._table, self._lane_pull, self._lane_push, cls._marks_dirty)
+            lane = FastLane(cls._table, self._lane_pull, self._lane_push, cls._marks_dirty)
+            if self._lane_map3 is not None:
+                lane.map3(*self._lane_map3)
+            self._lane = lane
         return self._lane
 
     def _lane_connect(self, step: int, table: np.ndarray, io: np.ndarray, io_time: int, io_steps: int,
@@ -62,7 +68,7 @@ class TableLane:
             self.log(lane.hand_over(), Fmi2Status.ok, category=LANE_CATEGORY)
 
     def _lane_wanted(self) -> bool:
-        """Whether this instance runs behind the FMI 2.0 loader and may have a lane; also in the kernel
+        """Whether this instance runs behind the project's loader and may have a lane; also in the kernel
         warm-up's child (``RRR_DK_FAST_LANE=warm-up``, :func:`fmu_src.kernel_warmup.replay`), which makes
         the lane without a loader so that the compiled steps it calls are compiled there, never on a
         host's thread."""

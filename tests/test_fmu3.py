@@ -385,3 +385,56 @@ def test_a_missing_package_is_named(built3, tmp_path):
     assert "fmpy:" in proc.stdout
     assert "No module named 'rrr_dk_absent' (the FMU needs rrr-dk-absent>=1.0)" in proc.stderr
     assert '-m pip install "rrr-dk-absent>=1.0"' in proc.stderr
+
+
+# ---------------------------------------------------------------------- the fast lane behind the FMI 3.0 loader
+def _core(name):
+    """The live FMI 2.0 core (RRRDirectKinematics) of the FMI 3.0 instance ``name`` in this process."""
+    import gc
+    gc.collect()
+    found = [o for o in gc.get_objects()
+             if type(o).__name__ == "RRRDirectKinematics" and getattr(o, "instance_name", None) == name]
+    assert len(found) == 1, found
+    return found[0]
+
+
+def test_the_fast_lane_serves_the_fmi3_calls_bit_for_bit(md3, dir3, monkeypatch):
+    """Behind the FMI 3.0 loader the DK slave's fast lane answers fmi3SetFloat64(q), fmi3DoStep and the
+    gets of the outputs (arrays included) without Python: the same outputs, doStep results and time as
+    the Python path (RRR_DK_FAST_LANE=0), bit for bit, through an unreachable episode that Python logs
+    once each way; a get of ``time`` with the pose goes to Python and reads the lane's steps."""
+    outputs = [("pose", "Float64", 3), ("pose_bound", "Float64", 3), ("cond", "Float64", 1),
+               ("uncertain_since", "Float64", 1), ("region", "Int32", 1), ("n_real", "Int32", 1),
+               ("status", "Int32", 1), ("trust", "Int32", 1), ("near_border", "Boolean", 1),
+               ("ambiguous", "Boolean", 1), ("certain", "Boolean", 1), ("out_of_budget", "Boolean", 1)]
+    ramp = np.concatenate([np.arange(16), np.arange(14, -1, -1)]) * 0.05
+    excursion = np.repeat(Q[100][None], len(ramp), axis=0)
+    excursion[:, 1] += ramp
+    stream = np.concatenate([Q[1:100], excursion, Q[101:260]])
+
+    def run(m):
+        rows = []
+        for q in stream:
+            m.fmu.setFloat64([m.vr["q"]], [float(v) for v in q])
+            done = m.fmu.doStep(m.t, H)
+            m.t += H
+            rows.append((tuple(done), *(tuple(m.get(n, kind, k)) for n, kind, k in outputs)))
+        rows.append(tuple(m.fmu.getFloat64([m.vr["time"], m.vr["pose"]], nValues=4)))
+        return rows
+
+    fast = Dk3(md3, dir3, "lane3")
+    monkeypatch.setenv("RRR_DK_FAST_LANE", "0")
+    slow = Dk3(md3, dir3, "nolane3")
+    monkeypatch.delenv("RRR_DK_FAST_LANE")
+    rows = run(fast)
+    assert rows == run(slow)
+    assert rows[-1][0] == pytest.approx(len(stream) * H, abs=1e-12)
+    steps, calls = _core("lane3").lane_counts
+    assert len(stream) - 6 <= steps < len(stream)          # the episode's changes go to Python (it logs them)
+    assert calls > 3 * steps
+    assert _core("nolane3").lane_counts == (0, 0)
+    for m in (fast, slow):
+        texts = [msg for _, msg in m.messages]
+        assert sum("no real direct-kinematics solution" in t for t in texts) == 1
+        assert sum("ok again" in t for t in texts) == 1
+        m.close()

@@ -102,6 +102,59 @@ LANE_GET(lane_get_real, double, real, LANE_REAL)
 LANE_GET(lane_get_integer, int, integer, LANE_INTEGER)
 LANE_GET(lane_get_boolean, int, boolean, LANE_BOOLEAN)
 
+/* FMI 3.0: every value reference mapped onto core value references the lane serves (all bits of
+ * ``want``, none of ``stale`` while dirty), ``n`` values in all; else 0 */
+static int lane3_serves(const Lane* lane, const uint32_t vr[], size_t nvr, size_t n, unsigned want)
+{
+    unsigned stale = lane->dirty ? LANE_OUTPUT : 0u;
+    if (!lane->first3 || !lane->count3 || (nvr && !vr)) return 0;
+    size_t total = 0;
+    for (size_t i = 0; i < nvr; i++) {
+        if ((int64_t)vr[i] >= lane->n_vr3) return 0;
+        int64_t first = lane->first3[vr[i]], count = lane->count3[vr[i]];
+        if (first < 0 || count <= 0 || first + count > lane->n_vr) return 0;
+        for (int64_t k = first; k < first + count; k++) {
+            unsigned f = lane->flags[k];
+            if ((f & want) != want || (f & stale)) return 0;
+        }
+        total += (size_t)count;
+    }
+    return total == n;
+}
+
+int lane3_set_float64(Lane* lane, const uint32_t vr[], size_t nvr, const double v[], size_t n)
+{
+    if ((n && !v) || !lane3_serves(lane, vr, nvr, n, LANE_REAL | LANE_SET)) return 0;
+    size_t j = 0;
+    for (size_t i = 0; i < nvr; i++) {
+        for (int64_t k = lane->first3[vr[i]], end = k + lane->count3[vr[i]]; k < end; k++) {
+            lane->real[k] = v[j++];
+            if (lane->flags[k] & LANE_DIRTIES) lane->dirty = 1;
+        }
+    }
+    if (n) lane->py_stale = 1;
+    lane->fast_calls++;
+    return 1;
+}
+
+/* an FMI 3.0 get of one type: every value reference served, else 0 (the call goes to Python) */
+#define LANE3_GET(name, type, array, bit, convert) \
+    int name(Lane* lane, const uint32_t vr[], size_t nvr, type v[], size_t n) \
+    { \
+        if ((n && !v) || !lane3_serves(lane, vr, nvr, n, (bit))) return 0; \
+        size_t j = 0; \
+        for (size_t i = 0; i < nvr; i++) \
+            for (int64_t k = lane->first3[vr[i]], end = k + lane->count3[vr[i]]; k < end; k++) \
+                v[j++] = convert(lane->array[k]); \
+        lane->fast_calls++; \
+        return 1; \
+    }
+#define AS_IS(x) (x)
+#define AS_BOOL(x) ((x) != 0)
+LANE3_GET(lane3_get_float64, double, real, LANE_REAL, AS_IS)
+LANE3_GET(lane3_get_int32, int32_t, integer, LANE_INTEGER, AS_IS)
+LANE3_GET(lane3_get_boolean, bool, boolean, LANE_BOOLEAN, AS_BOOL)
+
 int lane_do_step(Lane* lane, double t, double h)
 {
     if (lane->step(lane->table, LANE_CMD_PUBLISH, t, h) != LANE_PUBLISHED) {

@@ -17,17 +17,23 @@
  * step; otherwise (FALL_BACK: not routine, an episode to log, a value not finite; it has undone itself;
  * or 0: a compiled kernel raised) the loader forwards the doStep to Python, which takes the same step
  * from the committed state and logs or refuses as it always does.
+ *
+ * FMI 3.0 (layout version 2).  The FMI 3.0 DK FMU's variables are arrays over its core's scalars
+ * (fmu_src/fmi3_adapter.py): its value reference k is the core's value references first3[k] ..
+ * first3[k] + count3[k] - 1 (first3[k] < 0: not served), and the lane3_* calls take FMI 3.0's
+ * arguments (value references, then the number of values) on the same arrays.
  */
 #ifndef RRR_DK_FAST_LANE_H
 #define RRR_DK_FAST_LANE_H
 
+#include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 
 /* the logger category of the slave's lane hand-over */
 #define LANE_CATEGORY "rrrdkFastLane"
 /* the layout version of Lane (fmu_src/fast_lane.py: VERSION) */
-#define LANE_VERSION 1
+#define LANE_VERSION 2
 
 /* flags[vr] bits */
 #define LANE_REAL 1u      /* a Real variable */
@@ -58,6 +64,9 @@ typedef struct {
     void* push;               /* PyObject*: the slave's bound method that writes them */
     int64_t fast_steps;       /* doSteps the lane took (diagnostics; the slave reads it) */
     int64_t fast_calls;       /* get/set calls the lane answered (diagnostics) */
+    int64_t n_vr3;            /* FMI 3.0 value references 0 .. n_vr3 - 1 (0: no FMI 3.0 map) */
+    int64_t* first3;          /* the first core value reference of each (-1: not served) */
+    int64_t* count3;          /* how many consecutive core value references each is made of */
 } Lane;
 
 /* The lane of the hand-over message ``text`` (NULL for "0" or a Lane of another version; ``why``
@@ -71,6 +80,11 @@ int lane_get_real(Lane* lane, const unsigned vr[], size_t n, double v[]);
 int lane_get_integer(Lane* lane, const unsigned vr[], size_t n, int v[]);
 int lane_get_boolean(Lane* lane, const unsigned vr[], size_t n, int v[]);
 int lane_do_step(Lane* lane, double t, double h);
+/* the FMI 3.0 calls, by FMI 3.0 value reference (``nvr`` of them, ``n`` values in all) */
+int lane3_set_float64(Lane* lane, const uint32_t vr[], size_t nvr, const double v[], size_t n);
+int lane3_get_float64(Lane* lane, const uint32_t vr[], size_t nvr, double v[], size_t n);
+int lane3_get_int32(Lane* lane, const uint32_t vr[], size_t nvr, int32_t v[], size_t n);
+int lane3_get_boolean(Lane* lane, const uint32_t vr[], size_t nvr, bool v[], size_t n);
 /* before and after a call forwarded to Python: the slave's pull (when the lane changed values) and
  * push; -1 (and the lane should be dropped) when Python raised */
 int lane_before_python(Lane* lane);

@@ -49,17 +49,19 @@
 
 #define VALUES(T) (fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, T v[], size_t n)
 #define VALUE_ARGS (c, vr, nvr, v, n)
-#define FMI3_FUNCTIONS(X) FMI3_PLAIN(X) FMI3_STEP(X)
+#define FMI3_FUNCTIONS(X) FMI3_PLAIN(X) FMI3_HOT(X) FMI3_STEP(X)
+/* the hot calls of a step: the fast lane answers them when it can (fast_lane.h), else they are forwarded */
+#define FMI3_HOT(X) \
+    X(fmi3GetFloat64, S3_GET, T_NONE, VALUES(fmi3Float64), VALUE_ARGS) \
+    X(fmi3GetInt32, S3_GET, T_NONE, VALUES(fmi3Int32), VALUE_ARGS) \
+    X(fmi3GetBoolean, S3_GET, T_NONE, VALUES(fmi3Boolean), VALUE_ARGS) \
+    X(fmi3SetFloat64, S_SET, T_NONE, VALUES(const fmi3Float64), VALUE_ARGS)
 #define FMI3_PLAIN(X) \
     X(fmi3EnterInitializationMode, S_INSTANTIATED, T_ENTER, (fmi3Instance c, fmi3Boolean tolDef, fmi3Float64 tol, \
       fmi3Float64 t0, fmi3Boolean stopDef, fmi3Float64 t1), (c, tolDef, tol, t0, stopDef, t1)) \
     X(fmi3ExitInitializationMode, S_INITIALIZATION_MODE, T_EXIT, (fmi3Instance c), (c)) \
     X(fmi3Terminate, S3_TERMINATE, T_TERMINATE, (fmi3Instance c), (c)) \
     X(fmi3Reset, S_ANY, T_RESET, (fmi3Instance c), (c)) \
-    X(fmi3GetFloat64, S3_GET, T_NONE, VALUES(fmi3Float64), VALUE_ARGS) \
-    X(fmi3GetInt32, S3_GET, T_NONE, VALUES(fmi3Int32), VALUE_ARGS) \
-    X(fmi3GetBoolean, S3_GET, T_NONE, VALUES(fmi3Boolean), VALUE_ARGS) \
-    X(fmi3SetFloat64, S_SET, T_NONE, VALUES(const fmi3Float64), VALUE_ARGS) \
     X(fmi3SetInt32, S_SET, T_NONE, VALUES(const fmi3Int32), VALUE_ARGS) \
     X(fmi3SetBoolean, S_SET, T_NONE, VALUES(const fmi3Boolean), VALUE_ARGS) \
     X(fmi3GetFMUState, S_ANY, T_NONE, (fmi3Instance c, fmi3FMUState* s), (c, s)) \
@@ -265,27 +267,46 @@ EXPORT fmi3Status fmi3SetDebugLogging(fmi3Instance c, fmi3Boolean on, size_t n, 
     return loaded && c ? fmi3_debug_logging((Instance3*)c, on, n, categories) : fmi3Error;
 }
 
-/* ---- the forwarded functions: the state table, the wrapper with its own instance (the inner ``c``
- * shadows the parameter), the new state --------------------------------------------------------- */
+/* ---- the forwarded functions: the state table, the fast lane's pull before and push after
+ * (fast_lane.h), the wrapper with its own instance (the inner ``c`` shadows the parameter), the new
+ * state ----------------------------------------------------------------------------------------- */
 
 #define FORWARD_BODY(name, allowed, transition, args) \
     Instance3* in = c; \
     if (!loaded || !in) return fmi3Error; \
     if (!fmi3_admit(in, #name, (allowed), NULL)) return fmi3Error; \
+    if (in->lane && lane_before_python(in->lane)) lane3_drop(in, "its pull raised"); \
+    if ((transition) == T_RESET) in->lane = NULL;     /* the slave starts afresh: a new lane, if any */ \
     call_begin(&in->cs); \
     fmi3Status status; \
     { \
         fmi3Instance c = in->real; \
         status = real_##name args; \
     } \
-    return fmi3_settle(in, (transition), status);
+    status = fmi3_settle(in, (transition), status); \
+    if (in->lane && lane_after_python(in->lane)) lane3_drop(in, "its push raised"); \
+    return status;
 
 #define FORWARD(name, allowed, transition, params, args) \
     EXPORT fmi3Status name params { FORWARD_BODY(name, allowed, transition, args) }
 FMI3_PLAIN(FORWARD)
 #define FORWARD_STEP(name, allowed, transition, params, args) \
     static fmi3Status forward_##name params { FORWARD_BODY(name, allowed, transition, args) }
+FMI3_HOT(FORWARD_STEP)
 FMI3_STEP(FORWARD_STEP)
+
+/* the hot calls: the fast lane when it is open and serves every value reference, else Python */
+#define LANE_OPEN(in) (loaded && (in) && lane_open((in)->lane, (in)->cs.state == S_STEP_MODE))
+#define HOT(name, lane_call, T) \
+    EXPORT fmi3Status name VALUES(T) \
+    { \
+        Instance3* in = c; \
+        return LANE_OPEN(in) && lane_call(in->lane, vr, nvr, v, n) ? fmi3OK : forward_##name VALUE_ARGS; \
+    }
+HOT(fmi3GetFloat64, lane3_get_float64, fmi3Float64)
+HOT(fmi3GetInt32, lane3_get_int32, fmi3Int32)
+HOT(fmi3GetBoolean, lane3_get_boolean, fmi3Boolean)
+HOT(fmi3SetFloat64, lane3_set_float64, const fmi3Float64)
 
 /* fmi3DoStep: the return arguments are defined before the wrapper runs (pythonfmu3's sets
  * lastSuccessfulTime and terminateSimulation only; the FMU never asks for an event or returns early);
@@ -302,6 +323,11 @@ EXPORT fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 t, fmi3Float64 h, fmi3B
     last = last ? last : &spare_time;
     *event = *stop = *early = false;
     *last = t;
+    Instance3* in = c;
+    if (LANE_OPEN(in) && lane_do_step(in->lane, t, h)) {
+        *last = t + h;          /* as pythonfmu3's wrapper reports a step it took */
+        return fmi3OK;
+    }
     return forward_fmi3DoStep(c, t, h, noPrior, event, stop, early, last);
 }
 

@@ -10,6 +10,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "fast_lane.h"
 #include "loader_common.h"
 
 /* FMI 3.0 types */
@@ -58,6 +59,7 @@ typedef struct {
     fmi3LogMessageCallback logger;
     char name[256];                    /* the instance name */
     const char* model;                 /* the modelIdentifier (this library's file name) */
+    Lane* lane;                        /* the slave's fast lane (fast_lane.h); NULL: every call goes to Python */
 } Instance3;
 
 /* 1 if ``call`` is allowed in the instance's state (``allowed``: S_* bits); else log why, return 0.
@@ -69,6 +71,8 @@ fmi3Status fmi3_settle(Instance3* in, Transition t, fmi3Status status);
 void fmi3_relay(fmi3InstanceEnvironment env, fmi3Status status, fmi3String category, fmi3String message);
 /* a message of the loader itself to the host's logger (always: it explains a refused call) */
 void fmi3_say(Instance3* in, fmi3Status status, const char* fmt, ...) __attribute__((format(printf, 3, 4)));
+/* stop using the instance's fast lane (logged with ``why``): every call goes to Python from now on */
+void lane3_drop(Instance3* in, const char* why);
 /* fmi3SetDebugLogging, answered by the loader (the wrapper keeps logging everything to fmi3_relay) */
 fmi3Status fmi3_debug_logging(Instance3* in, fmi3Boolean on, size_t n, const fmi3String categories[]);
 

@@ -12,6 +12,8 @@
  * 3.0 has no stepFailed: a doStep that returns fmi3Discard leaves the FMU "in the same state as
  * before the call", and the adapter moves its core back to stepComplete after a discarded step);
  * error -> FMI 3.0's Terminated after an fmi3Error (S_ERROR, with the reason).
+ *
+ * A message of category LANE_CATEGORY hands the slave's fast lane over (fast_lane.h), as in FMI 2.0.
  */
 #define _GNU_SOURCE
 #include "fmi3_loader.h"
@@ -70,11 +72,26 @@ void fmi3_relay(fmi3InstanceEnvironment env, fmi3Status status, fmi3String categ
                      in->name, text);
         return;
     }
+    if (category && !strcmp(category, LANE_CATEGORY)) {
+        char why[256];
+        in->lane = lane_take(text, why, sizeof why);
+        if (why[0])
+            fmi3_say(in, fmi3Warning, "%s instance '%s': no fast lane (%s); every call goes through Python",
+                     in->model, in->name, why);
+        return;
+    }
     int bit = category_bit(category);
     unsigned wanted = bit >= 0 ? 1u << bit : ALL_CATEGORIES;
     /* FMI 3.0: with logging off, only the messages of fmi3Error and fmi3Fatal reach the host */
     if (in->logger && ((in->log_mask & wanted) || status >= fmi3Error))
         in->logger(in->env, status, category && category[0] ? category : category_of(status), text);
+}
+
+void lane3_drop(Instance3* in, const char* why)
+{
+    in->lane = NULL;
+    fmi3_say(in, fmi3Warning, "%s instance '%s': fast lane dropped (%s); every call goes through Python", in->model,
+             in->name, why);
 }
 
 fmi3Status fmi3_debug_logging(Instance3* in, fmi3Boolean on, size_t n, const fmi3String categories[])
