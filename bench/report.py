@@ -36,7 +36,7 @@ PAGE = ROOT / "docs" / "benchmarks.md"
 README = ROOT / "README.md"
 HEADLINE = ROOT / "docs" / "headline.json"
 #: The order of the sections in the README's headline table (others follow, by name).
-SECTIONS = ("dk", "maptensor", "tracker", "step", "sensors", "rpr", "fmu", "c_host", "cosim", "master", "batch", "dynamics", "rules")
+SECTIONS = ("first_run", "dk", "maptensor", "tracker", "step", "sensors", "rpr", "fmu", "c_host", "cosim", "master", "batch", "dynamics", "rules")
 _NAME = re.compile(r"^[a-z0-9][a-z0-9_-]*$")
 
 
