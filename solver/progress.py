@@ -15,7 +15,10 @@ loop, the batch runs)::
 * :func:`phase` writes a line when a phase starts and one with its wall time when it ends
   (or fails); the time is also on the object it yields (``ph.seconds``).  With ``after=2``
   it speaks only if the phase is still running after 2 s (work that is slow only sometimes:
-  kernels compile on the first run, then load from numba's disk cache).
+  kernels compile on the first run, then load from numba's disk cache).  A phase that runs on
+  with nothing else written says so every :data:`HEARTBEAT` seconds ("compiling ...: 24 s so
+  far"; the innermost open phase only, never over a progress bar): a log or a terminal never
+  stays silent long enough to look hung.
 * :func:`bar` is a tqdm progress bar.  It appears only once its loop has run for
   :data:`BAR_DELAY` seconds (short loops print nothing).  On a terminal it redraws in place;
   when stderr is not a terminal (a log file, CI, ``pytest -s``) it writes a plain line at
@@ -39,7 +42,7 @@ import threading
 import time
 from collections.abc import Iterable, Iterator
 
-__all__ = ["PROGRESS_ENV", "BAR_DELAY", "LOG_INTERVAL", "Phase", "phase", "bar", "note", "is_on", "set_enabled",
+__all__ = ["PROGRESS_ENV", "BAR_DELAY", "LOG_INTERVAL", "HEARTBEAT", "Phase", "phase", "bar", "note", "is_on", "set_enabled",
            "silenced"]
 
 #: Environment variable: ``0``, ``off``, ``false`` or ``no`` silence progress output by default.
@@ -48,6 +51,11 @@ PROGRESS_ENV = "RRR_DK_PROGRESS"
 BAR_DELAY = 2.0
 #: Seconds between two progress lines when stderr is not a terminal.
 LOG_INTERVAL = 5.0
+#: A phase that runs on writes a line after this many seconds without one (:func:`phase`).
+HEARTBEAT = 8.0
+
+_last_line = [time.perf_counter()]    # when this module last wrote a line (note, a bar's line in a log)
+_open: list = []                      # the phases running, innermost last (only that one says it goes on)
 
 _default: bool | None = None          # None: from the environment
 
@@ -85,6 +93,23 @@ def note(text: str, enabled: bool | None = None) -> None:
     if is_on(enabled):
         sys.stderr.write(text + "\n")
         sys.stderr.flush()
+        _last_line[0] = time.perf_counter()
+
+
+def _bar_drawing() -> bool:
+    """Whether a tqdm bar is on screen (a heartbeat line would break it)."""
+    tqdm = sys.modules.get("tqdm")
+    live = getattr(getattr(tqdm, "tqdm", None), "_instances", ()) if tqdm else ()
+    return any(not getattr(b, "disable", True) for b in list(live))
+
+
+def _heartbeat(ph: "Phase", t0: float, stop: threading.Event) -> None:
+    """Say that ``ph`` goes on whenever nothing was written for :data:`HEARTBEAT` seconds (a thread)."""
+    while not stop.wait(min(1.0, HEARTBEAT / 4)):
+        now = time.perf_counter()
+        speaking = [p for p in list(_open) if p._said]
+        if now - _last_line[0] >= HEARTBEAT and speaking and speaking[-1] is ph and not _bar_drawing():
+            note(f"{ph.name}: {now - t0:.0f} s so far", True)
 
 
 class Phase:
@@ -103,6 +128,7 @@ class Phase:
         self.name = name
         self.seconds: float | None = None
         self.summary = ""
+        self._said = False              # its start line is written (it may say it goes on)
 
 
 @contextlib.contextmanager
@@ -129,12 +155,17 @@ def phase(name: str, detail: str = "", enabled: bool | None = None, after: float
     """
     ph = Phase(name)
     lock, said, done = threading.Lock(), [False], [False]
+    stop = threading.Event()
 
     def start():
         with lock:
             if not done[0]:
                 note(f"{name} ..." + (f" ({detail})" if detail else ""), True)
-                said[0] = True
+                said[0] = ph._said = True
+                threading.Thread(target=_heartbeat, args=(ph, t0, stop), daemon=True,
+                                 name=f"progress heartbeat: {name}").start()
+    t0 = time.perf_counter()
+    _open.append(ph)
     timer = None
     if is_on(enabled):
         if after > 0:
@@ -143,7 +174,6 @@ def phase(name: str, detail: str = "", enabled: bool | None = None, after: float
             timer.start()
         else:
             start()
-    t0 = time.perf_counter()
     outcome = "done in {:.1f} s"
     try:
         yield ph
@@ -154,8 +184,11 @@ def phase(name: str, detail: str = "", enabled: bool | None = None, after: float
         ph.seconds = time.perf_counter() - t0
         if timer is not None:
             timer.cancel()
+        stop.set()
         with lock:
             done[0] = True
+        if ph in _open:
+            _open.remove(ph)
         if said[0]:
             summary = f" ({ph.summary})" if ph.summary and outcome.startswith("done") else ""
             note(f"{name}: {outcome.format(ph.seconds)}{summary}", True)
@@ -171,6 +204,7 @@ class _Lines:
         text = text.replace("\r", "").strip()
         if text:
             self.stream.write(text + "\n")
+            _last_line[0] = time.perf_counter()
 
     def flush(self) -> None:
         self.stream.flush()

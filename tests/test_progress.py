@@ -99,3 +99,22 @@ def test_a_phase_that_is_slow_only_sometimes_speaks_only_when_slow(capsys):
     err = capsys.readouterr().err.splitlines()
     assert err[0] == "loading kernels ... (compiling the first time)"
     assert err[1].startswith("loading kernels: done in ") and ph.seconds >= 0.4
+
+
+def test_a_long_phase_says_it_goes_on_the_innermost_only(capsys, monkeypatch):
+    """With nothing written for HEARTBEAT seconds the innermost phase that spoke says how long it has run
+    (a first run's compile never looks hung); an outer phase stays quiet, and a line written
+    meanwhile (a note) restarts the silence."""
+    monkeypatch.setattr(progress, "HEARTBEAT", 0.2)
+    with progress.phase("outer"):
+        with progress.phase("inner"):
+            time.sleep(0.75)
+            progress.note("a line of the work")
+            time.sleep(0.1)
+    err = capsys.readouterr().err.splitlines()
+    beats = [line for line in err if line.endswith(" s so far")]
+    assert 2 <= len(beats) <= 4 and all(line.startswith("inner: ") for line in beats), err
+    assert err.index("a line of the work") == len(err) - 3      # no beat after it: 0.1 s is not 0.2 s
+    assert err[-1].startswith("outer: done in ")
+    time.sleep(0.3)
+    assert capsys.readouterr().err == ""                         # the heartbeats end with their phases
