@@ -16,13 +16,14 @@ Modules, one concept each: ``checks`` (argument checking), ``manipulator`` (geom
 solutions), ``ordering`` (their numbering rules), ``grid`` (the map grid over the tool
 space), ``maptensor`` (procedures 1 and 2), ``mapfile`` (the map file format),
 ``mapcache`` (the one map cache), ``cache`` (:func:`cache_dir`, the root of every disk
-cache), ``progress`` (phase lines and progress bars of long work), ``tracker``
+cache), ``shared_kernels`` (the generic-CPU kernels an FMU build compiled serve this process too), ``progress`` (phase lines and progress bars of long work), ``tracker``
 (procedure 3) with ``tracking``, ``tracker_state``, ``start``, ``encoder_grid`` and ``stuck``, ``baselines``,
 ``sensors`` (the encoder model: the tracker's joint tolerance and stuck threshold; its speed bound
 from the planned motion),
 ``trajectories`` (shared tool-space paths), ``manipulators`` and ``rpr`` (the 3-RPR).
 """
 from .cache import CACHE_ENV, cache_dir
+from . import shared_kernels as _shared_kernels
 from .checks import GeometryError, SolverInputError, as_array, check_posture
 from .direct_kinematics import DKSolutions, dk_all, order_solutions
 from .grid import DEFAULT_STEP, default_bounds, default_grid, grid_shape
@@ -51,3 +52,5 @@ __all__ = [
     "Tracker", "TrackerOptions", "TrackerState", "StepInfo", "TrackResult", "TrackerError", "STATUS", "CERTIFICATES", "TRUST",
     "StartInfo", "UncertainStartWarning", "START_TOLERANCE", "__version__",
 ]
+
+_shared_kernels.install()      # the generic kernels an FMU build compiled serve this process too

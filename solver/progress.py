@@ -132,7 +132,8 @@ class Phase:
 
 
 @contextlib.contextmanager
-def phase(name: str, detail: str = "", enabled: bool | None = None, after: float = 0.0) -> Iterator[Phase]:
+def phase(name: str, detail: str = "", enabled: bool | None = None, after: float = 0.0,
+          heartbeat: bool = True) -> Iterator[Phase]:
     """Time a phase of long work and say so on stderr.
 
     Parameters
@@ -147,6 +148,9 @@ def phase(name: str, detail: str = "", enabled: bool | None = None, after: float
         Say nothing unless the phase is still running after this many seconds (then the start
         line, and the end line when it ends): for work that is slow only sometimes, such as
         kernels that compile on the first run and load from numba's cache after.
+    heartbeat : bool
+        Say every :data:`HEARTBEAT` s of silence that the phase goes on (False: the work runs in a
+        child process that reports its own phases on the same stderr).
 
     Yields
     ------
@@ -162,8 +166,9 @@ def phase(name: str, detail: str = "", enabled: bool | None = None, after: float
             if not done[0]:
                 note(f"{name} ..." + (f" ({detail})" if detail else ""), True)
                 said[0] = ph._said = True
-                threading.Thread(target=_heartbeat, args=(ph, t0, stop), daemon=True,
-                                 name=f"progress heartbeat: {name}").start()
+                if heartbeat:
+                    threading.Thread(target=_heartbeat, args=(ph, t0, stop), daemon=True,
+                                     name=f"progress heartbeat: {name}").start()
     t0 = time.perf_counter()
     _open.append(ph)
     timer = None

@@ -351,7 +351,8 @@ def build_fmus(out_dir="build", resolution=None, force: bool = False, progress: 
             args += ["--robot", str(Path(robot.source).resolve())]
         if name == DK_NAME and resolution is not None:
             args += ["--resolution", "{!r}m,{!r}rad".format(*(float(v) for v in resolution))]
-        with _progress.phase(f"building {paths[name]}", FIRST_BUILD[name], enabled=progress):
+        # the build's child reports its own phases (and says that a long one goes on)
+        with _progress.phase(f"building {paths[name]}", FIRST_BUILD[name], enabled=progress, heartbeat=False):
             proc = subprocess.run(args, cwd=str(SLAVE_DIR.parent), stdout=subprocess.PIPE,
                                   stderr=None if env is None else subprocess.PIPE, text=True, env=env)
             if proc.returncode != 0 or not paths[name].exists():

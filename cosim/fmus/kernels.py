@@ -12,7 +12,10 @@ it to :func:`shipped_kernels` and builds it again with the entries returned:
    bundle_key`) becomes ``resources/kernels/`` with ``resources/kernels/manifest.json``: numba and
    Python versions, machine, key, and the compile seconds of each outermost kernel (what the
    runtime quotes when it must compile one after all);
-3. the scenario's runs become ``resources/kernel_runs.json`` (:data:`fmu_src.kernel_warmup.RUNS`): a host
+3. ``files.json`` beside them: the SHA-256 of each bundled file of the key, so that a process that runs
+   its own ``solver`` and ``dynamics`` (``python -m cosim``, batch workers) loads these generic kernels
+   instead of compiling them again while its files are the same (:mod:`solver.shared_kernels`);
+4. the scenario's runs become ``resources/kernel_runs.json`` (:data:`fmu_src.kernel_warmup.RUNS`): a host
    whose process cannot use the shipped kernels (another numba or Python) replays them in a child
    process of its own interpreter, which compiles the kernels for it (:mod:`fmu_src.kernel_warmup`).
 
@@ -47,9 +50,10 @@ from pathlib import Path
 
 import numba
 
-from fmu_src.kernel_cache import GENERIC_CPU, MANIFEST, SHIPPED, key_of
+from fmu_src.kernel_cache import GENERIC_CPU, MANIFEST, NO_KERNELS, SHIPPED, key_of
 from fmu_src.kernel_warmup import IN_PROCESS, RUNS
 from solver import cache_dir, progress
+from solver.shared_kernels import FILES as SHARED_FILES
 
 try:
     import fcntl                        # POSIX: builds of one user wait for each other's warm-up
@@ -176,11 +180,30 @@ def _run_child(fmu: Path, scenario: Scenario, root: Path) -> dict:
                            f"{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}")
 
 
+def _bundled(fmu: Path) -> list[tuple[str, bytes]]:
+    """The ``.py`` files of ``fmu``'s ``resources/``: (path relative to resources, bytes)."""
+    with zipfile.ZipFile(fmu) as z:
+        return [(i.filename[len("resources/"):], z.read(i)) for i in z.infolist()
+                if i.filename.startswith("resources/") and i.filename.endswith(".py")]
+
+
 def fmu_key(fmu: Path) -> str:
     """The kernel key of the FMU file ``fmu`` (:func:`fmu_src.kernel_cache.key_of` of its ``resources/``)."""
-    with zipfile.ZipFile(fmu) as z:
-        return key_of((i.filename[len("resources/"):], z.read(i)) for i in z.infolist()
-                      if i.filename.startswith("resources/") and i.filename.endswith(".py"))
+    return key_of(_bundled(Path(fmu)))
+
+
+def _record_files(fmu: Path, folder: Path) -> None:
+    """``folder/files.json``: the SHA-256 of each file of the kernel packages ``fmu`` bundles (those of its key),
+    which a process running its own packages checks before it loads kernels from ``folder``
+    (:mod:`solver.shared_kernels`: kernels compiled once)."""
+    files = {name: hashlib.sha256(data).hexdigest() for name, data in _bundled(fmu)
+             if "/" in name and name.split("/")[0] not in NO_KERNELS}
+    text = json.dumps(files, indent=1, sort_keys=True) + "\n"
+    path = folder / SHARED_FILES
+    if not path.is_file() or path.read_text() != text:
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(text)
+        os.replace(tmp, path)
 
 
 def _warmed(scenario: Scenario) -> str:
@@ -235,6 +258,7 @@ def _warmed_entries(fmu, scenario, root, folder, key, done) -> dict[str, bytes]:
                for p in sorted(folder.rglob("*")) if p.suffix in (".nbi", ".nbc")}
     if not entries:
         raise KernelBuildError(f"the warm-up run of {Path(fmu).name} compiled no kernel into {folder}")
+    _record_files(Path(fmu), folder)
     seconds = record["seconds"]
     manifest = {"numba": numba.__version__, "python": "%d.%d" % sys.version_info[:2], "cpu": GENERIC_CPU,
                 "machine": platform.machine().lower(), "key": key, "seconds": seconds,

@@ -1,0 +1,64 @@
+"""Kernels compiled once (solver.shared_kernels): a process that runs its own ``solver`` loads the
+generic-CPU kernels an FMU build compiled (the generic store, cosim.fmus.kernels) instead of compiling
+them again for its own CPU, while its files are the ones the FMU bundled."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+from cosim.fmus.kernels import generic_root
+from cosim_support import fmus  # noqa: F401 (fixture)
+from solver.shared_kernels import FILES
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: a fresh process with an empty numba cache of its own: the DK slave's in-process path (a tracker on a
+#: map, its honest start, steps through the C entry point), then what it loaded from where
+_CHILD = r"""
+import json, sys
+import numpy as np
+from solver import Manipulator, MapTensor, Tracker, circle_path, ik, shared_kernels
+from solver._kernels.c_entry import entry
+
+model = Manipulator.paper()
+X = circle_path(50)
+q = ik(model, X, 1)
+tracker = Tracker(model, MapTensor.load(sys.argv[1]), start_tolerance=(1e-9, 1e-9, 1e-9))
+tracker.reset(X[0], q[0], warn=False)
+for k in range(1, 6):
+    pose, info = tracker.step(q[k])
+print(json.dumps({"entry_hits": entry().cache_hits, "served": shared_kernels.served(),
+                  "error": float(np.abs(pose - X[5]).max()), "certain": bool(info.certain)}))
+"""
+
+
+def _child(map_file: Path, numba_cache: Path, **env_extra) -> dict:
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "PYTHONPATH")}
+    env.update(NUMBA_CACHE_DIR=str(numba_cache), PYTHONPATH=str(ROOT), **env_extra)
+    proc = subprocess.run([sys.executable, "-c", _CHILD, str(map_file)], capture_output=True, text=True, env=env,
+                          cwd=ROOT, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def test_a_fresh_process_steps_with_the_kernels_the_fmu_build_compiled(fmus, tmp_path):  # noqa: F811
+    """After the FMU build, a process whose numba cache is empty runs the tracker's step from the generic
+    store: the C entry point is a cache hit (no compile), the poses are right; the store folder says
+    which files it was compiled from."""
+    dk = Path(fmus["RRRDirectKinematics"])
+    with zipfile.ZipFile(dk) as z:
+        name = next(n for n in z.namelist() if n.startswith("resources/") and n.endswith(".npz"))
+        map_file = tmp_path / Path(name).name
+        map_file.write_bytes(z.read(name))
+    records = list((generic_root() / "RRRDirectKinematics").glob(f"*/{FILES}"))
+    assert records, "the DK FMU build wrote no record of its bundled files"
+    files = json.loads(max(records, key=lambda p: p.stat().st_mtime).read_text())
+    assert "solver/_kernels/c_entry.py" in files and not any(n.startswith("fmu_src/") for n in files)
+    got = _child(map_file, tmp_path / "numba")
+    assert got["entry_hits"] == 1, got
+    assert any(s.startswith("c_entry._step-") for s in got["served"]), got
+    assert got["error"] < 1e-9 and got["certain"]
