@@ -42,8 +42,8 @@ FIRST_RESULT, SILENCE, TESTS_COLD, TESTS_WARM = 90.0, 10.0, 480.0, 300.0
 
 def clean_env(clone: Path, cache: Path) -> dict:
     """This process's environment for a machine that never ran the project: empty caches, the clone first."""
-    env = {k: v for k, v in os.environ.items() if k not in ("RRR_DK_CACHE", "NUMBA_CACHE_DIR", "PYTHONPATH")
-           and not k.startswith("RRR_DK_")}
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("NUMBA_CACHE_DIR", "PYTHONPATH") and not k.startswith("RRR_DK_")}
     env["XDG_CACHE_HOME"] = str(cache)
     env["PYTHONPATH"] = str(clone)
     env["PYTHONUNBUFFERED"] = "1"

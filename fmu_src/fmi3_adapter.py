@@ -109,6 +109,7 @@ class Fmi3Adapter:
     _core_vrs: ClassVar[dict[int, tuple[int, ...]]] = {}
     _kind_of: ClassVar[dict[int, str]] = {}
     _time_vr: ClassVar[int] = -1
+    _lane_map3: ClassVar[tuple] = None
 
     def __init_subclass__(cls, **kwargs):
         super().__init_subclass__(**kwargs)
@@ -137,6 +138,13 @@ class Fmi3Adapter:
                 raise Fmi3TableError(f"{where}: its core variables differ in causality or variability")
             cls._core_vrs[vr] = tuple(cls.CORE.VR[name] for name in row.core)
             cls._kind_of[vr] = row.type
+        # the core's fast lane, if any, serves an FMI 3.0 variable whose core variables are consecutive
+        # (one piece of the lane's arrays): (first core value reference or -1, count) by FMI 3.0 one
+        first, count = [-1] * len(cls.ROWS), [0] * len(cls.ROWS)
+        for vr, core in cls._core_vrs.items():
+            if list(core) == list(range(core[0], core[0] + len(core))):
+                first[vr], count[vr] = core[0], len(core)
+        cls._lane_map3 = (first, count)
 
     # ------------------------------------------------------------------ construction
     def __init__(self, **kwargs):
@@ -148,7 +156,7 @@ class Fmi3Adapter:
         self.core = self.CORE(fmi_strict="logger" in kwargs, **core_kwargs)
         for name, value in self.START.items():
             setattr(self.core, name, value)
-        self.core._lane_map3 = self._map3()       # the core's fast lane, if any, serves the FMI 3.0 calls
+        self.core._lane_map3 = self._lane_map3    # the core's fast lane, if any, serves the FMI 3.0 calls
         self.modelName = type(self).__name__
         for attr in ("description", "author", "version", "license", "default_experiment"):
             setattr(self, attr, getattr(self.CORE, attr, None))
@@ -157,16 +165,6 @@ class Fmi3Adapter:
             self.register_variable(self._variable(vr, row, table.get(row.core[0]) if row.core else None),
                                    nested=False)
         self._relay()
-
-    @classmethod
-    def _map3(cls):
-        """(first, count) by FMI 3.0 value reference: the core value references a variable is made of, when
-        they are consecutive (what the loader's fast lane can serve in one piece); first -1 otherwise."""
-        first, count = [-1] * len(cls.ROWS), [0] * len(cls.ROWS)
-        for vr, core in cls._core_vrs.items():
-            if list(core) == list(range(core[0], core[0] + len(core))):
-                first[vr], count[vr] = core[0], len(core)
-        return first, count
 
     def to_xml(self, *args, **kwargs):
         """pythonfmu3's model description (in process, not an FMI call: it reads the start values with
@@ -343,9 +341,7 @@ class Fmi3Adapter:
         the core escapes '%' for FMI 2.0's printf-style logger, FMI 3.0's takes the text as it is)."""
         queue = self.core.log_queue
         for m in queue:
-            if m.category in (HAND_OFF_CATEGORY, LANE_CATEGORY):     # the core's hand-offs, for the C loader only
-                self.log(m.msg.replace("%%", "%"), Fmi3Status(int(m.status)), m.category)
-                continue
-            category = m.category if m.category in self.log_categories else None
-            self.log(m.msg.replace("%%", "%"), Fmi3Status(int(m.status)), category)
+            # the core's hand-offs (for the C loader only) keep their category, as a host's log category does
+            kept = m.category in (HAND_OFF_CATEGORY, LANE_CATEGORY) or m.category in self.log_categories
+            self.log(m.msg.replace("%%", "%"), Fmi3Status(int(m.status)), m.category if kept else None)
         queue.clear()

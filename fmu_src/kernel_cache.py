@@ -74,7 +74,7 @@ import tempfile
 import weakref
 from pathlib import Path
 
-__all__ = ["install", "attach", "cache_root", "bundle_of", "bundle_key", "key_of", "shipped_problem", "manifest",
+__all__ = ["install", "attach", "cache_root", "bundle_of", "bundle_key", "key_of", "kernel_files", "shipped_problem", "manifest",
            "BUNDLE_MARK", "SHIPPED", "MANIFEST", "GENERIC_CPU", "NO_KERNELS"]
 
 #: the file pythonfmu writes at the top of an FMU's resources folder
@@ -132,15 +132,21 @@ def bundle_of(py_file: str) -> str | None:
 NO_KERNELS = ("fmu_src", "pythonfmu")
 
 
+def kernel_files(files) -> list:
+    """The pairs of ``files`` (``(path relative to resources, bytes)``) a key covers, sorted: the ``.py``
+    files of the packages that hold kernels (the slave script at the top and the packages
+    :data:`NO_KERNELS` are left out, see the module docstring)."""
+    return [(name, data) for name, data in sorted(files)
+            if name.endswith(".py") and "/" in name and name.split("/")[0] not in NO_KERNELS]
+
+
 def key_of(files) -> str:
     """The key of ``files``, ``(path relative to resources, bytes)`` pairs: SHA-256 (hex, 24 digits) of
-    the names and bytes of the ``.py`` files of the packages that hold kernels (the slave script at the
-    top and the packages :data:`NO_KERNELS` are left out, see the module docstring)."""
+    the names and bytes of :func:`kernel_files`."""
     h = hashlib.sha256()
-    for name, data in sorted(files):
-        if name.endswith(".py") and "/" in name and name.split("/")[0] not in NO_KERNELS:
-            h.update(name.encode() + b"\0")
-            h.update(data + b"\0")
+    for name, data in kernel_files(files):
+        h.update(name.encode() + b"\0")
+        h.update(data + b"\0")
     return h.hexdigest()[:24]
 
 

@@ -50,7 +50,7 @@ from pathlib import Path
 
 import numba
 
-from fmu_src.kernel_cache import GENERIC_CPU, MANIFEST, NO_KERNELS, SHIPPED, key_of
+from fmu_src.kernel_cache import GENERIC_CPU, MANIFEST, SHIPPED, kernel_files, key_of
 from fmu_src.kernel_warmup import IN_PROCESS, RUNS
 from solver import cache_dir, progress
 from solver.shared_kernels import FILES as SHARED_FILES
@@ -192,12 +192,11 @@ def fmu_key(fmu: Path) -> str:
     return key_of(_bundled(Path(fmu)))
 
 
-def _record_files(fmu: Path, folder: Path) -> None:
-    """``folder/files.json``: the SHA-256 of each file of the kernel packages ``fmu`` bundles (those of its key),
-    which a process running its own packages checks before it loads kernels from ``folder``
-    (:mod:`solver.shared_kernels`: kernels compiled once)."""
-    files = {name: hashlib.sha256(data).hexdigest() for name, data in _bundled(fmu)
-             if "/" in name and name.split("/")[0] not in NO_KERNELS}
+def _record_files(bundled: list, folder: Path) -> None:
+    """``folder/files.json``: the SHA-256 of each file of the kernel packages an FMU bundles (``bundled``, as
+    :func:`_bundled`; the files of its key), which a process running its own packages checks before it
+    loads kernels from ``folder`` (:mod:`solver.shared_kernels`: kernels compiled once)."""
+    files = {name: hashlib.sha256(data).hexdigest() for name, data in kernel_files(bundled)}
     text = json.dumps(files, indent=1, sort_keys=True) + "\n"
     path = folder / SHARED_FILES
     if not path.is_file() or path.read_text() != text:
@@ -220,11 +219,14 @@ def shipped_kernels(fmu: Path, scenario: Scenario, root: Path | None = None) -> 
     this key has not been warmed up along this scenario, numba and Python before (``warm-up.json``).
     """
     root = (Path(root) if root is not None else generic_root()) / Path(fmu).stem     # one FMU's kernels only
-    key, done = fmu_key(Path(fmu)), _warmed(scenario)
+    bundled = _bundled(Path(fmu))
+    key, done = key_of(bundled), _warmed(scenario)
     folder = root / key
     folder.mkdir(parents=True, exist_ok=True)
     with _locked(folder / ".lock"):             # builds in parallel (batch workers): one warms up, the others wait
-        return _warmed_entries(fmu, scenario, root, folder, key, done)
+        entries = _warmed_entries(fmu, scenario, root, folder, key, done)
+        _record_files(bundled, folder)
+        return entries
 
 
 @contextlib.contextmanager
@@ -258,7 +260,6 @@ def _warmed_entries(fmu, scenario, root, folder, key, done) -> dict[str, bytes]:
                for p in sorted(folder.rglob("*")) if p.suffix in (".nbi", ".nbc")}
     if not entries:
         raise KernelBuildError(f"the warm-up run of {Path(fmu).name} compiled no kernel into {folder}")
-    _record_files(Path(fmu), folder)
     seconds = record["seconds"]
     manifest = {"numba": numba.__version__, "python": "%d.%d" % sys.version_info[:2], "cpu": GENERIC_CPU,
                 "machine": platform.machine().lower(), "key": key, "seconds": seconds,

@@ -63,16 +63,26 @@ Lane* lane_take(const char* text, char* why, size_t why_size)
     return lane;
 }
 
-/* every value reference below n_vr with all bits of ``want``, none of ``stale`` while dirty */
+/* the lane serves value reference k (below n_vr): all bits of ``want``, not an output gone stale (dirty) */
+static inline int lane_serves_one(const Lane* lane, int64_t k, unsigned want)
+{
+    unsigned f = lane->flags[k];
+    return (f & want) == want && !(lane->dirty && (f & LANE_OUTPUT));
+}
+
+/* an input's new value: stored, and the outputs of direct feedthrough stale if it marks them */
+static inline void lane_store(Lane* lane, int64_t k, double v)
+{
+    lane->real[k] = v;
+    if (lane->flags[k] & LANE_DIRTIES) lane->dirty = 1;     /* as the slave's set marks it */
+}
+
+/* every value reference below n_vr and served (lane_serves_one) */
 static int lane_serves(const Lane* lane, const unsigned vr[], size_t n, unsigned want)
 {
-    unsigned stale = lane->dirty ? LANE_OUTPUT : 0u;
     if (n && !vr) return 0;                 /* the Python path answers a malformed call */
-    for (size_t i = 0; i < n; i++) {
-        if ((int64_t)vr[i] >= lane->n_vr) return 0;
-        unsigned f = lane->flags[vr[i]];
-        if ((f & want) != want || (f & stale)) return 0;
-    }
+    for (size_t i = 0; i < n; i++)
+        if ((int64_t)vr[i] >= lane->n_vr || !lane_serves_one(lane, vr[i], want)) return 0;
     return 1;
 }
 
@@ -80,10 +90,7 @@ int lane_set_real(Lane* lane, const unsigned vr[], size_t n, const double v[])
 {
     if (n && !v) return 0;
     if (!lane_serves(lane, vr, n, LANE_REAL | LANE_SET)) return 0;
-    for (size_t i = 0; i < n; i++) {
-        lane->real[vr[i]] = v[i];
-        if (lane->flags[vr[i]] & LANE_DIRTIES) lane->dirty = 1;     /* as the slave's set marks it */
-    }
+    for (size_t i = 0; i < n; i++) lane_store(lane, vr[i], v[i]);
     if (n) lane->py_stale = 1;
     lane->fast_calls++;
     return 1;
@@ -102,21 +109,18 @@ LANE_GET(lane_get_real, double, real, LANE_REAL)
 LANE_GET(lane_get_integer, int, integer, LANE_INTEGER)
 LANE_GET(lane_get_boolean, int, boolean, LANE_BOOLEAN)
 
-/* FMI 3.0: every value reference mapped onto core value references the lane serves (all bits of
- * ``want``, none of ``stale`` while dirty), ``n`` values in all; else 0 */
+/* FMI 3.0: every value reference mapped onto core value references the lane serves (lane_serves_one),
+ * ``n`` values in all; else 0 */
 static int lane3_serves(const Lane* lane, const uint32_t vr[], size_t nvr, size_t n, unsigned want)
 {
-    unsigned stale = lane->dirty ? LANE_OUTPUT : 0u;
     if (!lane->first3 || !lane->count3 || (nvr && !vr)) return 0;
     size_t total = 0;
     for (size_t i = 0; i < nvr; i++) {
         if ((int64_t)vr[i] >= lane->n_vr3) return 0;
         int64_t first = lane->first3[vr[i]], count = lane->count3[vr[i]];
         if (first < 0 || count <= 0 || first + count > lane->n_vr) return 0;
-        for (int64_t k = first; k < first + count; k++) {
-            unsigned f = lane->flags[k];
-            if ((f & want) != want || (f & stale)) return 0;
-        }
+        for (int64_t k = first; k < first + count; k++)
+            if (!lane_serves_one(lane, k, want)) return 0;
         total += (size_t)count;
     }
     return total == n;
@@ -126,12 +130,8 @@ int lane3_set_float64(Lane* lane, const uint32_t vr[], size_t nvr, const double 
 {
     if ((n && !v) || !lane3_serves(lane, vr, nvr, n, LANE_REAL | LANE_SET)) return 0;
     size_t j = 0;
-    for (size_t i = 0; i < nvr; i++) {
-        for (int64_t k = lane->first3[vr[i]], end = k + lane->count3[vr[i]]; k < end; k++) {
-            lane->real[k] = v[j++];
-            if (lane->flags[k] & LANE_DIRTIES) lane->dirty = 1;
-        }
-    }
+    for (size_t i = 0; i < nvr; i++)
+        for (int64_t k = lane->first3[vr[i]], end = k + lane->count3[vr[i]]; k < end; k++) lane_store(lane, k, v[j++]);
     if (n) lane->py_stale = 1;
     lane->fast_calls++;
     return 1;
