@@ -158,14 +158,14 @@ def phase(name: str, detail: str = "", enabled: bool | None = None, after: float
         Its ``seconds`` is set when the block ends, also when it raises.
     """
     ph = Phase(name)
-    lock, said, done = threading.Lock(), [False], [False]
+    lock, done = threading.Lock(), [False]
     stop = threading.Event()
 
     def start():
         with lock:
             if not done[0]:
                 note(f"{name} ..." + (f" ({detail})" if detail else ""), True)
-                said[0] = ph._said = True
+                ph._said = True
                 if heartbeat:
                     threading.Thread(target=_heartbeat, args=(ph, t0, stop), daemon=True,
                                      name=f"progress heartbeat: {name}").start()
@@ -194,7 +194,7 @@ def phase(name: str, detail: str = "", enabled: bool | None = None, after: float
             done[0] = True
         if ph in _open:
             _open.remove(ph)
-        if said[0]:
+        if ph._said:
             summary = f" ({ph.summary})" if ph.summary and outcome.startswith("done") else ""
             note(f"{name}: {outcome.format(ph.seconds)}{summary}", True)
 
