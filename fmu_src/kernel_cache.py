@@ -23,7 +23,7 @@ bytes of every ``.py`` file in the packages of that folder that hold kernels (``
 ``dynamics``; not the slave script at the top, this runtime ``fmu_src`` or ``pythonfmu``: kernels
 never import them, so FMUs of one code that differ in a start value or in the runtime share
 kernels): the same content finds its kernels wherever it is extracted, any change to a module of
-those packages (a kernel inlines its callees from other files) gets a new key.  The key is also
+those packages (a kernel's machine code holds its callees from other files) gets a new key.  The key is also
 the index's source stamp, in place of numba's mtime and size, so extraction dates do not matter.
 
 1. *Shipped* (read only): ``resources/kernels/<folder inside resources>/``, numba's index and data

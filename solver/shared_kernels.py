@@ -13,7 +13,7 @@ whose cache the content-stamped locator of :mod:`solver._kernels.cache_stamp` ke
 no entry for this CPU, the entry compiled for the generic CPU is looked up in the generic store,
 and used when found.  A store folder serves only while every file the FMU bundled is byte for byte
 the file of this process's packages (the build records their SHA-256, ``files.json``; a kernel
-inlines callees from other files, so one changed file retires the folder); numba's own index then
+holds the machine code of callees from other files, so one changed file retires the folder); numba's own index then
 checks the function's bytecode and signature as for any entry.  Nothing is written: a kernel found
 nowhere compiles for this CPU into numba's cache as before, and later lookups find it there first.
 

@@ -22,6 +22,7 @@ the slave and builds maps.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import html
 import importlib.util
@@ -331,31 +332,70 @@ def build_fmus(out_dir="build", resolution=None, force: bool = False, progress: 
     (m, rad), from the map cache.  ``robot``: a :class:`solver.robot.Robot` loaded from a file, with
     ``[dynamics]`` (None: the paper's robot): the three FMUs of that robot (the DK map of its home
     posture), rebuilt when the description they carry differs.  An FMU is rebuilt when ``force`` or
-    :func:`is_stale`.  Each build
-    runs in a child process, ``python -m cosim.fmus.cli`` (see the module docstring), and is a phase
-    on stderr (what it builds, about how long, then its time; the child's own progress, e.g. of a
-    map build, shows beneath); ``progress``: as in :func:`solver.progress.phase`.
+    :func:`is_stale`.  Each build runs in a child process, ``python -m cosim.fmus.cli`` (see the
+    module docstring), all of them at once: the controller's and the plant's builds (tens of seconds)
+    run beside the DK's map and kernel compile (minutes), on a second core.  The builds are one phase
+    on stderr (what is built, about how long, then its time; the children's own phases, e.g. of a
+    map build, show beneath, each naming its FMU); ``progress``: as in :func:`solver.progress.phase`.
+
+    Raises
+    ------
+    RuntimeError
+        A build failed: its exit code and the end of its output (the other builds are completed first).
     """
     out = Path(out_dir).resolve()
     out.mkdir(parents=True, exist_ok=True)
     paths = {name: out / f"{name}.fmu" for name in FMU_NAMES}
-    env = None if _progress.is_on(progress) else {**os.environ, _progress.PROGRESS_ENV: "0"}
+    quiet = not _progress.is_on(progress)
+    env = {**os.environ, _progress.PROGRESS_ENV: "0"} if quiet else None
     if robot is not None and not Path(robot.source).is_file():
         raise ValueError(f"robot: build_fmus needs a robot loaded from a file (solver.robot.load_robot), got "
                          f"one from {robot.source}")
-    for name in FMU_NAMES:
-        if not (force or is_stale(name, paths[name]) or other_robot(paths[name], robot)):
-            continue
-        args = [sys.executable, "-m", "cosim.fmus.cli", "--out", str(out), "--only", name, "--no-reference"]
-        if robot is not None:
-            args += ["--robot", str(Path(robot.source).resolve())]
-        if name == DK_NAME and resolution is not None:
-            args += ["--resolution", "{!r}m,{!r}rad".format(*(float(v) for v in resolution))]
-        # the build's child reports its own phases (and says that a long one goes on)
-        with _progress.phase(f"building {paths[name]}", FIRST_BUILD[name], enabled=progress, heartbeat=False):
-            proc = subprocess.run(args, cwd=str(SLAVE_DIR.parent), stdout=subprocess.PIPE,
-                                  stderr=None if env is None else subprocess.PIPE, text=True, env=env)
-            if proc.returncode != 0 or not paths[name].exists():
-                raise RuntimeError(f"building {paths[name].name} failed (exit {proc.returncode}):\n"
-                                   f"{proc.stdout[-3000:]}\n{(proc.stderr or '(its stderr is above)')[-3000:]}")
+    todo = [name for name in FMU_NAMES if force or is_stale(name, paths[name]) or other_robot(paths[name], robot)]
+    if not todo:
+        return paths
+    detail = "; ".join(f"{name}: {FIRST_BUILD[name]}" for name in todo)
+    # the children report their own phases (and say that a long one goes on)
+    with _progress.phase(f"building {', '.join(todo)} in {out}", detail, enabled=progress, heartbeat=False), \
+            tempfile.TemporaryDirectory(prefix="rrr-dk-builds-") as logs, contextlib.ExitStack() as files:
+        running = {}
+        try:
+            for name in todo:               # files, not pipes: a child never waits for us to read it
+                stdout = files.enter_context(open(Path(logs) / f"{name}.out", "w+"))
+                stderr = files.enter_context(open(Path(logs) / f"{name}.err", "w+")) if quiet else None
+                running[name] = (subprocess.Popen(_build_args(name, out, resolution, robot), cwd=str(SLAVE_DIR.parent),
+                                                  stdout=stdout, stderr=stderr, text=True, env=env), stdout, stderr)
+            failed = [_failure(paths[name], *run) for name, run in running.items()]
+        finally:                            # interrupted (Ctrl-C) or failed to start one: stop the others
+            for proc, _, _ in running.values():
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+        failed = [f for f in failed if f]
+        if failed:
+            raise RuntimeError("\n\n".join(failed))
     return paths
+
+
+def _failure(path: Path, proc, stdout, stderr) -> str:
+    """Wait for the build of ``path`` in ``proc``; "" when it succeeded, else what went wrong (the end of
+    its stdout and, when it was captured in the file ``stderr``, of its stderr)."""
+    code = proc.wait()
+    if code == 0 and path.exists():
+        return ""
+    stdout.seek(0)
+    err = "(its stderr is above)"
+    if stderr is not None:
+        stderr.seek(0)
+        err = stderr.read()[-3000:]
+    return f"building {path.name} failed (exit {code}):\n{stdout.read()[-3000:]}\n{err}"
+
+
+def _build_args(name: str, out: Path, resolution, robot) -> list:
+    """The command line of the child process that builds FMU ``name`` into ``out``."""
+    args = [sys.executable, "-m", "cosim.fmus.cli", "--out", str(out), "--only", name, "--no-reference"]
+    if robot is not None:
+        args += ["--robot", str(Path(robot.source).resolve())]
+    if name == DK_NAME and resolution is not None:
+        args += ["--resolution", "{!r}m,{!r}rad".format(*(float(v) for v in resolution))]
+    return args

@@ -47,7 +47,7 @@ def code(status, index):
     return status if status == OK else status + STATUS_SPAN * index
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def workspace(buf):
     """The work arrays of one configuration as views of ``buf`` (``WS_SIZE``,): leg table (9, 3),
     J_q, J_x, V (21, 3), beta (21,), M_X, M, forces (6, 3), V J_x (21, 3), a 3x3 scratch (a

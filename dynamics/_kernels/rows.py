@@ -288,7 +288,7 @@ def _mass_joint(bodies, V, Jx, VJ, M):
     _mass_task(bodies, VJ, M)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def _column_dot(Jx, a, f, row):
     """``(J_x^T f[row])_a``: column ``a`` of ``J_x`` dotted with a row of the force table."""
     return Jx[0, a] * f[row, 0] + Jx[1, a] * f[row, 1] + Jx[2, a] * f[row, 2]

@@ -30,8 +30,16 @@ into flat float arrays whose fields are read through the named offsets of :mod:`
 
 All kernels are compiled on first use and cached by numba (next to their source in
 ``__pycache__``, or under ``$NUMBA_CACHE_DIR``).  :mod:`.cache_stamp` stamps the cache with the
-content of every module here, not only the defining file's: a kernel inlines the core and the
-packs' offsets from other files, so any change here recompiles every kernel once.
+content of every module here, not only the defining file's: a kernel's machine code holds the
+kernels it calls and the packs' offsets from other files, so any change here recompiles every
+kernel once.
+
+The small helpers and phases that only other kernels call are ``@njit(cache=False)``: numba
+compiles them with their first caller and links their machine code into every caller's cache entry, so an entry of their own
+would only be compiled, written and shipped in the FMUs a second time.  No kernel is
+``inline="always"``: inlining at numba's level re-typed each callee in every caller and cost about
+2 of the C entry point's 5 minutes of compile for under 1 % of a step's time (docs/benchmarks.md,
+section first_run).
 """
 import os as _os
 

@@ -117,7 +117,7 @@ def walk_append(anytime, q):
     return path_append(anytime, ANY_N_PATH, ANY_PATH, MAX_PATH, q)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def path_append(anytime, n_at, path_at, most, q):
     """Add the reading ``q`` (3,) at the end of the path of the anytime pack whose count is at ``n_at``
     and readings (most, 3) at ``path_at``, unwrapped next to the last; False when it holds ``most``."""

@@ -1,9 +1,9 @@
 """numba's on-disk cache of the kernels, stamped with the content of every kernel module.
 
 numba's ``cache=True`` stamps a kernel's cache entry with its *own* source file (numba 0.68: the
-SHA-256 of that file).  A kernel inlines what it calls and the module constants it reads (the
-packed arrays' offsets of :mod:`.layout`, the core of :mod:`.kinematics` and :mod:`.linalg`) from
-other files: after a change to one of those, an unchanged file's cached machine code is loaded
+SHA-256 of that file).  A kernel's cached machine code holds the kernels it calls (numba links them
+in) and the module constants it reads (the packed arrays' offsets of :mod:`.layout`, the core of
+:mod:`.kinematics` and :mod:`.linalg`) from other files: after a change to one of those, an unchanged file's cached machine code is loaded
 with the old constants baked in (a ``git pull`` that changed only ``layout.py``; a CI cache kept
 between runs; seen as "cannot assign slice of shape (0,) from input of shape (3,)" in a kernel
 that wrote a pack of the old size).

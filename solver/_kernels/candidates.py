@@ -71,7 +71,7 @@ def certify(cands, n_cand, verified, intact, qp, dq, d2_par, have_par, eps, pose
     return n_new, code if n_new == 1 else CERT_NONE, eps == 0.0, sole_linked
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def continue_single(X0, verified, tube_first, qp, dq, d1_par, d2_par, n_paths, eps, poses, real, max_tests,
                     M, l1, b, l2sq, new_cands, keep, deadline):
     """Continuation: a forward chain from the one candidate ``X0`` (3,) names its continuation.
@@ -105,7 +105,7 @@ def continue_single(X0, verified, tube_first, qp, dq, d1_par, d2_par, n_paths, e
     return -1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def eliminate(cands, n_cand, qu, dq, d1_par, d2_par, n_paths, poses, real, max_tests, M, l1, b, l2sq, new_cands,
               keep, linked, deadline):
     """Elimination: every real solution at ``qu`` followed back along the segment (then, when its
@@ -138,7 +138,7 @@ def eliminate(cands, n_cand, qu, dq, d1_par, d2_par, n_paths, poses, real, max_t
     return n_new
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def keep_posture(poses, qu, posture_bits, M, l1, b, new_cands, keep):
     """Posture: of the solutions marked in ``keep`` (6,), those whose elbows are in the posture
     ``posture_bits`` + 1 at the joints ``qu``.  When at least one is, ``keep`` and ``new_cands``

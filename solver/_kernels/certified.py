@@ -52,7 +52,7 @@ def share(deadline, fraction):
     return now + fraction * max(deadline - now, 0.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, model_pack, map_pack, out_real,
                   out_int, anytime):
     """The certificates of a step and what they change in the choice.
@@ -180,7 +180,7 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
     return chosen, linked
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def budgeted(untrusted, state, work, poses, real, params, model_pack, new_cands, keep, tubes, anytime):
     """The tube chain and the chains of boxes of a step with a budget (the anytime pack's deadline).
 
@@ -211,7 +211,7 @@ def budgeted(untrusted, state, work, poses, real, params, model_pack, new_cands,
     return sol, n_tubes, n_new, cert, intact, linked
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def anytime_chains(untrusted, state, work, poses, real, params, model_pack, new_cands, keep, anytime, append,
                    deadline):
     """The chains of boxes of a step with a budget: the continuation from a single candidate is resumable
@@ -255,12 +255,12 @@ def anytime_chains(untrusted, state, work, poses, real, params, model_pack, new_
     return chains(state, work, poses, real, params, model_pack, new_cands, keep, deadline)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def tol_of(params):
     return params[PARAM_JOINT_TOL]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def is_measured(params, model_pack):
     """Whether the robot's pose may lie off the model's DK solutions of the readings: joints read within a
     tolerance, or a robot as built (its legs' offsets): the chains along the readings then only steer the
@@ -268,7 +268,7 @@ def is_measured(params, model_pack):
     return tol_of(params) > 0.0 or as_built(geometry(model_pack)[2])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def tube_step(state, work, poses, real, tol, model_pack, tubes):
     """The tube chain (:func:`.tube_chain.tube_chain`) over this step's joints from the last step's cover
     (state pack), into ``tubes`` (MAX_COVER, TUBE_SIZE).  Returns (the index of the real DK solution
@@ -284,7 +284,7 @@ def tube_step(state, work, poses, real, tol, model_pack, tubes):
     return cover_solution(tubes, n, work[STEP_QU:STEP_QU + 3], tol, poses, real), n
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def walk_step(state, work, poses, real, tol, model_pack, tubes, anytime, append, deadline):
     """The tube chain as a walk (a step budget, :mod:`.anytime`): the walk the last steps left, or a new
     one from the last step's cover (state pack), with this step's reading appended (``append``),
@@ -307,7 +307,7 @@ def walk_step(state, work, poses, real, tol, model_pack, tubes, anytime, append,
     return cover_solution(tubes, n, qu, tol, poses, real), n
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def parabola(state, work, d2):
     """The quadratic term ``d2`` (3,, rad) of the parabola ``qp + s (dq - d2) + s^2 d2`` through the
     reading before the last (at ``s = -r``, r = previous / this time step), the last (``s = 0``) and
@@ -323,7 +323,7 @@ def parabola(state, work, d2):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def chains(state, work, poses, real, params, model_pack, new_cands, keep, deadline=0.0):
     """:func:`.candidates.certify` on the previous candidates (state pack) over the joint step and,
     with three samples, the parabola through them (time-scaled).  Writes ``new_cands`` (6, 3) and
@@ -340,7 +340,7 @@ def chains(state, work, poses, real, params, model_pack, new_cands, keep, deadli
     return n_new, cert, intact and intact_before, linked
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def paving_cut(state, qu, params, model_pack, Xc, bound, out_real, deadline):
     """A step the eliminant re-acquired: its box about ``Xc`` (3,), half-widths ``bound`` (3,), cut to the
     hull of the set-membership paving of this reading (:func:`.paving.region_step`), which holds the

@@ -159,7 +159,7 @@ def follow_branch(X0, verified, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, out,
     return int(prog[2])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def tiny_box(x, q0, d1, d2, M, l1, b, l2sq):
     """The tiny box about ``x`` (3,) at ``q(0)`` holds exactly one solution (the first test of a chain)."""
     w = np.empty(W_SIZE)
@@ -215,7 +215,7 @@ def follow_on(x, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, deadline, prog):
     return status
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def predict_piece(x, q0, d1, d2, s, sb, M, l1, b, l2sq, w, xb):
     """The solution at ``q(sb)`` continued from ``x`` (3,) at ``q(s)``, into ``xb`` (3,): an Euler
     step along ``dX/ds = -J^-1 g``, then Newton at ``q(sb)``.  Returns 1 when Newton converged,
@@ -229,7 +229,7 @@ def predict_piece(x, q0, d1, d2, s, sb, M, l1, b, l2sq, w, xb):
     return 1 if newton_on_path(xb, q0, d1, d2, sb, M, l1, b, l2sq, w, 6) < 1e-12 else 0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def prove_piece(x, xb, q0, d1, d2, s, sb, eps, M, l1, b, l2sq, w, bx):
     """The chain's link over ``s`` in [s, sb]: one Krawczyk box (grown by epsilon-inflation)
     holding the branch from ``x`` to ``xb`` (3,) over the path (the tube within ``eps`` of it),

@@ -97,7 +97,7 @@ def nearest(poses, real, Xref, w, m1, m2, m3, use_map):
 
 
 # ----------------------------------------------------------------------------- the tracker's phases
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def linear_prediction(state, work, model_pack, out_real):
     """Predict phase, eq. 22: the linear predictor at the previous pose into STEP_X_LIN; writes
     F_COND_PREV and returns the Hadamard ratio of J there."""
@@ -111,7 +111,7 @@ def linear_prediction(state, work, model_pack, out_real):
     return cond_prev
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def predict(mode, state, work, params, model_pack, out_real, cond_prev):
     """Predict phase, the prediction OUT_X_PRED a choice is compared with.
 
@@ -140,7 +140,7 @@ def predict(mode, state, work, params, model_pack, out_real, cond_prev):
     return ok, worst
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def choose_paper(poses, real, near_prev, work, labels, map_pack, n_near, single, out_int):
     """Choose phase, paper mode (procedure 3): the solution numbered by the region, the one label
     seen near the previous pose or the label at the eq. 22 prediction; where that solution is not
@@ -159,7 +159,7 @@ def choose_paper(poses, real, near_prev, work, labels, map_pack, n_near, single,
     return chosen, True                                # procedure 3 has no answer: nearest to the prediction
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def choose_default(poses, real, near_prev, work, state, params, labels, map_pack, stencil, n_near, ok, worst,
                    out_real, out_int):
     """Choose phase, default mode: the real solution nearest the continuation and the one nearest
@@ -199,7 +199,7 @@ def choose_default(poses, real, near_prev, work, state, params, labels, map_pack
     return chosen, ambiguous or not ok
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def arbitrate(params, kc, rc, ke, re, ok, worst):
     """The continuation's choice ``kc`` or the extrapolation's ``ke`` (decisiveness ``rc``, ``re``:
     d_best / d_second) by the strategy (PARAM_STRATEGY); returns (chosen, they disagree)."""

@@ -32,7 +32,7 @@ DUPLICATE = 1e-7
 HADAMARD_SINGULAR = 1e-6
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def elim(c, s, D, b, l2sq):
     """Elimination step 1 at cos/sin ``c, s`` (real or complex)."""
     ux0 = c * b[0, 0] - s * b[0, 1] - D[0, 0]
@@ -208,7 +208,7 @@ def acceptable(x, y, ph, res, had, ph0, out, isreal, real_tol):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def sextic(D, b, l2sq, cos8, sin8, sample_to_sextic, coef):
     """Steps 2-3: the eliminant at the eight sample angles, mapped to the sextic's coefficients
     ``coef`` (7,) for the half-angle shift of the sample of largest ``|f|``; returns that sample's index."""
@@ -227,7 +227,7 @@ def sextic(D, b, l2sq, cos8, sin8, sample_to_sextic, coef):
     return jbest
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def complex_solution(phi, D, b, l2sq, out, k):
     """Step 5: ``P`` from step 1 at a complex ``phi``, with ``phi``, into row ``k`` of ``out`` (6, 3) complex
     (the row's index, not a view of it: making a view costs more than this step)."""
@@ -236,7 +236,7 @@ def complex_solution(phi, D, b, l2sq, out, k):
     out[k, 0], out[k, 1], out[k, 2] = nx / delta, ny / delta, phi
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def twin_start(nx, ny, delta, ph0, D, b, l2sq, out, isreal):
     """Candidate 3 of a real root at ``ph0``: a twin of an accepted solution (a close pair the sextic
     cannot separate), deflated Newton from the Cramer point away from the nearest accepted one.
@@ -254,7 +254,7 @@ def twin_start(nx, ny, delta, ph0, D, b, l2sq, out, isreal):
     return x0, y0, p0, True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def real_solution(k, ph0, D, b, l2sq, steps, real_tol, out, isreal):
     """Steps 6-7 for the (near-)real root ``k`` at ``ph0``: candidates polished by Newton, the first
     acceptable one is written into ``out[k]`` and marked in ``isreal``; True if there is one."""
@@ -284,7 +284,7 @@ def real_solution(k, ph0, D, b, l2sq, steps, real_tol, out, isreal):
     return False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def normalise(out, isreal):
     """Real solutions as real numbers with phi wrapped; complex ones with Re phi wrapped, or NaN
     throughout if any part is not finite."""

@@ -56,7 +56,7 @@ Q_SIZE = 2 * A_SIZE
 SLACK_SYM = 4
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def _dev(x, o):
     """sum |coefficients| of the affine form at ``x[o:]``."""
     t = 0.0
@@ -65,13 +65,13 @@ def _dev(x, o):
     return t
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def _mag(x, o):
     """|centre| + sum |coefficients| of the affine form at ``x[o:]``."""
     return abs(x[o]) + _dev(x, o)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def _aff_add(x, xo, y, yo, sy, z, zo):
     """z = x + sy y (affine forms at offsets; ``sy`` +1 or -1), the rounding in the remainder."""
     for j in range(A_R):
@@ -79,7 +79,7 @@ def _aff_add(x, xo, y, yo, sy, z, zo):
     z[zo + A_R] = (x[xo + A_R] + y[yo + A_R]) * (1.0 + PAD) + PAD * (_mag(x, xo) + _mag(y, yo))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def _aff_mul(x, xo, y, yo, z, zo):
     """z = x y: centre and linear terms exact to rounding, the products of deviations in the remainder."""
     xc, yc = x[xo], y[yo]
@@ -92,7 +92,7 @@ def _aff_mul(x, xo, y, yo, z, zo):
         PAD * (_mag(x, xo) * _mag(y, yo) + abs(xc * yc) + 1e-300)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def q_add(x, y, sy=1.0):
     """x + sy y for quantities (value and d/dphi, :data:`Q_SIZE` floats each)."""
     z = np.empty(Q_SIZE)
@@ -101,7 +101,7 @@ def q_add(x, y, sy=1.0):
     return z
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def q_mul(x, y):
     """x y with its d/dphi, ``x' y + x y'``."""
     z = np.empty(Q_SIZE)
@@ -113,7 +113,7 @@ def q_mul(x, y):
     return z
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def q_scale(k, x):
     """k x for a number ``k``."""
     z = np.empty(Q_SIZE)
@@ -124,7 +124,7 @@ def q_scale(k, x):
     return z
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def q_const(v, j, a, r):
     """The quantity ``v + a e_j`` (remainder ``r``; ``j`` 1..3 a joint's symbol, SLACK_SYM.. a leg's slack)
     or the number ``v`` (``j = 0``, ``a = 0``), neither depending on phi (its d/dphi is zero)."""
@@ -135,7 +135,7 @@ def q_const(v, j, a, r):
     return z
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def q_range(x, o):
     """(lo, hi) of the affine form at ``x[o:]``."""
     w = _dev(x, o) + x[o + A_R]
@@ -287,7 +287,7 @@ def eliminant_certificate(phi_c, qc, tol, plo, phi, M, l1, l2sq, b, bound_box, d
     return found
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def end_signs(lo, hi, D0, D1, b, l2sq, ev):
     """The signs of ``f`` at ``lo`` and at ``hi`` over the joint box: -1 opposite, 1 the same, 0
     when ``f`` may vanish at either end."""

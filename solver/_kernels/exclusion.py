@@ -143,7 +143,7 @@ def in_region(X, region):
     return False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def posture_misses(box, q, eps, posture_bits, M, l1, l2sq, b):
     """No pose of ``box`` (6,) reaches ``q +- eps`` (3,) in posture ``posture_bits + 1``: some leg misses."""
     for i in range(3):
@@ -153,7 +153,7 @@ def posture_misses(box, q, eps, posture_bits, M, l1, l2sq, b):
     return False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def bisect(stack, top, box, k):
     """Push the two halves of ``box`` (6,) split across coordinate pair ``k`` (0, 2, 4) onto ``stack``
     above ``top``; returns the new top."""

@@ -31,7 +31,7 @@ def geometry(model_pack):
             model_pack[MODEL_L2SQ:MODEL_OFFSET + 3], model_pack[MODEL_PLATFORM:MODEL_PLATFORM + 6].reshape((3, 2)))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def leg_offset(l2sq, i):
     """Leg ``i``'s offset bound ``e_i`` (m) of the robot as built: 0 for the model, and for a prismatic leg
     (whose tolerance the tracker carries as a joint width, exactly ``e_i``)."""
@@ -40,7 +40,7 @@ def leg_offset(l2sq, i):
     return l2sq[3 + i]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def leg_slack(l2sq, i):
     """The slack ``sigma_i`` (m^2) of leg ``i``'s circle constraint for the robot as built: at the built
     robot's pose and joints the model's ``F_i = |P + R(phi) b_i - D_i(q_i)|^2 - l2_i^2`` lies in
@@ -52,21 +52,21 @@ def leg_slack(l2sq, i):
     return e * (2.0 * math.sqrt(l2sq[i]) + e) * (1.0 + 1e-12)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def as_built(l2sq):
     """Whether the legs carry an offset (the robot as built): the certificates then bound the pose for
     every geometry within it, and the joints' chains along the readings vouch for nothing."""
     return leg_offset(l2sq, 0) > 0.0 or leg_offset(l2sq, 1) > 0.0 or leg_offset(l2sq, 2) > 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def radius_sq(l2sq_i, q_i):
     """Squared radius of leg ``i``'s circle: ``l2sq_i`` (3-RRR), or ``q_i^2`` for a prismatic leg,
     which the model pack marks by ``l2sq_i < 0`` (3-RPR: the joint is the leg's length)."""
     return q_i * q_i if l2sq_i < 0.0 else l2sq_i
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def radius_sq_dq(l2sq_i, q_i):
     """d(radius_sq)/dq_i: ``2 q_i`` for a prismatic leg, 0 for a revolute one."""
     return 2.0 * q_i if l2sq_i < 0.0 else 0.0
@@ -80,7 +80,7 @@ def elbows(q, M, l1, D):
         D[i, 1] = M[i, 1] + l1[i] * math.sin(q[i])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def loop_row(x, y, c, s, bx, by, mx, my, ax, ay):
     """Leg loop at pose ``(x, y)``, ``cos/sin phi = c, s``, platform joint ``b = (bx, by)``, motor
     ``M = (mx, my)`` and arm ``D - M = (ax, ay)``.
@@ -96,7 +96,7 @@ def loop_row(x, y, c, s, bx, by, mx, my, ax, ay):
     return rbx, rby, lx, ly, ly * rbx - lx * rby
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def leg_row(x, y, c, s, q_i, mx, my, l1_i, bx, by):
     """Leg ``i`` at pose ``(x, y)``, ``cos/sin phi = c, s``, motor angle ``q_i``, motor ``(mx, my)``,
     proximal length ``l1_i`` and platform joint ``(bx, by)``.
@@ -127,7 +127,7 @@ def leg_batch(X, q, M, l1, b, out):
 
 
 # ----------------------------------------------------------------------------- inverse kinematics
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def ik_leg(x, y, c, s, mx, my, l1_i, l2_i, bx, by, bit):
     """Inverse kinematics of leg ``i`` at pose ``(x, y)``, ``cos/sin phi = c, s``: motor ``(mx, my)``,
     link lengths ``l1_i, l2_i``, platform joint ``(bx, by)``, elbow bit ``bit`` (1: the elbow sign is

@@ -40,13 +40,13 @@ W_F, W_J, W_G, W_Y, W_JLO, W_JHI, W_GLO, W_GHI, W_TOT, W_FQ = 0, 3, 12, 15, 24, 
 W_SIZE = 54
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def _mul(alo, ahi, blo, bhi):
     p1, p2, p3, p4 = alo * blo, alo * bhi, ahi * blo, ahi * bhi
     return min(min(p1, p2), min(p3, p4)), max(max(p1, p2), max(p3, p4))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def _smul(k, lo, hi):
     if k >= 0.0:
         return k * lo, k * hi
@@ -73,7 +73,7 @@ def isin(lo, hi):
     return icos(lo - 0.5 * math.pi, hi - 0.5 * math.pi)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def _path(q0, d1, d2, i, s):
     return q0[i] + s * (d1[i] + s * d2[i])
 
@@ -150,7 +150,7 @@ def krawczyk(m, rho, q0, d1, d2, s_lo, s_hi, eps, M, l1, b, l2sq, w):
     return _image_inside(w, rho, hs)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def _joint_range(q0, d1, d2, i, s_lo, s_hi):
     """Joint ``i``'s range (qlo, qhi) over s in [s_lo, s_hi] and that of its speed dq_i/ds (vlo, vhi,
     padded)."""
@@ -165,7 +165,7 @@ def _joint_range(q0, d1, d2, i, s_lo, s_hi):
     return qlo, qhi, min(va, vb) - PAD, max(va, vb) + PAD
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def _image_inside(w, rho, hs):
     """The half-widths of the Krawczyk image about the centre into ``w[W_TOT:W_TOT + 3]`` from the
     terms :func:`krawczyk` left in ``w`` (the interval of s has half-width ``hs``); True when

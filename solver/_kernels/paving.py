@@ -55,7 +55,7 @@ def grown_paving(state, params, roots):
     return m
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def touches(box, roots, n):
     """The box (6,) meets one of the first ``n`` boxes of ``roots``."""
     for r in range(n):

@@ -50,7 +50,7 @@ MAX_RETRIES = 3
 R_FAILED, R_DONE, R_PENDING = 0, 1, 2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def reacquire_target(chosen, certified, keep, poses, real, params, state, qu, model_pack, Xc, region):
     """The solution to re-acquire: the one the certificates kept (``certified``, ``keep`` (6,)) or else
     ``chosen``; when that one is outside the region or in another posture (the choice went onto
@@ -88,7 +88,7 @@ def reacquire_target(chosen, certified, keep, poses, real, params, state, qu, mo
     return target
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def region_choice(chosen, poses, real, params, state, qu, model_pack):
     """The solution to take when nothing vouches (a choice, not a proof): ``chosen``, unless it lies
     outside the pose box that holds the robot (:func:`.gates.reacquire_region`) or in another
@@ -100,7 +100,7 @@ def region_choice(chosen, poses, real, params, state, qu, model_pack):
     return chosen if target < 0 else target
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def reacquired(chosen, certified, state, work, poses, real, params, model_pack, new_cands, keep, tubes,
                deadline=0.0):
     """Re-acquire the branch from this sample alone (the module docstring): the solution of
@@ -196,7 +196,7 @@ def eliminant_reacquired(chosen, certified, state, work, poses, real, params, mo
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def box_reacquire(Xc, qu, tol, posture, region, max_boxes, model_pack, tube, deadline=0.0):
     """Re-acquisition by an axis-aligned Krawczyk box (:func:`.exclusion.reacquire`) about ``Xc``; the
     ``tube`` takes over when its hull lies inside that box."""
@@ -204,7 +204,7 @@ def box_reacquire(Xc, qu, tol, posture, region, max_boxes, model_pack, tube, dea
     return reacquire(Xc, qu, tol, posture, region, max_boxes, model_pack, box, deadline) and hull_inside(tube, tol, box)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def hull_inside(tube, tol, box):
     """The tube's solutions over its centre joints ``+- tol`` lie in the box ``box`` (centre, half-widths)."""
     for r in range(3):
@@ -261,7 +261,7 @@ def reacquired_anytime(chosen, certified, state, work, poses, real, params, mode
     return n
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def cover_solution(tubes, n, qu, tol, poses, real):
     """The index of the real DK solution (``poses`` (6, 3) complex, ``real`` (6,)) that is the solution
     of the cover ``tubes[:n]`` at the reading ``qu`` (3,), or -1."""
@@ -355,7 +355,7 @@ def reacquire_on(anytime, tol, posture, max_boxes, deadline, model_pack):
     return (R_DONE, 1) if r > 0 else (R_FAILED, 0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def next_attempt(anytime, attempt):
     """The re-acquisition goes on with ``attempt``, from its start."""
     anytime[ANY_R_ON], anytime[ANY_R_N], anytime[ANY_R_K], anytime[ANY_R_F] = attempt, 0.0, 0.0, 0.0

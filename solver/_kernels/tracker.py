@@ -114,7 +114,7 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
     publish(taken, ambiguous or taken != chosen, poses, work, params, model_pack, out_real, out_int)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def step_pack(q, state, params, out_real, out_int):
     """The step pack (STEP_SIZE,, :mod:`.tracker_packs`) of joints ``q`` (3,): the joint step, its
     size, the unwrapped joints and the jump flag (the predictions are filled by the predict
@@ -136,7 +136,7 @@ def step_pack(q, state, params, out_real, out_int):
     return work
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def hold(state, out_real, out_int, status):
     """The previous pose held (a refused or unreachable sample): the pose, the status, and the
     candidates and chain as they were; not certain (no bound), possible while the last step was."""
@@ -147,7 +147,7 @@ def hold(state, out_real, out_int, status):
     out_int[I_INTACT] = 1 if state[STATE_INTACT] > 0.0 else 0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def gate_phase(state, work, params, model_pack, out_real, out_int):
     """Gate phase (measured joints): the joint step against the one expected from the last two
     samples (:func:`.gates.outlier_gate`).  Writes F_INNOV and F_DQ, and a refused sample's
@@ -181,7 +181,7 @@ def gate_phase(state, work, params, model_pack, out_real, out_int):
     return verdict == GATE_REFUSE, untrusted
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def refuse(state, out_real, out_int):
     """A refused sample's result: the previous pose held, status rejected (no solutions reported)."""
     out_int[I_N_REAL] = 0
@@ -190,7 +190,7 @@ def refuse(state, out_real, out_int):
     hold(state, out_real, out_int, STATUS_REJECTED)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def solve_phase(q, rule, state, work, model_pack, sample_to_sextic, labels, map_pack, stencil, poses, real,
                 near_prev, out_int):
     """Solve phase: the DK solutions at ``q`` into ``poses`` (6, 3) complex / ``real`` (6,), numbered
@@ -217,7 +217,7 @@ def solve_phase(q, rule, state, work, model_pack, sample_to_sextic, labels, map_
     return n_real, n_near, single
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def margins(mode, chosen, poses, real, work, params, map_pack, out_real):
     """Choose phase, the margin: weighted distances (m) from the prediction to the chosen and to
     the nearest other real solution (F_D_BEST, F_D_SECOND).  Returns whether the choice is
@@ -238,7 +238,7 @@ def margins(mode, chosen, poses, real, work, params, map_pack, out_real):
     return (mode != MODE_PAPER and d_best > params[PARAM_AMBIGUITY] * d_second) or work[STEP_JUMP] > 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def speed_gate_phase(mode, chosen, linked, untrusted, state, work, poses, real, params, model_pack, out_real,
                      out_int, deadline=0.0):
     """Speed gate phase (measured joints, a speed bound): a pose the platform cannot have reached
@@ -283,7 +283,7 @@ def speed_gate_phase(mode, chosen, linked, untrusted, state, work, poses, real, 
     return taken
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def publish(chosen, ambiguous, poses, work, params, model_pack, out_real, out_int):
     """Publish phase: the pose of solution ``chosen`` (OUT_X), the Hadamard ratio of J there
     (F_COND), the label, the ambiguity and the status (singular below ``singular_tol``)."""

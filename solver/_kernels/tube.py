@@ -68,7 +68,7 @@ MATCH_PAD = 1e-9
 SLACK = 1e-9
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def lin_bound(l0, l1_, l2, V, tw):
     """``max |l . V w|`` over ``|w| <= tw`` (3,): ``sum_n |l . V[:, n]| tw_n``, padded for rounding."""
     out = 0.0
@@ -79,7 +79,7 @@ def lin_bound(l0, l1_, l2, V, tw):
     return out * (1.0 + 1e-12)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def lin_bound2(l0, l1_, l2, V, tw, t):
     """``max |l . dq|`` over ``dq = V w``, ``|w| <= tw``, with ``|dq| <= t`` (3,): the smaller bound."""
     box = (abs(l0) * t[0] + abs(l1_) * t[1] + abs(l2) * t[2]) * (1.0 + 1e-12)
@@ -308,14 +308,14 @@ def slab_test(xg, qc, V, tw, tq, rho_min, M, l1, l2sq, b, tube):
     return False
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def spread(tube, r, t):
     """How far coordinate ``r`` of the tube's linear predictor moves over joints within ``t`` (rad) of its
     centre: ``sum_m |S_rm| t`` (m, or rad for r = 2).  The needle's hull is ``spread + kappa``."""
     return (abs(tube[TUBE_S + 3 * r]) + abs(tube[TUBE_S + 3 * r + 1]) + abs(tube[TUBE_S + 3 * r + 2])) * t
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def set_spread(tube, r):
     """How far coordinate ``r`` of the tube's linear predictor moves over the tube's own joint set (m, or
     rad for r = 2): :func:`lin_bound2` of row ``r`` of ``S`` over ``V``, ``tw`` and ``t``."""

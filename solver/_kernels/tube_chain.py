@@ -166,7 +166,7 @@ def cover(pieces, n, guess, qc, t, M, l1, l2sq, b, deadline=0.0, stages=COVER_AL
     return -1, tests
 
 
-@njit(cache=True, inline="always")
+@njit(cache=False)
 def cover_stages(half, tol):
     """The stages worth trying for a piece of a joint step with half-extent ``half`` (3,, rad) along the
     step, widened by ``tol``.  With measured joints (``tol > 0``): a piece longer than its tolerance box
