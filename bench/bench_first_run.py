@@ -17,7 +17,8 @@ It prints every line the command writes to stderr with the seconds since it star
 - the same command again in the same clone (warm caches: what every later run costs);
 - with ``--tests``: the README's test command (``python -m pytest -q``) in the clone with the
   caches the first run left (cold for the test suite's own builds), then again (warm), each with
-  its wall time (targets: 8 and 5 minutes).
+  its wall time (targets: 8 and 5 minutes) and pytest's summary line (its whole output in
+  ``pytest-cold.txt`` and ``pytest-warm.txt`` of the work folder: ``--keep DIR`` keeps them).
 
 Numbers, no assertions; the machine's load average is printed (compiles take longer on a loaded
 machine).  Writes the section ``first_run`` of docs/benchmarks.md and its headline rows.
@@ -50,10 +51,17 @@ def clean_env(clone: Path, cache: Path) -> dict:
     return env
 
 
-def timed_run(cmd: list, cwd: Path, env: dict, echo: bool = True) -> tuple[float, float, int, list]:
-    """Run ``cmd``; returns (wall s, longest silence between stderr lines s, exit code, [(s, line)])."""
+def timed_run(cmd: list, cwd: Path, env: dict, echo: bool = True, stdout: Path | None = None
+              ) -> tuple[float, float, int, list]:
+    """Run ``cmd``; returns (wall s, longest silence between stderr lines s, exit code, [(s, line)]).
+    ``stdout``: a file for the command's standard output (default: discarded)."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    out = open(stdout, "w") if stdout is not None else subprocess.DEVNULL
+    try:
+        proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=out, stderr=subprocess.PIPE, text=True)
+    finally:
+        if stdout is not None:
+            out.close()                 # the child holds its own copy
     lines, last, silence = [], 0.0, 0.0
     for line in proc.stderr:
         t = time.perf_counter() - t0
@@ -98,8 +106,10 @@ def main(argv=None) -> None:
         if args.tests:
             for label, target in (("cold", TESTS_COLD), ("warm", TESTS_WARM)):
                 print(f"python -m pytest -q ({label}):", flush=True)
+                log = work / f"pytest-{label}.txt"
                 t, _, code, _ = timed_run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider"], clone, env,
-                                          echo=False)
+                                          echo=False, stdout=log)
+                print(f"  {t / 60:.1f} min, exit {code}: " + log.read_text().strip().splitlines()[-1], flush=True)
                 rows.append((f"the README's test command, {label} (exit {code})", f"{t / 60:.1f} min",
                              f"<= {target / 60:.0f} min" + ("" if t <= target else " (not met)")))
         body = table(["what", "measured", "target"], rows)

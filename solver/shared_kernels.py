@@ -38,7 +38,7 @@ GENERIC_CPU = "generic"
 FILES = "files.json"
 _MARK = "_rrr_dk_shared_kernels"
 _served: list[str] = []                      # the kernels this process took from the store (their file base)
-_folders: list | None = None                 # [(folder, key, {rel: sha256})], read once per process
+_records: dict = {}                          # a store record's path -> ((mtime_ns, size), its files or None)
 _hashes: dict[str, str | None] = {}          # a file of this process's packages -> its SHA-256 (None: missing)
 
 
@@ -48,23 +48,34 @@ def served() -> list[str]:
 
 
 def _store_folders() -> list:
-    """The generic store's folders with their records (read once per process)."""
-    global _folders
-    if _folders is None:
-        from .cache import cache_dir             # at the first miss: no folder is made before one is needed
+    """The generic store's folders with their records: [(folder, key, {rel: sha256})].
 
-        found = []
+    Looked up at every miss (a miss compiles for seconds at least; the lookup lists a few folders), so
+    a store that an FMU build fills while this process runs serves the process's later misses; a
+    record is parsed again only when its file changed."""
+    from .cache import cache_dir                 # at the first miss: no folder is made before one is needed
+
+    found = []
+    try:
+        records = sorted(Path(cache_dir("fmu-kernels-generic")).glob(f"*/*/{FILES}"))
+    except OSError:
+        return found
+    for record in records:
         try:
-            root = Path(cache_dir("fmu-kernels-generic"))
-            for record in sorted(root.glob(f"*/*/{FILES}")):
+            st = record.stat()
+            stamp = (st.st_mtime_ns, st.st_size)
+            if str(record) not in _records or _records[str(record)][0] != stamp:
                 try:
-                    found.append((record.parent, record.parent.name, json.loads(record.read_text())))
-                except (OSError, ValueError):
-                    continue
+                    files = json.loads(record.read_text())
+                except ValueError:
+                    files = None
+                _records[str(record)] = (stamp, files if isinstance(files, dict) else None)
         except OSError:
-            pass
-        _folders = found
-    return _folders
+            continue
+        files = _records[str(record)][1]
+        if files is not None:
+            found.append((record.parent, record.parent.name, files))
+    return found
 
 
 def _package_root(py_file: str) -> Path:

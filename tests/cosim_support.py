@@ -1,19 +1,19 @@
-"""Shared by the tests that run the closed loop (test_cosim.py, test_fmu_speed_paths.py): the three
-FMUs built per test module with a coarse map (40 mm / 6 deg) and a ClosedLoop on them; a test module
+"""Shared by the tests that run the closed loop (test_cosim.py, test_fmu_speed_paths.py, test_fast_lane.py,
+test_shared_kernels.py): the session's three FMUs (coarse map, 40 mm / 6 deg; built once per session by
+:func:`host_support.session_fmus`, which the hosts' tests share) and a ClosedLoop on them; a test module
 imports the fixtures by name."""
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
-from cosim import ClosedLoop, build_fmus
+from cosim import ClosedLoop
 from cosim.unit import import_hygiene
+from host_support import session_fmus
 
 
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory):
-    out = tmp_path_factory.mktemp("fmus")
-    return build_fmus(out, resolution=(0.04, float(np.deg2rad(6.0))), progress=False)
+    return session_fmus(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

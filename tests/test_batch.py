@@ -39,11 +39,11 @@ METRICS = ("rms_joint_error", "max_joint_error", "max_dk_vs_true", "dk_branch_er
 # ---------------------------------------------------------------------- fixtures
 @pytest.fixture(scope="session")
 def fmu_dir(tmp_path_factory):
-    from cosim import build_fmus
+    """The folder of the session's three FMUs (coarse map; :func:`host_support.session_fmus`)."""
+    from host_support import RESOLUTION, session_fmus
 
-    out = tmp_path_factory.mktemp("batch_fmus")
-    build_fmus(out, resolution=COARSE, progress=False)
-    return out
+    assert RESOLUTION == COARSE
+    return Path(session_fmus(tmp_path_factory)["RRRDirectKinematics"]).parent
 
 
 def _read_csv(path) -> list[dict]:

@@ -62,3 +62,48 @@ def test_a_fresh_process_steps_with_the_kernels_the_fmu_build_compiled(fmus, tmp
     assert got["entry_hits"] == 1, got
     assert any(s.startswith("c_entry._step-") for s in got["served"]), got
     assert got["error"] < 1e-9 and got["certain"]
+
+
+#: a process that compiles a kernel before any FMU build filled the store (its first miss finds no store),
+#: then finds the store filled (an FMU build that ran meanwhile) and steps the tracker
+_LATE = r"""
+import json, shutil, sys
+from pathlib import Path
+import numpy as np
+from solver import Manipulator, MapTensor, Tracker, cache_dir, circle_path, ik, shared_kernels
+from solver._kernels.c_entry import entry
+from solver._kernels.linalg import wrap
+
+store = cache_dir("fmu-kernels-generic")
+assert not store.exists()
+wrap(7.0)                                                   # a miss with no store: compiled here
+before = shared_kernels.served()
+shutil.copytree(sys.argv[2], store)                         # the build that ran meanwhile
+model = Manipulator.paper()
+X = circle_path(50)
+q = ik(model, X, 1)
+tracker = Tracker(model, MapTensor.load(sys.argv[1]), start_tolerance=(1e-9, 1e-9, 1e-9))
+tracker.reset(X[0], q[0], warn=False)
+pose, info = tracker.step(q[1])
+print(json.dumps({"before": before, "entry_hits": entry().cache_hits, "served": shared_kernels.served(),
+                  "error": float(np.abs(pose - X[1]).max())}))
+"""
+
+
+def test_a_store_filled_after_the_first_miss_serves_the_later_ones(fmus, tmp_path):  # noqa: F811
+    """The store is looked up at every miss, not once per process: a process whose first kernel compiled
+    before the FMU build filled the store (the test session, ``python -m cosim`` checking a robot first)
+    loads the C entry point from it afterwards instead of compiling it for its own CPU."""
+    dk = Path(fmus["RRRDirectKinematics"])
+    with zipfile.ZipFile(dk) as z:
+        name = next(n for n in z.namelist() if n.startswith("resources/") and n.endswith(".npz"))
+        map_file = tmp_path / Path(name).name
+        map_file.write_bytes(z.read(name))
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "PYTHONPATH", "XDG_CACHE_HOME")}
+    env.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"), PYTHONPATH=str(ROOT), RRR_DK_CACHE=str(tmp_path / "cache"))
+    proc = subprocess.run([sys.executable, "-c", _LATE, str(map_file), str(generic_root())], capture_output=True,
+                          text=True, env=env, cwd=ROOT, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert got["before"] == [] and got["entry_hits"] == 1, got
+    assert any(s.startswith("c_entry._step-") for s in got["served"]) and got["error"] < 1e-9, got
