@@ -1,9 +1,9 @@
 """``python -m cosim``: build the FMUs (if needed), run the closed loop, write results/.
 
-The first run builds the three FMUs (the DK's map tensor, then each FMU) and compiles their kernels
-once (the loop in this process then loads the same ones, :mod:`solver.shared_kernels`): about 6
-minutes on 2 cores, most of it the DK's kernels; it says so, phase by phase, on stderr.  Later runs
-reuse both and take a few seconds.
+The first run builds the three FMUs at once (the DK's map tensor and kernels; the controller's and
+the plant's kernels beside them) and compiles their kernels once (the loop in this process then loads
+the same ones, :mod:`solver.shared_kernels`): about 3 minutes on 2 cores, most of it the DK's
+kernels; it says so, phase by phase, on stderr.  Later runs reuse both and take a few seconds.
 
 Runs the default scenario (the robot starts at rest on the circle and follows it for 2.5 s at a
 1 ms step, Gauss-Seidel master; options below change it); ``--robot FILE`` runs the loop of the robot

@@ -19,6 +19,23 @@ def rng():
     return np.random.default_rng(20261121)
 
 
+#: Fixtures that build FMUs (the session's three, :func:`host_support.session_fmus`; the batch's folder of them).
+FMU_FIXTURES = ("fmus", "fmu_dir")
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """Run the modules that build the session's FMUs first (each module's tests in their own order).
+
+    The DK FMU's build compiles the tracker's kernels once, for a generic CPU, into the store that this
+    process then loads them from (:mod:`solver.shared_kernels`); a tracker test that ran first would
+    compile the same kernels for this CPU (minutes on a cold cache, nothing once warm)."""
+    def module(item):
+        return getattr(getattr(item, "module", None), "__name__", None)
+
+    builds = {module(item) for item in items if any(f in getattr(item, "fixturenames", ()) for f in FMU_FIXTURES)}
+    items.sort(key=lambda item: 0 if module(item) in builds - {None} else 1)
+
+
 _COARSE_MAPS = {}
 
 

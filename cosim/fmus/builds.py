@@ -314,10 +314,10 @@ def is_stale(name: str, fmu: Path) -> bool:
 
 
 #: What a first build of each FMU does, and about how long it takes (2 cores; the map alone 20 s on an
-#: idle machine and 52-88 s on a loaded one; the kernels the DK FMU ships 115-176 s, the others' 10-30 s,
+#: idle machine and 52-88 s on a loaded one; the kernels the DK FMU ships 145-170 s, the others' 15-30 s,
 #: once per code version; a rebuild 3-8 s): said when the build starts.
 FIRST_BUILD = {
-    DK_NAME: "the first time it builds the map tensor (procedure 1) and compiles the kernels it ships: 2 to 5 "
+    DK_NAME: "the first time it builds the map tensor (procedure 1) and compiles the kernels it ships: 2 to 4 "
              "min; later builds reuse both",
     "ComputedTorqueController": "the first time it compiles the kernels it ships: about 30 s; later a few seconds",
     "RRRPlant": "the first time it compiles the kernels it ships: about 30 s; later a few seconds",
