@@ -107,6 +107,65 @@ def test_a_refused_input_goes_to_python_and_keeps_the_state(make, monkeypatch):
     assert fast.get_values(["status"]) == [3]
 
 
+def _raises(what):
+    def hook():
+        raise RuntimeError(f"test: the {what} fails")
+    return hook
+
+
+def test_a_push_that_raises_closes_the_lane_and_python_carries_on(make, monkeypatch):
+    """The slave's push raises (after a call the loader forwarded to Python): the lane closes, says so
+    in the log, and every later call goes through Python with the Python path's results, bit for bit."""
+    fast, slow = _pair(make, monkeypatch)
+    assert _run(fast, Q[:60]) == _run(slow, Q[:60])
+    slave = _slave("fast")
+    steps = slave.lane_counts[0]
+    assert steps >= 55
+    slave._lane_before_steps = _raises("push")          # the push's last act, after the lane's arrays
+    assert fast.get_values(["x0"]) == slow.get_values(["x0"])     # forwarded: the pull, then the push raises
+    assert _run(fast, Q[60:140]) == _run(slow, Q[60:140])
+    assert slave.lane_counts[0] == steps                # no lane step since
+    texts = [msg for _, msg in fast.messages]
+    assert any("fast lane closed" in t and "the push fails" in t for t in texts), texts[-5:]
+
+
+def test_a_pull_that_raises_makes_the_instance_refuse_its_steps_and_say_why(make):
+    """The slave's pull raises after lane steps (it could not read the state they left): the lane
+    closes and the instance is unusable, as after a failed rollback: every doStep is refused (an FMI
+    status, not a crash) with the reason in the log, until the host frees or resets it."""
+    m = make("pulled", **circle_start())
+    _run(m, Q[:30])
+    slave = _slave("pulled")
+    assert slave.lane_counts[0] >= 25
+    slave._lane_after_steps = _raises("pull")           # reading the lane's steps into the slave
+    m.get_values(["x0"])                                # forwarded: its pull raises
+    m.set_q(Q[30])
+    with pytest.raises(FMICallException):
+        m.fmu.doStep(m.t, H)
+    steps = slave.lane_counts[0]
+    with pytest.raises(FMICallException):
+        m.fmu.doStep(m.t, H)                            # again: still through Python, still refused
+    assert slave.lane_counts[0] == steps
+    texts = [msg for _, msg in m.messages]
+    assert any("fast lane closed" in t and "the pull fails" in t for t in texts), texts[-5:]
+    assert any("instance unusable" in t and "could not read the lane's state" in t for t in texts), texts[-5:]
+
+
+def test_an_outlier_the_gate_refuses_after_the_lane_fell_back_is_the_python_paths(make, monkeypatch):
+    """Measured joints with one finite outlier: the lane's step sees a status other than the episode's
+    (rejected), undoes itself and falls back; Python takes the same step, refuses the sample (pose
+    held, doStep ok, status 3, logged) and the lane takes the steps after it: bit for bit the Python path."""
+    sensors = dict(joint_tolerance=1e-4, speed_bound_linear=1.0, speed_bound_angular=3.0)
+    fast, slow = _pair(make, monkeypatch, **sensors)
+    stream = Q[:120].copy()
+    stream[60, 0] += 0.3                                # one sample 0.3 rad off: finite, refused
+    rows = _run(fast, stream)
+    assert rows == _run(slow, stream)
+    status = [r[ALL.index("status")] for r in rows]
+    assert status[60] == 3 and status[59] == 0 and status[62:] == [0] * (len(stream) - 62), status[55:65]
+    assert len(stream) - 6 <= _slave("fast").lane_counts[0] < len(stream)
+
+
 def test_the_lane_stays_closed_with_the_stuck_joint_detector(make):
     m = make("stuck", stuck_after=5, joint_tolerance=1e-4, **circle_start())
     _run(m, Q[:40])

@@ -137,7 +137,11 @@ def test_command_line(built, tmp, capsys, monkeypatch):
     text = capsys.readouterr().out
     assert "reused" in text and "validation: OK" in text and "MB" in text
     assert (out / "RRRDirectKinematics.fmu").read_bytes() == built.fmu.read_bytes()
-    assert build_main(["--out", str(out), "--map", str(cached), "--posture", "1"]) == 0
+    # a given map file (the DK FMU only: the command's default path, all three and the references, ran above)
+    assert build_main(["--out", str(out), "--map", str(cached), "--posture", "1", "--only", "RRRDirectKinematics",
+                       "--no-reference"]) == 0
+    assert "validation: OK" in capsys.readouterr().out
+    assert (out / "RRRDirectKinematics.fmu").read_bytes() == built.fmu.read_bytes()
     assert build_main(["--out", str(out), "--resolution", "40 furlongs"]) == 2
 
 

@@ -36,6 +36,13 @@ STEPS = 100
 FMPY = version("fmpy")
 
 
+@pytest.fixture(autouse=True)
+def _no_project_path(monkeypatch):
+    """The listed host is a process of its own environment: ``$PYTHONPATH`` of the one running the tests
+    (a checkout put first on the path, as bench/bench_first_run.py does) must not hand it the project."""
+    monkeypatch.delenv("PYTHONPATH", raising=False)
+
+
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory):
     built = dict(session_fmus(tmp_path_factory))
