@@ -123,13 +123,16 @@ class TableLane:
             self._lane_close(exc)
 
     def _lane_close(self, exc: Exception) -> None:
+        """A pull or push raised: the lane closes for good, said in the FMU's log (a warning; an error when
+        the slave could not read the lane's steps, which makes the instance unusable)."""
         lane = self._lane
         lane.closed = True
         lane.struct.enabled = 0
-        if lane.struct.py_stale:
+        broken = bool(lane.struct.py_stale)
+        if broken:
             self._broken = f"fast lane: the slave could not read the lane's state ({type(exc).__name__}: {exc})"
-        self._pylog.error("instance %r: fast lane closed (%s: %s); every call goes through Python",
-                          self.instance_name, type(exc).__name__, exc)
+        self._report(f"instance {self.instance_name!r}: fast lane closed ({type(exc).__name__}: {exc}); every "
+                     "call goes through Python", Fmi2Status.error if broken else Fmi2Status.warning)
 
     # ---------------------------------------------------------------- hooks (a slave overrides them)
     def _lane_checked(self, io) -> None:
