@@ -13,8 +13,8 @@ whose cache the content-stamped locator of :mod:`solver._kernels.cache_stamp` ke
 no entry for this CPU, the entry compiled for the generic CPU is looked up in the generic store,
 and used when found.  A store folder serves only while every file the FMU bundled is byte for byte
 the file of this process's packages (the build records their SHA-256, ``files.json``; a kernel
-holds the machine code of callees from other files, so one changed file retires the folder); numba's own index then
-checks the function's bytecode and signature as for any entry.  Nothing is written: a kernel found
+holds the machine code of callees from other files, so one changed file retires the folder);
+numba's own index then checks the function's bytecode and signature as for any entry.  Nothing is written: a kernel found
 nowhere compiles for this CPU into numba's cache as before, and later lookups find it there first.
 
 The price: generic machine code does not use the CPU's vector extensions.  The kernels are scalar
@@ -64,18 +64,23 @@ def _store_folders() -> list:
         try:
             st = record.stat()
             stamp = (st.st_mtime_ns, st.st_size)
-            if str(record) not in _records or _records[str(record)][0] != stamp:
-                try:
-                    files = json.loads(record.read_text())
-                except ValueError:
-                    files = None
-                _records[str(record)] = (stamp, files if isinstance(files, dict) else None)
+            kept = _records.get(str(record))
+            if kept is None or kept[0] != stamp:
+                kept = _records[str(record)] = (stamp, _read_record(record))
         except OSError:
             continue
-        files = _records[str(record)][1]
-        if files is not None:
-            found.append((record.parent, record.parent.name, files))
+        if kept[1] is not None:
+            found.append((record.parent, record.parent.name, kept[1]))
     return found
+
+
+def _read_record(record: Path) -> dict | None:
+    """The files a store record lists, {rel: sha256}; None if it is not such a JSON object."""
+    try:
+        files = json.loads(record.read_text())
+    except ValueError:
+        return None
+    return files if isinstance(files, dict) else None
 
 
 def _package_root(py_file: str) -> Path:

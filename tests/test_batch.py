@@ -19,7 +19,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from cosim import batch
@@ -27,7 +26,6 @@ from cosim.batch import ConfigError, expand, parse_sweep_arg, parse_value
 
 ROOT = Path(__file__).resolve().parents[1]
 T_END = 0.6
-COARSE = (0.04, float(np.deg2rad(6.0)))
 #: A circle whose start is reachable but that leaves the workspace at ~0.2 s: an FMU refuses a step.
 LEAVES_WORKSPACE = 0.85
 #: A circle whose start pose is outside the workspace: the run fails before the first step.
@@ -40,9 +38,8 @@ METRICS = ("rms_joint_error", "max_joint_error", "max_dk_vs_true", "dk_branch_er
 @pytest.fixture(scope="session")
 def fmu_dir(tmp_path_factory):
     """The folder of the session's three FMUs (coarse map; :func:`host_support.session_fmus`)."""
-    from host_support import RESOLUTION, session_fmus
+    from host_support import session_fmus
 
-    assert RESOLUTION == COARSE
     return Path(session_fmus(tmp_path_factory)["RRRDirectKinematics"]).parent
 
 

@@ -36,29 +36,35 @@ print(json.dumps({"entry_hits": entry().cache_hits, "served": shared_kernels.ser
 """
 
 
-def _child(map_file: Path, numba_cache: Path, **env_extra) -> dict:
+def _child(script: str, *args, numba_cache: Path, **env_extra) -> dict:
+    """Run ``script`` with ``args`` in a fresh process with the numba cache ``numba_cache``; its last line, JSON."""
     env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "PYTHONPATH")}
     env.update(NUMBA_CACHE_DIR=str(numba_cache), PYTHONPATH=str(ROOT), **env_extra)
-    proc = subprocess.run([sys.executable, "-c", _CHILD, str(map_file)], capture_output=True, text=True, env=env,
+    proc = subprocess.run([sys.executable, "-c", script, *map(str, args)], capture_output=True, text=True, env=env,
                           cwd=ROOT, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _dk_map(fmus, folder: Path) -> Path:
+    """The map file the session's DK FMU embeds, written into ``folder``."""
+    with zipfile.ZipFile(Path(fmus["RRRDirectKinematics"])) as z:
+        name = next(n for n in z.namelist() if n.startswith("resources/") and n.endswith(".npz"))
+        map_file = folder / Path(name).name
+        map_file.write_bytes(z.read(name))
+    return map_file
 
 
 def test_a_fresh_process_steps_with_the_kernels_the_fmu_build_compiled(fmus, tmp_path):  # noqa: F811
     """After the FMU build, a process whose numba cache is empty runs the tracker's step from the generic
     store: the C entry point is a cache hit (no compile), the poses are right; the store folder says
     which files it was compiled from."""
-    dk = Path(fmus["RRRDirectKinematics"])
-    with zipfile.ZipFile(dk) as z:
-        name = next(n for n in z.namelist() if n.startswith("resources/") and n.endswith(".npz"))
-        map_file = tmp_path / Path(name).name
-        map_file.write_bytes(z.read(name))
+    map_file = _dk_map(fmus, tmp_path)
     records = list((generic_root() / "RRRDirectKinematics").glob(f"*/{FILES}"))
     assert records, "the DK FMU build wrote no record of its bundled files"
     files = json.loads(max(records, key=lambda p: p.stat().st_mtime).read_text())
     assert "solver/_kernels/c_entry.py" in files and not any(n.startswith("fmu_src/") for n in files)
-    got = _child(map_file, tmp_path / "numba")
+    got = _child(_CHILD, map_file, numba_cache=tmp_path / "numba")
     assert got["entry_hits"] == 1, got
     assert any(s.startswith("c_entry._step-") for s in got["served"]), got
     assert got["error"] < 1e-9 and got["certain"]
@@ -94,16 +100,7 @@ def test_a_store_filled_after_the_first_miss_serves_the_later_ones(fmus, tmp_pat
     """The store is looked up at every miss, not once per process: a process whose first kernel compiled
     before the FMU build filled the store (the test session, ``python -m cosim`` checking a robot first)
     loads the C entry point from it afterwards instead of compiling it for its own CPU."""
-    dk = Path(fmus["RRRDirectKinematics"])
-    with zipfile.ZipFile(dk) as z:
-        name = next(n for n in z.namelist() if n.startswith("resources/") and n.endswith(".npz"))
-        map_file = tmp_path / Path(name).name
-        map_file.write_bytes(z.read(name))
-    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "PYTHONPATH", "XDG_CACHE_HOME")}
-    env.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"), PYTHONPATH=str(ROOT), RRR_DK_CACHE=str(tmp_path / "cache"))
-    proc = subprocess.run([sys.executable, "-c", _LATE, str(map_file), str(generic_root())], capture_output=True,
-                          text=True, env=env, cwd=ROOT, timeout=900)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    got = _child(_LATE, _dk_map(fmus, tmp_path), generic_root(), numba_cache=tmp_path / "numba",
+                 RRR_DK_CACHE=str(tmp_path / "cache"))
     assert got["before"] == [] and got["entry_hits"] == 1, got
     assert any(s.startswith("c_entry._step-") for s in got["served"]) and got["error"] < 1e-9, got

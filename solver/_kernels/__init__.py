@@ -35,8 +35,9 @@ kernels it calls and the packs' offsets from other files, so any change here rec
 kernel once.
 
 The small helpers and phases that only other kernels call are ``@njit(cache=False)``: numba
-compiles them with their first caller and links their machine code into every caller's cache entry, so an entry of their own
-would only be compiled, written and shipped in the FMUs a second time.  No kernel is
+compiles them with their first caller and links their machine code into every caller's cache
+entry, so an entry of their own would only be compiled, written and shipped in the FMUs a second
+time.  No kernel is
 ``inline="always"``: inlining at numba's level re-typed each callee in every caller and cost about
 2 of the C entry point's 5 minutes of compile for under 1 % of a step's time (docs/benchmarks.md,
 section first_run).
