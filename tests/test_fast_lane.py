@@ -151,7 +151,7 @@ def test_a_pull_that_raises_makes_the_instance_refuse_its_steps_and_say_why(make
         m.fmu.doStep(m.t, H)
     steps = slave.lane_counts[0]
     with pytest.raises(FMICallException):
-        m.fmu.doStep(m.t, H)                            # again: still through Python, still refused
+        m.fmu.doStep(m.t, H)                            # again (now in stepFailed): still refused
     assert slave.lane_counts[0] == steps
     texts = [msg for _, msg in m.messages]
     assert any("fast lane closed" in t and "the pull fails" in t for t in texts), texts[-5:]
