@@ -16,13 +16,15 @@ Modules, one concept each: ``checks`` (argument checking), ``manipulator`` (geom
 solutions), ``ordering`` (their numbering rules), ``grid`` (the map grid over the tool
 space), ``maptensor`` (procedures 1 and 2), ``mapfile`` (the map file format),
 ``mapcache`` (the one map cache), ``cache`` (:func:`cache_dir`, the root of every disk
-cache), ``shared_kernels`` (the generic-CPU kernels an FMU build compiled serve this process too), ``progress`` (phase lines and progress bars of long work), ``tracker``
+cache), ``shared_kernels`` (the generic-CPU kernels an FMU build compiled serve this process too),
+``lean_compile`` (a callee-only kernel compiled in its callers only), ``progress`` (phase lines and progress bars of long work), ``tracker``
 (procedure 3) with ``tracking``, ``tracker_state``, ``start``, ``encoder_grid`` and ``stuck``, ``baselines``,
 ``sensors`` (the encoder model: the tracker's joint tolerance and stuck threshold; its speed bound
 from the planned motion),
 ``trajectories`` (shared tool-space paths), ``manipulators`` and ``rpr`` (the 3-RPR).
 """
 from .cache import CACHE_ENV, cache_dir
+from . import lean_compile as _lean_compile
 from . import shared_kernels as _shared_kernels
 from .checks import GeometryError, SolverInputError, as_array, check_posture
 from .direct_kinematics import DKSolutions, dk_all, order_solutions
@@ -54,3 +56,4 @@ __all__ = [
 ]
 
 _shared_kernels.install()      # the generic kernels an FMU build compiled serve this process too
+_lean_compile.install()        # a callee-only kernel is compiled in its callers, not for itself too

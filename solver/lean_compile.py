@@ -1,0 +1,161 @@
+"""Compile a callee-only kernel once: its machine code is made in its callers, not for itself too.
+
+numba compiles every ``@njit`` function it meets as a whole program of its own: it links the
+callees' LLVM modules into the function's module, optimises that module at ``-O3`` and emits its
+machine code, even when the function is compiled only because a caller calls it.  The caller then
+links the same callees again, optimises and emits them again, and so does the caller's caller.  A
+kernel ``d`` levels down is optimised and emitted ``d`` times; the certified step is about eight
+levels deep, so most of a first compile was LLVM redoing its own work.
+
+:func:`install` changes that for the project's callee-only kernels (``@njit(cache=False)`` in
+:mod:`solver._kernels` and :mod:`dynamics._kernels`, the rule of those packages) when numba compiles
+one *for a caller* (another compile is under way): the kernel's own module is optimised per function
+as before and linked into the caller, but it is not optimised as a whole and not turned into machine
+code of its own.  The outermost kernel (a cached ``@njit``, or the FMU's C entry point) optimises and
+emits the whole linked program once, as before: the same LLVM passes over the same code, so the
+same results bit for bit.
+
+Measured on the C entry point of the DK FMU (fresh process, empty cache, one core):
+162 s to compile (114 s of it in LLVM) without, 107 s (63 s in LLVM) with; the tracker's step
+30.5 us both (docs/benchmarks.md, section ``first_run``).
+
+Safety: such a kernel has no machine code of its own, so numba's table of Python-callable overloads
+never lists it.  Python calling it (a test, a user) compiles it whole on that call, as numba would
+have, and the Python call runs that.  The fallback is off with ``RRR_DK_LEAN_COMPILE=0``, and off by
+itself with a numba whose internals differ from the ones this patches (then every compile is
+numba's own: slower, never wrong).
+"""
+from __future__ import annotations
+
+import os
+import threading
+
+__all__ = ["install", "installed", "linked_only", "ENV"]
+
+#: The environment variable that turns the lean compile off (``0``).
+ENV = "RRR_DK_LEAN_COMPILE"
+#: The modules whose ``cache=False`` kernels are compiled for their callers only.
+KERNEL_PACKAGES = ("solver._kernels", "dynamics._kernels")
+_MARK = "_rrr_dk_lean_compile"
+_LINKED_ONLY = "_rrr_dk_linked_only"          # set on a library compiled for its callers only
+_state = threading.local()                    # .stack: one flag per compile under way (True: for a caller only)
+
+
+def installed() -> bool:
+    """Whether this process compiles callee-only kernels for their callers only."""
+    try:
+        from numba.core import codegen
+    except ImportError:
+        return False
+    return getattr(codegen.CPUCodeLibrary.finalize, _MARK, False)
+
+
+def linked_only(dispatcher, signature) -> bool:
+    """Whether ``dispatcher``'s overload of ``signature`` (a tuple of numba types) was compiled for its
+    callers only (no machine code of its own; a Python call compiles it whole first)."""
+    cres = dispatcher.overloads.get(tuple(signature))
+    return cres is not None and getattr(cres.library, _LINKED_ONLY, False)
+
+
+def _stack() -> list:
+    stack = getattr(_state, "stack", None)
+    if stack is None:
+        stack = _state.stack = []
+    return stack
+
+
+def _callee_only(dispatcher, caching) -> bool:
+    """A project kernel without a disk cache of its own (the packages' rule: callee-only)."""
+    module = getattr(getattr(dispatcher, "py_func", None), "__module__", "") or ""
+    return module.startswith(KERNEL_PACKAGES) and isinstance(getattr(dispatcher, "_cache", None), caching.NullCache)
+
+
+def _patchable(codegen, cpu, dispatcher, ccallback, caching) -> bool:
+    """Whether numba has the internals this module patches (checked by name; a numba that lacks one
+    keeps its own compile)."""
+    needs = [(codegen.CPUCodeLibrary, ("finalize", "_get_module_for_linking", "_finalize_dynamic_globals",
+                                       "_raise_if_finalized", "_ensure_finalized")),
+             (codegen, ("require_global_compiler_lock",)), (cpu.CPUContext, ("get_executable",)),
+             (dispatcher.Dispatcher, ("compile", "add_overload")), (ccallback.CFunc, ("compile",)),
+             (caching, ("NullCache",))]
+    return all(hasattr(owner, name) for owner, names in needs for name in names)
+
+
+def install() -> None:
+    """Compile callee-only kernels for their callers only (once per process; not with
+    ``RRR_DK_LEAN_COMPILE=0``, nor with a numba whose internals differ)."""
+    if os.environ.get(ENV, "1").strip() == "0":
+        return
+    try:
+        from numba import _dynfunc
+        from numba.core import caching, ccallback, codegen, cpu, dispatcher
+    except ImportError:                       # no numba, no kernels
+        return
+    if installed() or not _patchable(codegen, cpu, dispatcher, ccallback, caching):
+        return
+    library_cls, context_cls, dispatcher_cls = codegen.CPUCodeLibrary, cpu.CPUContext, dispatcher.Dispatcher
+    finalize, get_executable = library_cls.finalize, context_cls.get_executable
+    compile_overload, add_overload, compile_cfunc = dispatcher_cls.compile, dispatcher_cls.add_overload, \
+        ccallback.CFunc.compile
+
+    def lean_finalize(self):
+        stack = _stack()
+        if not (stack and stack[-1]):
+            return finalize(self)
+        # numba's finalize without the whole-module optimisation and the machine code: link the
+        # callees (their callers link this module in turn), keep what numba records, and stop
+        codegen.require_global_compiler_lock()
+        self._raise_if_finalized()
+        seen = set()
+        for library in self._linking_libraries:
+            if library not in seen:
+                seen.add(library)
+                self._reload_init.update(library._reload_init)
+                self._final_module.link_in(library._get_module_for_linking(), preserve=True)
+        self._finalize_dynamic_globals()
+        setattr(self, _LINKED_ONLY, True)
+        self._finalized = True
+
+    def lean_get_executable(self, library, fndesc, env):
+        library._ensure_finalized()                            # lean or whole, as the compile under way says
+        if not getattr(library, _LINKED_ONLY, False):
+            return get_executable(self, library, fndesc, env)
+        # no machine code, no address: a function object numba keeps but never lists for Python calls
+        return _dynfunc.make_function(fndesc.lookup_module(), fndesc.qualname.split(".")[-1],
+                                      f"linked-only overload of {fndesc.qualname!r}", 0, env, (library,))
+
+    def lean_compile(self, sig):
+        stack = _stack()
+        for_caller = bool(stack)
+        if not for_caller:
+            from numba.core import sigutils
+            args, _ = sigutils.normalize_signature(sig)
+            cres = self.overloads.get(tuple(args))
+            if cres is not None and getattr(cres.library, _LINKED_ONLY, False):
+                del self.overloads[tuple(args)]          # Python calls it: compile it whole now
+        stack.append(for_caller and _callee_only(self, caching))
+        try:
+            return compile_overload(self, sig)
+        finally:
+            stack.pop()
+
+    def lean_add_overload(self, cres):
+        if not getattr(cres.library, _LINKED_ONLY, False):
+            return add_overload(self, cres)
+        self.overloads[tuple(cres.signature.args)] = cres     # for callers; not in the table of Python calls
+
+    def lean_compile_cfunc(self, *args, **kwargs):
+        stack = _stack()
+        stack.append(False)                                    # a C entry point has callers outside numba
+        try:
+            return compile_cfunc(self, *args, **kwargs)
+        finally:
+            stack.pop()
+
+    for function in (lean_finalize, lean_get_executable, lean_compile, lean_add_overload, lean_compile_cfunc):
+        setattr(function, _MARK, True)
+    library_cls.finalize = lean_finalize
+    context_cls.get_executable = lean_get_executable
+    dispatcher_cls.compile = lean_compile
+    dispatcher_cls.add_overload = lean_add_overload
+    ccallback.CFunc.compile = lean_compile_cfunc

@@ -1,0 +1,59 @@
+"""A callee-only kernel compiled for its callers only (solver.lean_compile): no machine code of its own,
+the caller's results bit for bit numba's own, and a Python call of it still runs (compiled whole then)."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: a fresh process, empty numba cache: ``leg_batch`` (cached) calls ``leg_row`` (callee-only) calls
+#: ``loop_row``; then Python calls ``leg_row`` itself
+_CHILD = r"""
+import json
+import numpy as np
+from solver import lean_compile
+from solver._kernels import kinematics as k
+
+rng = np.random.default_rng(7)
+X = rng.uniform(-0.3, 0.3, (40, 3)); q = rng.uniform(-3.0, 3.0, (40, 3))
+M = rng.uniform(-1.0, 1.0, (3, 2)); l1 = rng.uniform(0.2, 0.8, 3); b = rng.uniform(-0.3, 0.3, (3, 2))
+out = np.empty((40, k.LEG_ROWS, 3))
+k.leg_batch(X, q, M, l1, b, out)
+sig = next(iter(k.leg_row.overloads))
+linked = lean_compile.linked_only(k.leg_row, sig)
+c, s = np.cos(X[5, 2]), np.sin(X[5, 2])
+row = k.leg_row(X[5, 0], X[5, 1], c, s, q[5, 1], M[1, 0], M[1, 1], l1[1], b[1, 0], b[1, 1])
+again = k.leg_row(X[6, 0], X[6, 1], c, s, q[6, 1], M[1, 0], M[1, 1], l1[1], b[1, 0], b[1, 1])
+print(json.dumps({"installed": lean_compile.installed(), "linked_only": linked,
+                  "linked_only_after_python_call": lean_compile.linked_only(k.leg_row, sig),
+                  "out": [v.hex() for v in out.ravel()],
+                  "python_row": [float(v).hex() for v in row], "batch_row": [v.hex() for v in out[5, :, 1]],
+                  "again_finite": bool(np.all(np.isfinite(again)))}))
+"""
+
+
+def _child(numba_cache: Path, **env_extra) -> dict:
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "PYTHONPATH", "RRR_DK_LEAN_COMPILE")}
+    env.update(NUMBA_CACHE_DIR=str(numba_cache), PYTHONPATH=str(ROOT), RRR_DK_SHARED_KERNELS="0", **env_extra)
+    proc = subprocess.run([sys.executable, "-c", _CHILD], capture_output=True, text=True, env=env, cwd=ROOT,
+                          timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def test_a_callee_compiled_for_its_caller_has_no_code_of_its_own_and_changes_no_bit(tmp_path):
+    lean = _child(tmp_path / "lean")
+    whole = _child(tmp_path / "whole", RRR_DK_LEAN_COMPILE="0")
+    assert lean["installed"] and not whole["installed"]
+    # the callee was compiled for leg_batch only: no machine code of its own
+    assert lean["linked_only"] and not whole["linked_only"]
+    # leg_batch's results are numba's own compile's, bit for bit
+    assert lean["out"] == whole["out"]
+    # Python calls the callee: it is compiled whole on that call and gives the caller's values
+    assert not lean["linked_only_after_python_call"]
+    assert lean["python_row"] == lean["batch_row"] == whole["python_row"]
+    assert lean["again_finite"]
