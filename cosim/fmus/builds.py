@@ -15,7 +15,8 @@
 Every FMU bundles only what its slave imports (:func:`cosim.fmus.packaging.bundled_files`) and, unless
 ``kernels=False``, the kernels it calls compiled for a generic x86-64 CPU (:mod:`cosim.fmus.kernels`,
 warmed up along :func:`warm_up_scenario`: its reference run), so it starts in seconds in a host without
-our packages (:mod:`fmu_src.kernel_cache`).
+our packages (:mod:`fmu_src.kernel_cache`); the DK's C entry point begins compiling before its map
+is built (:mod:`cosim.fmus.early_compile`).
 :func:`build_fmus` builds the stale ones of the three in child processes (``python -m
 cosim.fmus.cli``): a process that later runs FMUs must load each FMU only once, and a build imports
 the slave and builds maps.
@@ -44,6 +45,7 @@ from solver import DEFAULT_RULE, DEFAULT_STEP, ORDERING_RULES, Manipulator, MapT
 
 from .checks import validate
 from .map_report import report_maps
+from .early_compile import begin as begin_early_compile
 from .kernels import Run, Scenario, warm_up
 from .robot_build import other_robot, robot_circle, robot_constant, robot_slave_scenario, stage_robot, with_robot_constant
 from .sources import LOADER_SOURCE, SLAVE_DIR, slave_readme, slave_script
@@ -223,19 +225,37 @@ def build_dk(out_dir="build", postures=(1,), resolution=None, map_files=(), mode
         resolution = robot.resolution if robot is not None else DEFAULT_RESOLUTION
     out_dir = Path(out_dir)
     cache_dir = None if cache_dir is None else Path(cache_dir)
-    t_map = time.perf_counter()
-    postures, maps = _dk_maps(model, postures, resolution, map_files, rule, cache_dir, progress, log)
-    map_seconds = time.perf_counter() - t_map
-    report_maps(maps, log)
-    with tempfile.TemporaryDirectory(prefix="build_fmu_") as tmp:
-        tmp = Path(tmp)
-        script = _stage_script(tmp, postures[0], mode, robot)
-        data_files = {**stage_maps(tmp, maps), **stage_robot(tmp, robot)}
-        scenario = warm_up(warm_up_scenario(DK_NAME, postures[0], mode, robot)) if kernels else None
-        fmu = build_fmu(script, out_dir, project_packages=project_packages(), data_files=data_files,
-                        documentation_dir=_stage_documentation(tmp), check=check, kernels=scenario)
+    early = _early_compile(postures, mode, robot) if kernels else None   # the C entry point, beside the map
+    try:
+        t_map = time.perf_counter()
+        postures, maps = _dk_maps(model, postures, resolution, map_files, rule, cache_dir, progress, log)
+        map_seconds = time.perf_counter() - t_map
+        report_maps(maps, log)
+        if early is not None:
+            early.finish()
+        with tempfile.TemporaryDirectory(prefix="build_fmu_") as tmp:
+            tmp = Path(tmp)
+            script = _stage_script(tmp, postures[0], mode, robot)
+            data_files = {**stage_maps(tmp, maps), **stage_robot(tmp, robot)}
+            scenario = warm_up(warm_up_scenario(DK_NAME, postures[0], mode, robot)) if kernels else None
+            fmu = build_fmu(script, out_dir, project_packages=project_packages(), data_files=data_files,
+                            documentation_dir=_stage_documentation(tmp), check=check, kernels=scenario)
+    finally:
+        if early is not None:
+            early.stop()
     problems = validate(fmu) if check else []
     return BuildResult(fmu, maps, postures[0], mode, time.perf_counter() - t0, map_seconds, problems)
+
+
+def _early_compile(postures, mode: str, robot):
+    """The DK's C entry point compiling beside the map (:mod:`cosim.fmus.early_compile`), or None (nothing to
+    begin, or postures the map step will refuse)."""
+    if not postures or not all(1 <= int(p) <= 8 for p in postures):
+        return None
+    first = int(postures[0])
+    with tempfile.TemporaryDirectory(prefix="build_fmu_") as tmp:
+        return begin_early_compile(_stage_script(Path(tmp), first, mode, robot), project_packages(),
+                                   warm_up_scenario(DK_NAME, first, mode, robot))
 
 
 # ---------------------------------------------------------------------- the plant and the controller

@@ -60,7 +60,7 @@ try:
 except ImportError:                     # pragma: no cover - Windows: no lock
     fcntl = None
 
-__all__ = ["Run", "Scenario", "generic_root", "fmu_key", "shipped_kernels", "warm_up", "KernelBuildError"]
+__all__ = ["Run", "Scenario", "generic_root", "fmu_key", "shipped_kernels", "warm_up", "is_warmed", "KernelBuildError"]
 
 _KEPT = "warm-up.json"
 
@@ -209,6 +209,16 @@ def _warmed(scenario: Scenario) -> str:
     """What a warm-up of ``scenario`` compiles for: its runs, numba, Python, the generic CPU (a digest)."""
     text = json.dumps([[r.as_json() for r in scenario.runs], numba.__version__, sys.version_info[:2], GENERIC_CPU])
     return hashlib.sha256(text.encode()).hexdigest()[:24]
+
+
+def is_warmed(folder: Path, scenario: Scenario) -> bool:
+    """Whether the store folder ``folder`` (``<root>/<model>/<key>``) has been warmed up along ``scenario``
+    with this numba and Python (its ``warm-up.json``): a build of that key would start no child."""
+    try:
+        record = json.loads((Path(folder) / _KEPT).read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(record, dict) and _warmed(scenario) in record.get("warmed", ()) and bool(record.get("seconds"))
 
 
 def shipped_kernels(fmu: Path, scenario: Scenario, root: Path | None = None) -> dict[str, bytes]:

@@ -1,0 +1,110 @@
+"""The DK's C entry point compiled beside the map (cosim.fmus.early_compile): what it stages and when it
+begins, and that a failed child never fails a build.  The real compile (about 2 minutes) runs in every
+first DK build, the session's included; these tests replace the child's script by a quick one."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from cosim.fmus import early_compile
+from cosim.fmus.builds import DK_NAME, _stage_script, project_packages, warm_up_scenario
+from cosim.fmus.kernels import Run, Scenario
+from fmu_src.kernel_cache import GENERIC_CPU, kernel_files, key_of
+
+#: the quick child: writes what it saw (the bundle's files, the CPU and cache it compiles for, pythonfmu's mark)
+#: to $LOOK_OUT, then says it is done with the key of the bundle there, as the real child does
+_LOOK = r"""
+import json, os, pathlib, sys
+sys.path.insert(0, sys.argv[1])
+import fmu_src.kernel_cache as cache
+files = sorted(p.relative_to(sys.argv[1]).as_posix() for p in pathlib.Path(sys.argv[1]).rglob("*.py"))
+pathlib.Path(os.environ["LOOK_OUT"]).write_text(json.dumps({
+    "files": files, "cpu": os.environ["NUMBA_CPU_NAME"], "cache": os.environ["NUMBA_CACHE_DIR"],
+    "mark": os.path.isfile(os.path.join(sys.argv[1], cache.BUNDLE_MARK))}))
+print("ENTRY " + cache.bundle_key(sys.argv[1]))
+"""
+
+
+@pytest.fixture
+def dk_script(tmp_path):
+    return _stage_script(tmp_path, 1, "default", None)
+
+
+def _scenario():
+    return warm_up_scenario(DK_NAME, 1, "default")
+
+
+def test_it_compiles_the_fmus_own_kernel_packages_for_the_generic_cpu(dk_script, tmp_path, monkeypatch):
+    """The staged files give the key of the FMU the build makes (its kernel packages, byte for byte), the
+    child sees them as an FMU bundle (pythonfmu's mark) and compiles for the generic CPU into the model's
+    store folder; the staging is removed after."""
+    out = tmp_path / "seen.json"
+    monkeypatch.setattr(early_compile, "_CHILD", _LOOK)
+    monkeypatch.setenv("LOOK_OUT", str(out))
+    early = early_compile.begin(dk_script, project_packages(), _scenario(), root=tmp_path / "store")
+    assert early is not None and early.model == DK_NAME
+    work = early._work
+    assert early.finish()                                    # the child printed the key begin() computed
+    assert not work.exists()
+    seen = json.loads(out.read_text())
+    assert seen["cpu"] == GENERIC_CPU and seen["mark"]
+    assert Path(seen["cache"]) == tmp_path / "store" / DK_NAME
+    assert early_compile.ENTRY in seen["files"]
+    root = Path(__file__).resolve().parents[1]
+    pairs = [(rel, (root / rel).read_bytes()) for rel in seen["files"]]
+    assert kernel_files(pairs) and key_of(pairs) == early.key
+
+
+def test_nothing_begins_without_an_entry_point_when_warmed_or_when_another_build_is_at_it(dk_script, tmp_path,
+                                                                                          monkeypatch):
+    monkeypatch.setattr(early_compile, "_CHILD", _LOOK)
+    store = tmp_path / "store"
+    # a bundle without the C entry point (a slave that does not import the solver)
+    plain = tmp_path / "Plain.py"
+    plain.write_text("import math\n")
+    assert early_compile.begin(plain, project_packages(), Scenario([]), root=store) is None
+    # another build of this model is beginning one: this one leaves it to the warm-up
+    first = early_compile.begin(dk_script, project_packages(), _scenario(), root=store)
+    assert first is not None
+    try:
+        assert early_compile.begin(dk_script, project_packages(), _scenario(), root=store) is None
+    finally:
+        first.stop()
+    # the store holds this key warmed up along this scenario: a build starts no child, nor does this
+    folder = store / DK_NAME / first.key
+    folder.mkdir(parents=True)
+    from cosim.fmus import kernels
+    (folder / kernels._KEPT).write_text(json.dumps({"seconds": {"x": 1.0}, "warmed": [kernels._warmed(_scenario())]}))
+    assert kernels.is_warmed(folder, _scenario())
+    assert early_compile.begin(dk_script, project_packages(), _scenario(), root=store) is None
+    # along another scenario it begins again
+    other = Scenario([Run(3, 1e-3)])
+    assert not kernels.is_warmed(folder, other)
+    again = early_compile.begin(dk_script, project_packages(), other, root=store)
+    assert again is not None
+    again.stop()
+
+
+def test_a_failed_child_says_so_and_fails_nothing(dk_script, tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(early_compile, "_CHILD", "import sys\nprint('numba broke here')\nsys.exit(3)\n")
+    early = early_compile.begin(dk_script, project_packages(), _scenario(), root=tmp_path / "store")
+    assert early is not None
+    assert early.finish() is False
+    err = capsys.readouterr().err
+    assert "failed (exit 3)" in err and "numba broke here" in err and "the warm-up compiles it instead" in err
+    early.stop()                                             # idempotent
+
+
+def test_stop_kills_a_running_child(dk_script, tmp_path, monkeypatch):
+    monkeypatch.setattr(early_compile, "_CHILD", "import time\ntime.sleep(60)\n")
+    early = early_compile.begin(dk_script, project_packages(), _scenario(), root=tmp_path / "store")
+    assert early is not None
+    proc = early._proc
+    early.stop()
+    assert proc.poll() is not None and not early._work.exists()
+    # the lock is released: the next build begins
+    nxt = early_compile.begin(dk_script, project_packages(), _scenario(), root=tmp_path / "store")
+    assert nxt is not None
+    nxt.stop()
