@@ -57,19 +57,31 @@ def test_it_compiles_the_fmus_own_kernel_packages_for_the_generic_cpu(dk_script,
     assert kernel_files(pairs) and key_of(pairs) == early.key
 
 
-def test_nothing_begins_without_an_entry_point_when_warmed_or_when_another_build_is_at_it(dk_script, tmp_path,
-                                                                                          monkeypatch):
-    monkeypatch.setattr(early_compile, "_CHILD", _LOOK)
+#: a child that compiles for a while (3 s) and then succeeds
+_SLOW = r"""
+import sys, time
+time.sleep(3)
+sys.path.insert(0, sys.argv[1])
+import fmu_src.kernel_cache as cache
+print("ENTRY " + cache.bundle_key(sys.argv[1]))
+"""
+
+
+def test_nothing_begins_without_an_entry_point_or_when_warmed_and_a_second_build_waits_for_the_first(
+        dk_script, tmp_path, monkeypatch):
+    monkeypatch.setattr(early_compile, "_CHILD", _SLOW)
     store = tmp_path / "store"
     # a bundle without the C entry point (a slave that does not import the solver)
     plain = tmp_path / "Plain.py"
     plain.write_text("import math\n")
     assert early_compile.begin(plain, project_packages(), Scenario([]), root=store) is None
-    # another build of this model is beginning one: this one leaves it to the warm-up
+    # another process compiles this model's entry point: this build waits for that one
     first = early_compile.begin(dk_script, project_packages(), _scenario(), root=store)
-    assert first is not None
+    assert isinstance(first, early_compile.EarlyCompile)
     try:
-        assert early_compile.begin(dk_script, project_packages(), _scenario(), root=store) is None
+        second = early_compile.begin(dk_script, project_packages(), _scenario(), root=store)
+        assert isinstance(second, early_compile.Waiting)
+        assert second.finish() and first._proc.poll() == 0      # it returned once the first child had ended
     finally:
         first.stop()
     # the store holds this key warmed up along this scenario: a build starts no child, nor does this
@@ -97,14 +109,14 @@ def test_a_failed_child_says_so_and_fails_nothing(dk_script, tmp_path, monkeypat
     early.stop()                                             # idempotent
 
 
-def test_stop_kills_a_running_child(dk_script, tmp_path, monkeypatch):
+def test_stop_kills_a_running_child_and_frees_the_model_for_the_next_build(dk_script, tmp_path, monkeypatch):
     monkeypatch.setattr(early_compile, "_CHILD", "import time\ntime.sleep(60)\n")
     early = early_compile.begin(dk_script, project_packages(), _scenario(), root=tmp_path / "store")
     assert early is not None
     proc = early._proc
     early.stop()
     assert proc.poll() is not None and not early._work.exists()
-    # the lock is released: the next build begins
+    # the lock went with the child: the next build begins its own
     nxt = early_compile.begin(dk_script, project_packages(), _scenario(), root=tmp_path / "store")
-    assert nxt is not None
+    assert isinstance(nxt, early_compile.EarlyCompile)
     nxt.stop()

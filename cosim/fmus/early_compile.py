@@ -37,7 +37,7 @@ try:
 except ImportError:                     # pragma: no cover - Windows: no early compile
     fcntl = None
 
-__all__ = ["ENTRY", "EarlyCompile", "begin"]
+__all__ = ["ENTRY", "EarlyCompile", "Waiting", "begin"]
 
 #: The bundled file whose kernels :func:`begin` compiles (a bundle without it has nothing to begin).
 ENTRY = "solver/_kernels/c_entry.py"
@@ -55,11 +55,13 @@ print("ENTRY " + cache.bundle_key(sys.argv[1]))
 
 
 class EarlyCompile:
-    """A child process compiling the C entry point of a bundle (made by :func:`begin`)."""
+    """A child process compiling the C entry point of a bundle (made by :func:`begin`).  The child holds
+    the model's early-compile lock until it exits, so another build of the model waits for it
+    (:class:`Waiting`) instead of compiling the same entry point again."""
 
-    def __init__(self, model: str, key: str, proc: subprocess.Popen, work: Path, lock):
+    def __init__(self, model: str, key: str, proc: subprocess.Popen, work: Path):
         self.model, self.key = model, key
-        self._proc, self._work, self._lock = proc, work, lock
+        self._proc, self._work = proc, work
 
     def finish(self) -> bool:
         """Wait for the compile (a phase line on stderr while it runs); True when it succeeded."""
@@ -72,28 +74,44 @@ class EarlyCompile:
                 return True
             tail = "\n".join(out.strip().splitlines()[-5:])
             progress.note(f"{self.model}: the early compile of its C entry point failed (exit {code}); the "
-                             f"warm-up compiles it instead:\n{tail}")
+                          f"warm-up compiles it instead:\n{tail}")
             return False
         finally:
             self.stop()
 
     def stop(self) -> None:
-        """Kill the child if it still runs and remove its staging (idempotent)."""
+        """Kill the child if it still runs (its lock goes with it) and remove its staging (idempotent)."""
         if self._proc.poll() is None:
             self._proc.kill()
             self._proc.wait()
         shutil.rmtree(self._work, ignore_errors=True)
-        if self._lock is not None:
-            self._lock.close()                  # releases the flock
-            self._lock = None
 
 
-def begin(script: Path, project_packages, scenario: Scenario, root: Path | None = None) -> EarlyCompile | None:
+class Waiting:
+    """Another process (a build beside this one, or the :func:`cosim.fmus.builds.build_fmus` that started
+    this build) compiles the model's C entry point: :meth:`finish` waits for it."""
+
+    def __init__(self, model: str, lock_path: Path):
+        self.model, self._lock_path = model, lock_path
+
+    def finish(self) -> bool:
+        """Wait until that compile ends (a phase line on stderr while it runs); True."""
+        with progress.phase(f"compiling the kernels {self.model} ships (generic x86-64 CPU): its C entry point, "
+                            "begun beside the map by another process", "the rest follows along the FMU's runs"), \
+                open(self._lock_path, "a") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)            # released at once, when the file closes
+        return True
+
+    def stop(self) -> None:
+        """Nothing to stop: the compile is the other process's."""
+
+
+def begin(script: Path, project_packages, scenario: Scenario, root: Path | None = None) -> EarlyCompile | Waiting | None:
     """Start compiling the C entry point of the FMU that :func:`cosim.fmus.packaging.build_fmu` will make of
     ``script`` with ``project_packages``, for the generic CPU into ``root`` (default
     :func:`cosim.fmus.kernels.generic_root`); None when there is nothing to begin: the bundle has no
-    entry point, the store already holds this key warmed up along ``scenario``, another build of this
-    model is beginning one, or the platform has no file locks."""
+    entry point, the store already holds this key warmed up along ``scenario``, or the platform has no file
+    locks.  A :class:`Waiting` when another process compiles this model's entry point already."""
     if fcntl is None:
         return None
     script = Path(script)
@@ -108,12 +126,13 @@ def begin(script: Path, project_packages, scenario: Scenario, root: Path | None 
         return None
     base = Path(tempfile.gettempdir()) / f"rrr-dk-warm-up-{getattr(os, 'getuid', lambda: 0)()}"
     base.mkdir(exist_ok=True)
-    lock = open(base / f"{model}-entry.lock", "a")
+    lock_path = base / f"{model}-entry.lock"
+    lock = open(lock_path, "a")
     try:
         fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:                             # another build of this model is at it
+    except OSError:                             # another process compiles it: wait for that one
         lock.close()
-        return None
+        return Waiting(model, lock_path)
     work = base / f"{model}-entry"
     try:
         shutil.rmtree(work, ignore_errors=True)
@@ -125,13 +144,14 @@ def begin(script: Path, project_packages, scenario: Scenario, root: Path | None 
         env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CPU_FEATURES")}
         env.update(NUMBA_CPU_NAME=GENERIC_CPU, NUMBA_CPU_FEATURES="", NUMBA_CACHE_DIR=str(store), PYTHONHASHSEED="0")
         env[IN_PROCESS] = "1"
-        with open(work / "out.txt", "w") as out:
+        with open(work / "out.txt", "w") as out:     # the child inherits the lock: held until it exits
             proc = subprocess.Popen([sys.executable, "-c", _CHILD, str(resources)], stdout=out,
-                                    stderr=subprocess.STDOUT, env=env, cwd=work)
+                                    stderr=subprocess.STDOUT, env=env, cwd=work, pass_fds=(lock.fileno(),))
     except OSError as e:
         progress.note(f"{model}: the early compile of its C entry point did not start ({e}); the warm-up "
-                         "compiles it instead")
+                      "compiles it instead")
         shutil.rmtree(work, ignore_errors=True)
-        lock.close()
         return None
-    return EarlyCompile(model, key, proc, work, lock)
+    finally:
+        lock.close()                            # this process's hold; the child's stays
+    return EarlyCompile(model, key, proc, work)
