@@ -379,39 +379,22 @@ def build_fmus(out_dir="build", resolution=None, force: bool = False, progress: 
     with _progress.phase(f"building {', '.join(todo)} in {out}", detail, enabled=progress, heartbeat=False), \
             tempfile.TemporaryDirectory(prefix="rrr-dk-builds-") as logs, contextlib.ExitStack() as files:
         running = {}
-        # the DK's C entry point (the longest compile) from here, at this priority; the builds a notch
-        # lower, so that it keeps a core to itself (the DK's build waits for it after its map)
-        early = _early_compile([robot.home_posture if robot else 1], "default", robot) if DK_NAME in todo else None
         try:
             for name in todo:               # files, not pipes: a child never waits for us to read it
                 stdout = files.enter_context(open(Path(logs) / f"{name}.out", "w+"))
                 stderr = files.enter_context(open(Path(logs) / f"{name}.err", "w+")) if quiet else None
                 running[name] = (subprocess.Popen(_build_args(name, out, resolution, robot), cwd=str(SLAVE_DIR.parent),
-                                                  stdout=stdout, stderr=stderr, text=True, env=env,
-                                                  preexec_fn=_lower_priority if early is not None else None),
-                                 stdout, stderr)
+                                                  stdout=stdout, stderr=stderr, text=True, env=env), stdout, stderr)
             failed = [_failure(paths[name], *run) for name, run in running.items()]
         finally:                            # interrupted (Ctrl-C) or failed to start one: stop the others
             for proc, _, _ in running.values():
                 if proc.poll() is None:
                     proc.kill()
                     proc.wait()
-            if early is not None:
-                early.stop()
         failed = [f for f in failed if f]
         if failed:
             raise RuntimeError("\n\n".join(failed))
     return paths
-
-
-#: how much lower the builds of :func:`build_fmus` run than the early compile of the DK's C entry point
-BUILD_NICENESS = 5
-
-
-def _lower_priority() -> None:
-    """In a build's child process, before it runs: :data:`BUILD_NICENESS` lower priority (where the OS has one)."""
-    if hasattr(os, "nice"):
-        os.nice(BUILD_NICENESS)
 
 
 def _failure(path: Path, proc, stdout, stderr) -> str:
