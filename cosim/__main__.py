@@ -2,8 +2,9 @@
 
 The first run builds the three FMUs at once (the DK's map tensor and kernels; the controller's and
 the plant's kernels beside them) and compiles their kernels once (the loop in this process then loads
-the same ones, :mod:`solver.shared_kernels`): about 3 minutes on 2 cores, most of it the DK's
-kernels; it says so, phase by phase, on stderr.  Later runs reuse both and take a few seconds.
+the same ones, :mod:`solver.shared_kernels`): about 2.5 minutes on 2 cores, most of it the DK's
+C entry point, compiled beside the map (:mod:`cosim.fmus.early_compile`); it says so, phase by phase,
+on stderr.  Later runs reuse both and take a few seconds.
 
 Runs the default scenario (the robot starts at rest on the circle and follows it for 2.5 s at a
 1 ms step, Gauss-Seidel master; options below change it); ``--robot FILE`` runs the loop of the robot
