@@ -12,8 +12,16 @@ levels deep, so most of a first compile was LLVM redoing its own work.
 one *for a caller* (another compile is under way): the kernel's own module is optimised per function
 as before and linked into the caller, but it is not optimised as a whole and not turned into machine
 code of its own.  The outermost kernel (a cached ``@njit``, or the FMU's C entry point) optimises and
-emits the whole linked program once, as before: the same LLVM passes over the same code, so the
-same results bit for bit.
+emits the whole linked program once, as before.  The callees then reach their callers optimised per
+function only, so LLVM may inline differently; without fast-math its passes keep IEEE semantics, and
+the results are the same bit for bit (tests/test_lean_compile.py; the FMU tests compare FMUs built this
+way with trackers compiled before it).
+
+Left to numba's own compile: a library that calls through numba's table of recursive references
+(only a library with machine code fills it), lifted loops and object-mode blocks, and C callbacks.
+Not handled, since no kernel does it: a callee-only kernel that needs its numba environment at run
+time (``print`` of an array, object-mode blocks inside it) would find none in the process that
+compiled it.
 
 Measured on the C entry point of the DK FMU (fresh process, empty cache, one core):
 162 s to compile (114 s of it in LLVM) without, 107 s (63 s in LLVM) with; the tracker's step
@@ -64,6 +72,12 @@ def _stack() -> list:
     return stack
 
 
+def _recursive(library) -> bool:
+    """Whether ``library`` calls through numba's table of unresolved (recursive) references, which only
+    a library with machine code of its own fills: then it is finalized whole."""
+    return any(gv.name.startswith(".numba.unresolved$") for gv in library._final_module.global_variables)
+
+
 def _callee_only(dispatcher, caching) -> bool:
     """A project kernel without a disk cache of its own (the packages' rule: callee-only)."""
     module = getattr(getattr(dispatcher, "py_func", None), "__module__", "") or ""
@@ -76,7 +90,8 @@ def _patchable(codegen, cpu, dispatcher, ccallback, caching) -> bool:
     needs = [(codegen.CPUCodeLibrary, ("finalize", "_get_module_for_linking", "_finalize_dynamic_globals",
                                        "_raise_if_finalized", "_ensure_finalized")),
              (codegen, ("require_global_compiler_lock",)), (cpu.CPUContext, ("get_executable",)),
-             (dispatcher.Dispatcher, ("compile", "add_overload")), (ccallback.CFunc, ("compile",)),
+             (dispatcher.Dispatcher, ("compile", "add_overload")), (dispatcher, ("LiftedCode",)),
+             (ccallback.CFunc, ("compile",)),
              (caching, ("NullCache",))]
     return all(hasattr(owner, name) for owner, names in needs for name in names)
 
@@ -93,14 +108,17 @@ def install() -> None:
         return
     if installed() or not _patchable(codegen, cpu, dispatcher, ccallback, caching):
         return
+    from numba.core.compiler_lock import global_compiler_lock
+
     library_cls, context_cls, dispatcher_cls = codegen.CPUCodeLibrary, cpu.CPUContext, dispatcher.Dispatcher
+    lifted_cls = dispatcher.LiftedCode
     finalize, get_executable = library_cls.finalize, context_cls.get_executable
     compile_overload, add_overload, compile_cfunc = dispatcher_cls.compile, dispatcher_cls.add_overload, \
         ccallback.CFunc.compile
 
     def lean_finalize(self):
         stack = _stack()
-        if not (stack and stack[-1]):
+        if not (stack and stack[-1]) or _recursive(self):
             return finalize(self)
         # numba's finalize without the whole-module optimisation and the machine code: link the
         # callees (their callers link this module in turn), keep what numba records, and stop
@@ -125,37 +143,46 @@ def install() -> None:
                                       f"linked-only overload of {fndesc.qualname!r}", 0, env, (library,))
 
     def lean_compile(self, sig):
-        stack = _stack()
-        for_caller = bool(stack)
-        if not for_caller:
-            from numba.core import sigutils
-            args, _ = sigutils.normalize_signature(sig)
-            cres = self.overloads.get(tuple(args))
-            if cres is not None and getattr(cres.library, _LINKED_ONLY, False):
-                del self.overloads[tuple(args)]          # Python calls it: compile it whole now
-        stack.append(for_caller and _callee_only(self, caching))
-        try:
-            return compile_overload(self, sig)
-        finally:
-            stack.pop()
+        with global_compiler_lock:                             # re-entrant; numba's compile takes it too
+            stack = _stack()
+            for_caller = bool(stack)
+            if not for_caller:
+                from numba.core import sigutils
+                args, _ = sigutils.normalize_signature(sig)
+                cres = self.overloads.get(tuple(args))
+                if cres is not None and getattr(cres.library, _LINKED_ONLY, False):
+                    del self.overloads[tuple(args)]          # Python calls it: compile it whole now
+            stack.append(for_caller and _callee_only(self, caching))
+            try:
+                return compile_overload(self, sig)
+            finally:
+                stack.pop()
+
+    def whole_compile(original):
+        """``original`` (a compile of code a lean kernel may hold: a lifted loop, a C callback) compiled whole."""
+        def compile_whole(self, *args, **kwargs):
+            stack = _stack()
+            stack.append(False)
+            try:
+                return original(self, *args, **kwargs)
+            finally:
+                stack.pop()
+        return compile_whole
 
     def lean_add_overload(self, cres):
         if not getattr(cres.library, _LINKED_ONLY, False):
             return add_overload(self, cres)
         self.overloads[tuple(cres.signature.args)] = cres     # for callers; not in the table of Python calls
 
-    def lean_compile_cfunc(self, *args, **kwargs):
-        stack = _stack()
-        stack.append(False)                                    # a C entry point has callers outside numba
-        try:
-            return compile_cfunc(self, *args, **kwargs)
-        finally:
-            stack.pop()
+    lean_compile_cfunc = whole_compile(compile_cfunc)          # a C entry point has callers outside numba
+    lean_compile_lifted = whole_compile(lifted_cls.compile)     # object mode and lifted loops: Python calls them
 
-    for function in (lean_finalize, lean_get_executable, lean_compile, lean_add_overload, lean_compile_cfunc):
+    for function in (lean_finalize, lean_get_executable, lean_compile, lean_add_overload, lean_compile_cfunc,
+                     lean_compile_lifted):
         setattr(function, _MARK, True)
     library_cls.finalize = lean_finalize
     context_cls.get_executable = lean_get_executable
     dispatcher_cls.compile = lean_compile
     dispatcher_cls.add_overload = lean_add_overload
     ccallback.CFunc.compile = lean_compile_cfunc
+    lifted_cls.compile = lean_compile_lifted

@@ -10,7 +10,8 @@ import pytest
 
 from cosim.fmus import early_compile
 from cosim.fmus.builds import DK_NAME, _stage_script, project_packages, warm_up_scenario
-from cosim.fmus.kernels import Run, Scenario
+from cosim.fmus.kernels import BESIDE, Run, Scenario, fmu_key
+from cosim_support import fmus  # noqa: F401 (fixture)
 from fmu_src.kernel_cache import GENERIC_CPU, kernel_files, key_of
 
 #: the quick child: writes what it saw (the bundle's files, the CPU and cache it compiles for, pythonfmu's mark)
@@ -23,7 +24,7 @@ files = sorted(p.relative_to(sys.argv[1]).as_posix() for p in pathlib.Path(sys.a
 pathlib.Path(os.environ["LOOK_OUT"]).write_text(json.dumps({
     "files": files, "cpu": os.environ["NUMBA_CPU_NAME"], "cache": os.environ["NUMBA_CACHE_DIR"],
     "mark": os.path.isfile(os.path.join(sys.argv[1], cache.BUNDLE_MARK))}))
-print("ENTRY " + cache.bundle_key(sys.argv[1]))
+print("ENTRY " + cache.bundle_key(sys.argv[1]) + " 0.5")
 """
 
 
@@ -36,10 +37,11 @@ def _scenario():
     return warm_up_scenario(DK_NAME, 1, "default")
 
 
-def test_it_compiles_the_fmus_own_kernel_packages_for_the_generic_cpu(dk_script, tmp_path, monkeypatch):
-    """The staged files give the key of the FMU the build makes (its kernel packages, byte for byte), the
+def test_it_compiles_the_fmus_own_kernel_packages_for_the_generic_cpu(dk_script, tmp_path, monkeypatch,
+                                                                     fmus):  # noqa: F811
+    """The staged files give the key of the session's DK FMU (its kernel packages, byte for byte), the
     child sees them as an FMU bundle (pythonfmu's mark) and compiles for the generic CPU into the model's
-    store folder; the staging is removed after."""
+    store folder; its compile seconds join the warm-up's record; the staging is removed after."""
     out = tmp_path / "seen.json"
     monkeypatch.setattr(early_compile, "_CHILD", _LOOK)
     monkeypatch.setenv("LOOK_OUT", str(out))
@@ -54,7 +56,9 @@ def test_it_compiles_the_fmus_own_kernel_packages_for_the_generic_cpu(dk_script,
     assert early_compile.ENTRY in seen["files"]
     root = Path(__file__).resolve().parents[1]
     pairs = [(rel, (root / rel).read_bytes()) for rel in seen["files"]]
-    assert kernel_files(pairs) and key_of(pairs) == early.key
+    assert kernel_files(pairs) and key_of(pairs) == early.key == fmu_key(fmus[DK_NAME])
+    record = json.loads((tmp_path / "store" / DK_NAME / early.key / "warm-up.json").read_text())
+    assert record["seconds"] == {f"{early_compile.ENTRY_KERNEL} {BESIDE}": 0.5} and record["warmed"] == []
 
 
 #: a child that compiles for a while (3 s) and then succeeds
@@ -63,7 +67,7 @@ import sys, time
 time.sleep(3)
 sys.path.insert(0, sys.argv[1])
 import fmu_src.kernel_cache as cache
-print("ENTRY " + cache.bundle_key(sys.argv[1]))
+print("ENTRY " + cache.bundle_key(sys.argv[1]) + " 3.0")
 """
 
 
@@ -75,19 +79,26 @@ def test_nothing_begins_without_an_entry_point_or_when_warmed_and_a_second_build
     plain = tmp_path / "Plain.py"
     plain.write_text("import math\n")
     assert early_compile.begin(plain, project_packages(), Scenario([]), root=store) is None
+    # another build warms this key up now: this one begins nothing (its warm-up waits for that one)
+    from cosim.fmus import kernels
+    key = early_compile.begin(dk_script, project_packages(), _scenario(), root=store)
+    assert isinstance(key, early_compile.EarlyCompile)
+    key.stop()
+    (store / DK_NAME / key.key).mkdir(parents=True, exist_ok=True)
+    with kernels._locked(store / DK_NAME / key.key / ".lock"):
+        assert early_compile.begin(dk_script, project_packages(), _scenario(), root=store) is None
     # another process compiles this model's entry point: this build waits for that one
     first = early_compile.begin(dk_script, project_packages(), _scenario(), root=store)
     assert isinstance(first, early_compile.EarlyCompile)
     try:
         second = early_compile.begin(dk_script, project_packages(), _scenario(), root=store)
         assert isinstance(second, early_compile.Waiting)
-        assert second.finish() and first._proc.poll() == 0      # it returned once the first child had ended
+        assert second.finish() and first._proc.wait(timeout=10) == 0   # it returned as the first child ended
     finally:
         first.stop()
     # the store holds this key warmed up along this scenario: a build starts no child, nor does this
     folder = store / DK_NAME / first.key
-    folder.mkdir(parents=True)
-    from cosim.fmus import kernels
+    folder.mkdir(parents=True, exist_ok=True)
     (folder / kernels._KEPT).write_text(json.dumps({"seconds": {"x": 1.0}, "warmed": [kernels._warmed(_scenario())]}))
     assert kernels.is_warmed(folder, _scenario())
     assert early_compile.begin(dk_script, project_packages(), _scenario(), root=store) is None

@@ -17,6 +17,7 @@ the warm-up, as before, with one line on stderr.
 """
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import subprocess
@@ -28,7 +29,7 @@ from fmu_src.kernel_cache import BUNDLE_MARK, GENERIC_CPU, key_of
 from fmu_src.kernel_warmup import IN_PROCESS
 from solver import progress
 
-from .kernels import Scenario, generic_root, is_warmed
+from .kernels import BESIDE, Scenario, generic_root, is_warmed, record_seconds
 from .packaging import bundled_files
 from .sources import SLAVE_DIR
 
@@ -49,9 +50,14 @@ sys.path.insert(0, sys.argv[1])
 import fmu_src.kernel_cache as cache
 cache.install()
 from solver._kernels.c_entry import entry
+import time
+start = time.perf_counter()
 entry()
-print("ENTRY " + cache.bundle_key(sys.argv[1]))
+print("ENTRY %s %.1f" % (cache.bundle_key(sys.argv[1]), time.perf_counter() - start))
 """
+
+#: the name its compile seconds are recorded under (the warm-up names kernels by module and function)
+ENTRY_KERNEL = "solver._kernels.c_entry.entry"
 
 
 class EarlyCompile:
@@ -59,9 +65,9 @@ class EarlyCompile:
     the model's early-compile lock until it exits, so another build of the model waits for it
     (:class:`Waiting`) instead of compiling the same entry point again."""
 
-    def __init__(self, model: str, key: str, proc: subprocess.Popen, work: Path):
+    def __init__(self, model: str, key: str, proc: subprocess.Popen, work: Path, folder: Path):
         self.model, self.key = model, key
-        self._proc, self._work = proc, work
+        self._proc, self._work, self._folder = proc, work, folder
 
     def finish(self) -> bool:
         """Wait for the compile (a phase line on stderr while it runs); True when it succeeded."""
@@ -69,8 +75,14 @@ class EarlyCompile:
             with progress.phase(f"compiling the kernels {self.model} ships (generic x86-64 CPU): its C entry point, "
                                 "begun beside the map", "the rest follows along the FMU's runs"):
                 code = self._proc.wait()
-            out = (self._work / "out.txt").read_text(errors="replace")
-            if code == 0 and f"ENTRY {self.key}" in out:
+            try:
+                out = (self._work / "out.txt").read_text(errors="replace")
+            except OSError as e:
+                out = f"(its output is gone: {e})"
+            done = [line.split() for line in out.splitlines() if line.startswith(f"ENTRY {self.key} ")]
+            if code == 0 and done:
+                # its compile seconds join the warm-up's (what a host that must compile is told to expect)
+                record_seconds(self._folder, {f"{ENTRY_KERNEL} {BESIDE}": float(done[-1][2])})
                 return True
             tail = "\n".join(out.strip().splitlines()[-5:])
             progress.note(f"{self.model}: the early compile of its C entry point failed (exit {code}); the "
@@ -95,11 +107,15 @@ class Waiting:
         self.model, self._lock_path = model, lock_path
 
     def finish(self) -> bool:
-        """Wait until that compile ends (a phase line on stderr while it runs); True."""
-        with progress.phase(f"compiling the kernels {self.model} ships (generic x86-64 CPU): its C entry point, "
-                            "begun beside the map by another process", "the rest follows along the FMU's runs"), \
-                open(self._lock_path, "a") as lock:
-            fcntl.flock(lock, fcntl.LOCK_EX)            # released at once, when the file closes
+        """Wait until that compile ends (a phase line on stderr while it runs); True, or False when the lock
+        cannot be waited for (the warm-up then compiles what is missing)."""
+        try:
+            with progress.phase(f"compiling the kernels {self.model} ships (generic x86-64 CPU): its C entry "
+                                "point, begun beside the map by another process",
+                                "the rest follows along the FMU's runs"), open(self._lock_path, "a") as lock:
+                fcntl.flock(lock, fcntl.LOCK_EX)        # released at once, when the file closes
+        except OSError:
+            return False
         return True
 
     def stop(self) -> None:
@@ -109,12 +125,34 @@ class Waiting:
 def begin(script: Path, project_packages, scenario: Scenario, root: Path | None = None) -> EarlyCompile | Waiting | None:
     """Start compiling the C entry point of the FMU that :func:`cosim.fmus.packaging.build_fmu` will make of
     ``script`` with ``project_packages``, for the generic CPU into ``root`` (default
-    :func:`cosim.fmus.kernels.generic_root`); None when there is nothing to begin: the bundle has no
-    entry point, the store already holds this key warmed up along ``scenario``, or the platform has no file
-    locks.  A :class:`Waiting` when another process compiles this model's entry point already."""
+    :func:`cosim.fmus.kernels.generic_root`).  None when there is nothing to begin (the bundle has no
+    entry point, the store already holds this key warmed up along ``scenario``, another build warms up
+    this key now, the platform has no file locks) or it could not begin (said on stderr): the warm-up
+    then compiles it.  A :class:`Waiting` when another process compiles this model's entry point."""
     if fcntl is None:
         return None
-    script = Path(script)
+    try:
+        return _begin(Path(script), project_packages, scenario, root)
+    except Exception as e:  # noqa: BLE001 - an optimization: never a build's failure
+        progress.note(f"{Path(script).stem}: the early compile of its C entry point did not start ({e}); the "
+                      "warm-up compiles it instead")
+        return None
+
+
+def _flocked(path: Path):
+    """``path`` opened and locked without waiting: the file, or None when another process holds the lock."""
+    f = open(path, "a")
+    try:
+        fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as e:
+        f.close()
+        if e.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+            return None
+        raise                                   # no locks here (a file system without them): not begun
+    return f
+
+
+def _begin(script: Path, project_packages, scenario: Scenario, root: Path | None):
     model = script.stem
     packages = {SLAVE_DIR.name: SLAVE_DIR, **{Path(p).resolve().name: Path(p).resolve() for p in project_packages}}
     files = bundled_files(script, packages)
@@ -127,15 +165,18 @@ def begin(script: Path, project_packages, scenario: Scenario, root: Path | None 
     base = Path(tempfile.gettempdir()) / f"rrr-dk-warm-up-{getattr(os, 'getuid', lambda: 0)()}"
     base.mkdir(exist_ok=True)
     lock_path = base / f"{model}-entry.lock"
-    lock = open(lock_path, "a")
+    held = []
     try:
-        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:                             # another process compiles it: wait for that one
-        lock.close()
-        return Waiting(model, lock_path)
-    work = base / f"{model}-entry"
-    try:
-        shutil.rmtree(work, ignore_errors=True)
+        model_lock = _flocked(lock_path)
+        if model_lock is None:                  # another process compiles it: wait for that one
+            return Waiting(model, lock_path)
+        held.append(model_lock)
+        (store / key).mkdir(parents=True, exist_ok=True)
+        key_lock = _flocked(store / key / ".lock")     # the warm-up's lock of this key (cosim.fmus.kernels)
+        if key_lock is None:                    # another build warms this key up now; ours waits for it
+            return None
+        held.append(key_lock)
+        work = Path(tempfile.mkdtemp(prefix=f"{model}-entry-", dir=base))
         resources = work / "resources"
         for rel, path in files.items():
             (resources / rel).parent.mkdir(parents=True, exist_ok=True)
@@ -144,14 +185,15 @@ def begin(script: Path, project_packages, scenario: Scenario, root: Path | None 
         env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CPU_FEATURES")}
         env.update(NUMBA_CPU_NAME=GENERIC_CPU, NUMBA_CPU_FEATURES="", NUMBA_CACHE_DIR=str(store), PYTHONHASHSEED="0")
         env[IN_PROCESS] = "1"
-        with open(work / "out.txt", "w") as out:     # the child inherits the lock: held until it exits
-            proc = subprocess.Popen([sys.executable, "-c", _CHILD, str(resources)], stdout=out,
-                                    stderr=subprocess.STDOUT, env=env, cwd=work, pass_fds=(lock.fileno(),))
-    except OSError as e:
-        progress.note(f"{model}: the early compile of its C entry point did not start ({e}); the warm-up "
-                      "compiles it instead")
-        shutil.rmtree(work, ignore_errors=True)
-        return None
+        try:
+            with open(work / "out.txt", "w") as out:   # the child inherits both locks: held until it exits
+                proc = subprocess.Popen([sys.executable, "-c", _CHILD, str(resources)], stdout=out,
+                                        stderr=subprocess.STDOUT, env=env, cwd=work,
+                                        pass_fds=tuple(f.fileno() for f in held))
+        except BaseException:
+            shutil.rmtree(work, ignore_errors=True)
+            raise
+        return EarlyCompile(model, key, proc, work, store / key)
     finally:
-        lock.close()                            # this process's hold; the child's stays
-    return EarlyCompile(model, key, proc, work)
+        for f in held:
+            f.close()                           # this process's hold; the child's stays

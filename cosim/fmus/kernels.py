@@ -60,7 +60,8 @@ try:
 except ImportError:                     # pragma: no cover - Windows: no lock
     fcntl = None
 
-__all__ = ["Run", "Scenario", "generic_root", "fmu_key", "shipped_kernels", "warm_up", "is_warmed", "KernelBuildError"]
+__all__ = ["Run", "Scenario", "generic_root", "fmu_key", "shipped_kernels", "warm_up", "is_warmed", "record_seconds",
+           "KernelBuildError"]
 
 _KEPT = "warm-up.json"
 
@@ -139,6 +140,10 @@ class Scenario:
 
     runs: list[Run]
 
+
+#: The end of the name under which a kernel compiled before the warm-up (:mod:`cosim.fmus.early_compile`) has
+#: its seconds recorded: a manifest quotes them, a warm-up's estimate of what is left leaves them out.
+BESIDE = "(compiled beside the map)"
 
 #: The key of :func:`shipped_kernels`' compile seconds when only the warm-up's whole run was timed.
 WHOLE_RUN = "(the whole warm-up run)"
@@ -221,6 +226,21 @@ def is_warmed(folder: Path, scenario: Scenario) -> bool:
     return isinstance(record, dict) and _warmed(scenario) in record.get("warmed", ()) and bool(record.get("seconds"))
 
 
+def record_seconds(folder: Path, seconds: dict) -> None:
+    """Add ``{kernel: compile seconds}`` measured outside the warm-up (:mod:`cosim.fmus.early_compile`) to the
+    record of the store folder ``folder``, as the warm-up's own (the manifest then quotes them)."""
+    folder = Path(folder)
+    with _locked(folder / ".lock"):
+        kept = folder / _KEPT
+        try:
+            record = json.loads(kept.read_text())
+        except (OSError, ValueError):
+            record = {"seconds": {}, "warmed": []}
+        record.setdefault("seconds", {}).update({k: round(float(v), 1) for k, v in seconds.items()})
+        record.setdefault("warmed", [])
+        kept.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
+
+
 def shipped_kernels(fmu: Path, scenario: Scenario, root: Path | None = None) -> dict[str, bytes]:
     """The entries ``{"resources/kernels/...": bytes}`` of the kernels ``fmu`` calls along ``scenario``,
     compiled for a generic CPU, and their manifest (the module docstring).
@@ -253,7 +273,7 @@ def _warmed_entries(fmu, scenario, root, folder, key, done) -> dict[str, bytes]:
     kept = folder / _KEPT
     record = json.loads(kept.read_text()) if kept.is_file() else {"seconds": {}, "warmed": []}
     if done not in record["warmed"] or not record["seconds"]:
-        total = sum(record["seconds"].values())
+        total = sum(v for k, v in record["seconds"].items() if not k.endswith(BESIDE))  # what is left to compile
         with progress.phase(f"compiling the kernels {Path(fmu).stem} ships (generic x86-64 CPU)",
                             f"about {total:.0f} s" if total else "a first build: up to a few minutes, once per code"):
             start = time.perf_counter()
