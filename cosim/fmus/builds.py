@@ -252,10 +252,8 @@ def _early_compile(postures, mode: str, robot):
     begin, or postures the map step will refuse)."""
     if not postures or not all(1 <= int(p) <= 8 for p in postures):
         return None
-    first = int(postures[0])
-    with tempfile.TemporaryDirectory(prefix="build_fmu_") as tmp:
-        return begin_early_compile(_stage_script(Path(tmp), first, mode, robot), project_packages(),
-                                   warm_up_scenario(DK_NAME, first, mode, robot))
+    first = int(postures[0])                # the slave's imports, hence the bundle, do not depend on its constants
+    return begin_early_compile(slave_script(DK_NAME), project_packages(), warm_up_scenario(DK_NAME, first, mode, robot))
 
 
 # ---------------------------------------------------------------------- the plant and the controller

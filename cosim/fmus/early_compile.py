@@ -18,18 +18,16 @@ the warm-up, as before, with one line on stderr.
 from __future__ import annotations
 
 import errno
-import os
 import shutil
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-from fmu_src.kernel_cache import BUNDLE_MARK, GENERIC_CPU, key_of
-from fmu_src.kernel_warmup import IN_PROCESS
+from fmu_src.kernel_cache import BUNDLE_MARK, key_of
 from solver import progress
 
-from .kernels import BESIDE, Scenario, generic_root, is_warmed, record_seconds
+from .kernels import BESIDE, Scenario, generic_env, generic_root, is_warmed, record_seconds, warm_up_base
 from .packaging import bundled_files
 from .sources import SLAVE_DIR
 
@@ -162,8 +160,7 @@ def _begin(script: Path, project_packages, scenario: Scenario, root: Path | None
     store = (Path(root) if root is not None else generic_root()) / model
     if is_warmed(store / key, scenario):
         return None
-    base = Path(tempfile.gettempdir()) / f"rrr-dk-warm-up-{getattr(os, 'getuid', lambda: 0)()}"
-    base.mkdir(exist_ok=True)
+    base = warm_up_base()
     lock_path = base / f"{model}-entry.lock"
     held = []
     try:
@@ -182,9 +179,7 @@ def _begin(script: Path, project_packages, scenario: Scenario, root: Path | None
             (resources / rel).parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(path, resources / rel)
         (resources / BUNDLE_MARK).write_text(model)
-        env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CPU_FEATURES")}
-        env.update(NUMBA_CPU_NAME=GENERIC_CPU, NUMBA_CPU_FEATURES="", NUMBA_CACHE_DIR=str(store), PYTHONHASHSEED="0")
-        env[IN_PROCESS] = "1"
+        env = generic_env(store)
         try:
             with open(work / "out.txt", "w") as out:   # the child inherits both locks: held until it exits
                 proc = subprocess.Popen([sys.executable, "-c", _CHILD, str(resources)], stdout=out,

@@ -61,7 +61,7 @@ except ImportError:                     # pragma: no cover - Windows: no lock
     fcntl = None
 
 __all__ = ["Run", "Scenario", "generic_root", "fmu_key", "shipped_kernels", "warm_up", "is_warmed", "record_seconds",
-           "KernelBuildError"]
+           "warm_up_base", "generic_env", "KernelBuildError"]
 
 _KEPT = "warm-up.json"
 
@@ -154,12 +154,27 @@ def generic_root() -> Path:
     return cache_dir("fmu-kernels-generic")
 
 
+def warm_up_base() -> Path:
+    """This user's folder (made) of the warm-ups' extraction folders and locks, under the temporary folder."""
+    base = Path(tempfile.gettempdir()) / f"rrr-dk-warm-up-{getattr(os, 'getuid', lambda: 0)()}"
+    base.mkdir(exist_ok=True)
+    return base
+
+
+def generic_env(root: Path) -> dict:
+    """The environment of a child that compiles kernels for the generic CPU into the numba cache ``root``: no
+    ``PYTHONPATH`` (it runs the bundled packages), the generic CPU without features, fixed hash seed."""
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CPU_FEATURES")}
+    env.update(NUMBA_CPU_NAME=GENERIC_CPU, NUMBA_CPU_FEATURES="", NUMBA_CACHE_DIR=str(root), PYTHONHASHSEED="0")
+    env[IN_PROCESS] = "1"               # this child is where they compile (the FMU would ask for a child of its own)
+    return env
+
+
 @contextlib.contextmanager
 def _extraction_folder(fmu: Path):
     """The one folder the warm-up extracts ``fmu`` into (its path ends up in the compiled code: a fixed
     one keeps builds byte-identical), held with a lock against a concurrent build."""
-    base = Path(tempfile.gettempdir()) / f"rrr-dk-warm-up-{getattr(os, 'getuid', lambda: 0)()}"
-    base.mkdir(exist_ok=True)
+    base = warm_up_base()
     with _locked(base / f"{fmu.stem}.lock"):
         folder = base / fmu.stem
         shutil.rmtree(folder, ignore_errors=True)
@@ -170,9 +185,7 @@ def _extraction_folder(fmu: Path):
 
 
 def _run_child(fmu: Path, scenario: Scenario, root: Path) -> dict:
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CPU_FEATURES")}
-    env.update(NUMBA_CPU_NAME=GENERIC_CPU, NUMBA_CPU_FEATURES="", NUMBA_CACHE_DIR=str(root), PYTHONHASHSEED="0")
-    env[IN_PROCESS] = "1"               # this child is where they compile (the FMU would ask for a child of its own)
+    env = generic_env(root)
     with tempfile.TemporaryDirectory(prefix="fmu_kernels_") as tmp, _extraction_folder(fmu) as folder:
         runs = Path(tmp) / "runs.json"
         runs.write_text(json.dumps([r.as_json() for r in scenario.runs]))
@@ -219,11 +232,20 @@ def _warmed(scenario: Scenario) -> str:
 def is_warmed(folder: Path, scenario: Scenario) -> bool:
     """Whether the store folder ``folder`` (``<root>/<model>/<key>``) has been warmed up along ``scenario``
     with this numba and Python (its ``warm-up.json``): a build of that key would start no child."""
+    record = _readable_record(Path(folder))
+    return _warmed(scenario) in record["warmed"] and bool(record["seconds"])
+
+
+def _readable_record(folder: Path) -> dict:
+    """The store folder's ``warm-up.json`` as ``{"seconds": {...}, "warmed": [...]}``; empty when missing or
+    unreadable."""
     try:
-        record = json.loads((Path(folder) / _KEPT).read_text())
+        record = json.loads((folder / _KEPT).read_text())
     except (OSError, ValueError):
-        return False
-    return isinstance(record, dict) and _warmed(scenario) in record.get("warmed", ()) and bool(record.get("seconds"))
+        record = None
+    if not isinstance(record, dict):
+        record = {}
+    return {**record, "seconds": dict(record.get("seconds") or {}), "warmed": list(record.get("warmed") or [])}
 
 
 def record_seconds(folder: Path, seconds: dict) -> None:
@@ -231,14 +253,9 @@ def record_seconds(folder: Path, seconds: dict) -> None:
     record of the store folder ``folder``, as the warm-up's own (the manifest then quotes them)."""
     folder = Path(folder)
     with _locked(folder / ".lock"):
-        kept = folder / _KEPT
-        try:
-            record = json.loads(kept.read_text())
-        except (OSError, ValueError):
-            record = {"seconds": {}, "warmed": []}
-        record.setdefault("seconds", {}).update({k: round(float(v), 1) for k, v in seconds.items()})
-        record.setdefault("warmed", [])
-        kept.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
+        record = _readable_record(folder)
+        record["seconds"].update({k: round(float(v), 1) for k, v in seconds.items()})
+        (folder / _KEPT).write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
 
 
 def shipped_kernels(fmu: Path, scenario: Scenario, root: Path | None = None) -> dict[str, bytes]:
