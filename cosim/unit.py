@@ -35,6 +35,8 @@ import sys
 from ctypes import byref
 from pathlib import Path
 
+from solver.shared_kernels import serve_from_fmu
+
 __all__ = ["FMUUnit", "InstantiationError", "extracted", "remove_extracted", "fmus_loaded", "exit_process", "import_hygiene",
            "captured_slave_log", "with_slave_log"]
 
@@ -77,6 +79,7 @@ def extracted(path) -> tuple[str, object]:
     if key not in _EXTRACTED:
         md = read_model_description(str(path))
         _EXTRACTED[key] = (extract(str(path)), md)
+        serve_from_fmu(Path(_EXTRACTED[key][0]) / "resources")   # its kernels serve this process's solver too
     return _EXTRACTED[key]
 
 
@@ -231,6 +234,7 @@ class FMUUnit:
                 from fmpy import read_model_description
 
                 _DESCRIPTIONS[folder] = read_model_description(folder)
+                serve_from_fmu(Path(folder) / "resources")
             self.md = _DESCRIPTIONS[folder]
         self.unzip_dir = folder
         self.vars = {v.name: v for v in self.md.modelVariables}

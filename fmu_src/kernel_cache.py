@@ -20,7 +20,7 @@ Two places, one key.  :func:`install` puts one more cache locator in front of nu
 (:class:`BundleLocator`).  It answers only for source files inside an FMU's ``resources/`` folder
 (recognized by pythonfmu's ``slavemodule.txt``).  Their *key* is the SHA-256 of the names and
 bytes of every ``.py`` file in the packages of that folder that hold kernels (``solver``,
-``dynamics``; not the slave script at the top, this runtime ``fmu_src`` or ``pythonfmu``: kernels
+``dynamics``; not the slave script at the top, this runtime ``fmu_src``, ``pythonfmu`` or ``pythonfmu3``: kernels
 never import them, so FMUs of one code that differ in a start value or in the runtime share
 kernels): the same content finds its kernels wherever it is extracted, any change to a module of
 those packages (a kernel's machine code holds its callees from other files) gets a new key.  The key is also
@@ -128,8 +128,9 @@ def bundle_of(py_file: str) -> str | None:
     return _BUNDLES[start]
 
 
-#: the packages of a bundle that hold no kernel and are left out of its key: this runtime, pythonfmu
-NO_KERNELS = ("fmu_src", "pythonfmu")
+#: the packages of a bundle that hold no kernel and are left out of its key: this runtime, pythonfmu (FMI 2.0)
+#: and pythonfmu3 (FMI 3.0)
+NO_KERNELS = ("fmu_src", "pythonfmu", "pythonfmu3")
 
 
 def kernel_files(files) -> list:

@@ -20,6 +20,12 @@ nowhere compiles for this CPU into numba's cache as before, and later lookups fi
 The price: generic machine code does not use the CPU's vector extensions.  The kernels are scalar
 code on 3-vectors, where that was measured as noise (docs/benchmarks.md, ``first_run``).
 ``RRR_DK_SHARED_KERNELS=0`` in the environment turns the fallback off.
+
+The FMUs a process runs are a second source (:func:`serve_from_fmu`): an extracted FMU's
+``resources/kernels/`` holds the same generic kernels, keyed and recorded the same way (its manifest
+names the key; the bundled files themselves are the record).  A batch worker on another machine
+receives the FMUs, not the store: from them it loads the kernels its own ``solver`` needs instead of
+compiling them (the project's hosts register every FMU they extract, :func:`cosim.unit.extracted`).
 """
 from __future__ import annotations
 
@@ -28,7 +34,7 @@ import json
 import os
 from pathlib import Path
 
-__all__ = ["install", "served", "ENV", "GENERIC_CPU", "FILES"]
+__all__ = ["install", "served", "serve_from_fmu", "ENV", "GENERIC_CPU", "FILES"]
 
 #: The environment variable that turns the fallback off (``0``).
 ENV = "RRR_DK_SHARED_KERNELS"
@@ -40,11 +46,45 @@ _MARK = "_rrr_dk_shared_kernels"
 _served: list[str] = []                      # the kernels this process took from the store (their file base)
 _records: dict = {}                          # a store record's path -> ((mtime_ns, size), its files or None)
 _hashes: dict[str, str | None] = {}          # a file of this process's packages -> its SHA-256 (None: missing)
+_fmu_sources: dict = {}                      # an extracted FMU's resources folder -> (kernels folder, key, files)
+#: what an FMU's ``resources`` folder holds: its shipped kernels, their manifest, the packages left out of the key
+_SHIPPED, _MANIFEST, _NO_KERNELS = "kernels", "manifest.json", ("fmu_src", "pythonfmu", "pythonfmu3")
 
 
 def served() -> list[str]:
     """The kernels (numba's cache file base names) this process loaded from the generic store."""
     return list(_served)
+
+
+def serve_from_fmu(resources) -> bool:
+    """Let the generic kernels an extracted FMU ships (``<resources>/kernels/``) serve this process's misses,
+    as the store's do: only kernels of files the FMU bundled byte for byte as this process has them.
+
+    Parameters
+    ----------
+    resources : str or Path
+        The extracted FMU's ``resources`` folder.
+
+    Returns
+    -------
+    bool
+        True when the FMU ships generic kernels with a readable manifest (registered once per folder).
+    """
+    resources = Path(resources)
+    if str(resources) in _fmu_sources:
+        return True
+    try:
+        manifest = json.loads((resources / _SHIPPED / _MANIFEST).read_text())
+        key = manifest["key"]
+        if manifest.get("cpu") != GENERIC_CPU or not isinstance(key, str):
+            return False
+        files = {p.relative_to(resources).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+                 for p in sorted(resources.rglob("*.py"))
+                 if len(p.relative_to(resources).parts) > 1 and p.relative_to(resources).parts[0] not in _NO_KERNELS}
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    _fmu_sources[str(resources)] = (resources / _SHIPPED, key, files)
+    return True
 
 
 def _store_folders() -> list:
@@ -55,7 +95,7 @@ def _store_folders() -> list:
     record is parsed again only when its file changed."""
     from .cache import cache_dir                 # at the first miss: no folder is made before one is needed
 
-    found = []
+    found = [source for source in _fmu_sources.values() if source[0].is_dir()]
     try:
         records = sorted(Path(cache_dir("fmu-kernels-generic")).glob(f"*/*/{FILES}"))
     except OSError:

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from cosim.fmus import early_compile
-from cosim.fmus.builds import DK_NAME, _stage_script, project_packages, warm_up_scenario
+from cosim.fmus import early_compile, kernels
+from cosim.fmus.builds import DK_NAME, DK_STORES, _stage_script, project_packages, warm_up_scenario
 from cosim.fmus.kernels import BESIDE, Run, Scenario, fmu_key
 from cosim_support import fmus  # noqa: F401 (fixture)
 from fmu_src.kernel_cache import GENERIC_CPU, kernel_files, key_of
@@ -80,7 +80,6 @@ def test_nothing_begins_without_an_entry_point_or_when_warmed_and_a_second_build
     plain.write_text("import math\n")
     assert early_compile.begin(plain, project_packages(), Scenario([]), root=store) is None
     # another build warms this key up now: this one begins nothing (its warm-up waits for that one)
-    from cosim.fmus import kernels
     key = early_compile.begin(dk_script, project_packages(), _scenario(), root=store)
     assert isinstance(key, early_compile.EarlyCompile)
     key.stop()
@@ -131,3 +130,55 @@ def test_stop_kills_a_running_child_and_frees_the_model_for_the_next_build(dk_sc
     nxt = early_compile.begin(dk_script, project_packages(), _scenario(), root=tmp_path / "store")
     assert isinstance(nxt, early_compile.EarlyCompile)
     nxt.stop()
+
+
+def _fake_kernels(folder: Path, seconds: dict, warmed=()) -> None:
+    """A store folder with two index/data files and a warm-up record (what a warm-up leaves)."""
+    (folder / "solver" / "_kernels").mkdir(parents=True, exist_ok=True)
+    for name in ("c_entry._step-1.py311.nbi", "c_entry._step-1.py311.1.nbc"):
+        (folder / "solver" / "_kernels" / name).write_bytes(name.encode())
+    (folder / kernels._KEPT).write_text(json.dumps({"seconds": seconds, "warmed": list(warmed)}))
+
+
+def test_a_new_store_folder_is_seeded_from_another_dk_of_the_same_code(dk_script, tmp_path, monkeypatch):
+    """One DK FMU's compile serves the others: the early compile and the warm-up of a model whose store folder
+    of this key is empty copy the kernels (and their compile seconds) of another model's folder of the key;
+    a folder that holds kernels, a model of another key and a folder being written are left alone."""
+    monkeypatch.setattr(early_compile, "_CHILD", "print('no compile here')\n")
+    store = tmp_path / "store"
+    key = early_compile.begin(dk_script, project_packages(), _scenario(), root=store)
+    key.stop()
+    rpr = store / "RPRDirectKinematics" / key.key
+    _fake_kernels(rpr, {"solver._kernels.c_entry._publish": 72.7}, warmed=["x"])
+    _fake_kernels(store / "RRRDirectKinematics3" / "other-key", {"y": 1.0})
+    early = early_compile.begin(dk_script, project_packages(), _scenario(), root=store, seeds=DK_STORES)
+    early.stop()
+    mine = store / DK_NAME / key.key
+    assert sorted(p.name for p in mine.rglob("*.nb*")) == sorted(p.name for p in rpr.rglob("*.nb*"))
+    assert kernels._readable_record(mine) == {"seconds": {"solver._kernels.c_entry._publish": 72.7}, "warmed": []}
+    # a folder with kernels of its own is not seeded again
+    (rpr / "solver" / "_kernels" / "extra-9.py311.nbi").write_bytes(b"x")
+    kernels.seed(mine, [rpr])
+    assert not (mine / "solver" / "_kernels" / "extra-9.py311.nbi").exists()
+    # a source whose warm-up holds its lock is skipped (not waited for: no deadlock between two builds)
+    fresh = store / "RRRDirectKinematics3" / key.key
+    fresh.mkdir(parents=True)
+    with kernels._locked(rpr / ".lock"):
+        kernels.seed(fresh, [rpr])
+    assert not any(fresh.rglob("*.nb*"))
+    kernels.seed(fresh, [fresh, store / "nothing" / key.key, rpr])
+    assert (fresh / "solver" / "_kernels" / "extra-9.py311.nbi").is_file()
+
+
+def test_a_compile_time_recorded_twice_keeps_the_longer(tmp_path):
+    """A later early compile that found the entry point compiled (a second) does not replace its real time."""
+    kernels.record_seconds(tmp_path, {"e": 104.2})
+    kernels.record_seconds(tmp_path, {"e": 0.4, "f": 2.0})
+    assert kernels._readable_record(tmp_path)["seconds"] == {"e": 104.2, "f": 2.0}
+
+
+def test_the_dk_store_names_are_the_dk_fmus_models():
+    from cosim.fmus.fmi3_build import DK3_NAME
+    from cosim.fmus.rpr_build import RPR_NAME
+
+    assert DK_STORES == (DK_NAME, DK3_NAME, RPR_NAME)

@@ -201,6 +201,21 @@ def test_fmu3slave_reference_path_is_bit_identical_to_the_fmi2_fmu(built, md3, d
     assert _dk3_poses(md3, dir3, Q, X0) == _dk2_poses(md2, dir2, Q, X0)
 
 
+def test_it_ships_the_kernels_of_the_fmi2_fmu_of_the_same_code(built, built3):
+    """pythonfmu3 holds no kernel: the FMI 3.0 DK FMU's kernel key is the FMI 2.0 one's (the same solver), so
+    its store folder was seeded from the FMI 2.0 FMU's (cosim.fmus.kernels.seed) and ships its kernels."""
+    def shipped(fmu):
+        with zipfile.ZipFile(fmu) as z:
+            return (json.loads(z.read("resources/kernels/manifest.json"))["key"],
+                    {n for n in z.namelist() if n.startswith("resources/kernels/") and n.endswith(".nbi")})
+
+    key2, files2 = shipped(built.fmu)
+    key3, files3 = shipped(built3.fmu)
+    assert key3 == key2
+    entry = {n for n in files2 if "/solver/_kernels/c_entry." in n}
+    assert entry and entry <= files3
+
+
 def test_tracker_suite_posture_1_paths_are_identical(built, md3, dir3, dir2):
     md2 = read_model_description(str(built.fmu))
     paths = [p for p in default_suite(Manipulator.paper()) if p.posture == 1]

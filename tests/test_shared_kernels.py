@@ -104,3 +104,45 @@ def test_a_store_filled_after_the_first_miss_serves_the_later_ones(fmus, tmp_pat
                  RRR_DK_CACHE=str(tmp_path / "cache"))
     assert got["before"] == [] and got["entry_hits"] == 1, got
     assert any(s.startswith("c_entry._step-") for s in got["served"]) and got["error"] < 1e-9, got
+
+
+#: a process with no generic store at all (a batch worker on another machine) that extracts the DK FMU through
+#: the project's host (cosim.unit) and then steps its own tracker
+_FROM_FMU = r"""
+import json, sys
+import numpy as np
+from solver import Manipulator, MapTensor, Tracker, cache_dir, circle_path, ik, shared_kernels
+from solver._kernels.c_entry import entry
+from cosim.unit import extracted
+
+folder, _ = extracted(sys.argv[2])
+assert not cache_dir("fmu-kernels-generic").exists()
+model = Manipulator.paper()
+X = circle_path(50)
+q = ik(model, X, 1)
+tracker = Tracker(model, MapTensor.load(sys.argv[1]), start_tolerance=(1e-9, 1e-9, 1e-9))
+tracker.reset(X[0], q[0], warn=False)
+pose, info = tracker.step(q[1])
+print(json.dumps({"entry_hits": entry().cache_hits, "served": shared_kernels.served(),
+                  "error": float(np.abs(pose - X[1]).max()), "not_an_fmu": shared_kernels.serve_from_fmu(sys.argv[3])}))
+"""
+
+
+def test_the_kernels_an_fmu_ships_serve_a_process_without_the_store(fmus, tmp_path):  # noqa: F811
+    """A process with neither the store nor a numba cache (a batch worker that received the FMU files) loads
+    its solver's kernels from the FMUs it extracted (solver.shared_kernels.serve_from_fmu), not compiling."""
+    got = _child(_FROM_FMU, _dk_map(fmus, tmp_path), fmus["RRRDirectKinematics"], tmp_path,
+                 numba_cache=tmp_path / "numba", RRR_DK_CACHE=str(tmp_path / "cache"))
+    assert got["entry_hits"] == 1, got
+    assert any(s.startswith("c_entry._step-") for s in got["served"]) and got["error"] < 1e-9, got
+    assert got["not_an_fmu"] is False
+
+
+def test_the_fmu_runtimes_names_are_the_solvers():
+    """solver.shared_kernels reads the FMU's layout without importing the FMU runtime (the math never imports
+    FMI code): its copies of the runtime's names must be the runtime's."""
+    from fmu_src import kernel_cache
+    from solver import shared_kernels
+
+    assert (shared_kernels._SHIPPED, shared_kernels._MANIFEST, shared_kernels._NO_KERNELS, shared_kernels.GENERIC_CPU) \
+        == (kernel_cache.SHIPPED, kernel_cache.MANIFEST, kernel_cache.NO_KERNELS, kernel_cache.GENERIC_CPU)

@@ -58,6 +58,10 @@ __all__ = ["FMU_NAMES", "DK_NAME", "MODES", "DEFAULT_RESOLUTION", "BuildResult",
 #: The three FMUs, in the order of the closed loop's data flow (DK -> controller -> plant).
 FMU_NAMES = ("RRRDirectKinematics", "ComputedTorqueController", "RRRPlant")
 DK_NAME = "RRRDirectKinematics"
+#: The store folders (:mod:`cosim.fmus.kernels`) of the DK FMUs, which run one tracker step: the FMI 2.0 and
+#: 3.0 3-RRR's (:mod:`cosim.fmus.fmi3_build`) and the 3-RPR's (:mod:`cosim.fmus.rpr_build`); a new folder of
+#: one is seeded from another's of the same code, so one of them compiles the step for all.
+DK_STORES = (DK_NAME, "RRRDirectKinematics3", "RPRDirectKinematics")
 MODES = ("default", "paper")
 #: Default node spacing of the DK map (the map tensor's default): 10 mm in x and y, 2 degrees in phi.
 DEFAULT_RESOLUTION = (DEFAULT_STEP[0], DEFAULT_STEP[2])
@@ -237,7 +241,8 @@ def build_dk(out_dir="build", postures=(1,), resolution=None, map_files=(), mode
             tmp = Path(tmp)
             script = _stage_script(tmp, postures[0], mode, robot)
             data_files = {**stage_maps(tmp, maps), **stage_robot(tmp, robot)}
-            scenario = warm_up(warm_up_scenario(DK_NAME, postures[0], mode, robot)) if kernels else None
+            scenario = (warm_up(warm_up_scenario(DK_NAME, postures[0], mode, robot), seeds=DK_STORES)
+                        if kernels else None)
             fmu = build_fmu(script, out_dir, project_packages=project_packages(), data_files=data_files,
                             documentation_dir=_stage_documentation(tmp), check=check, kernels=scenario)
     finally:
@@ -253,7 +258,8 @@ def _early_compile(postures, mode: str, robot):
     if not postures or not all(1 <= int(p) <= 8 for p in postures):
         return None
     first = int(postures[0])                # the slave's imports, hence the bundle, do not depend on its constants
-    return begin_early_compile(slave_script(DK_NAME), project_packages(), warm_up_scenario(DK_NAME, first, mode, robot))
+    return begin_early_compile(slave_script(DK_NAME), project_packages(), warm_up_scenario(DK_NAME, first, mode, robot),
+                               seeds=DK_STORES)
 
 
 # ---------------------------------------------------------------------- the plant and the controller

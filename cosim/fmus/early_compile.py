@@ -27,7 +27,7 @@ from pathlib import Path
 from fmu_src.kernel_cache import BUNDLE_MARK, key_of
 from solver import progress
 
-from .kernels import BESIDE, Scenario, generic_env, generic_root, is_warmed, record_seconds, warm_up_base
+from .kernels import BESIDE, Scenario, generic_env, generic_root, is_warmed, record_seconds, seed, warm_up_base
 from .packaging import bundled_files
 from .sources import SLAVE_DIR
 
@@ -120,17 +120,20 @@ class Waiting:
         """Nothing to stop: the compile is the other process's."""
 
 
-def begin(script: Path, project_packages, scenario: Scenario, root: Path | None = None) -> EarlyCompile | Waiting | None:
+def begin(script: Path, project_packages, scenario: Scenario, root: Path | None = None,
+          seeds: tuple = ()) -> EarlyCompile | Waiting | None:
     """Start compiling the C entry point of the FMU that :func:`cosim.fmus.packaging.build_fmu` will make of
     ``script`` with ``project_packages``, for the generic CPU into ``root`` (default
-    :func:`cosim.fmus.kernels.generic_root`).  None when there is nothing to begin (the bundle has no
+    :func:`cosim.fmus.kernels.generic_root`).  ``seeds``: the models whose store folder of the same key
+    seeds a new one (:func:`cosim.fmus.kernels.seed`; the child then loads the entry point in seconds).
+    None when there is nothing to begin (the bundle has no
     entry point, the store already holds this key warmed up along ``scenario``, another build warms up
     this key now, the platform has no file locks) or it could not begin (said on stderr): the warm-up
     then compiles it.  A :class:`Waiting` when another process compiles this model's entry point."""
     if fcntl is None:
         return None
     try:
-        return _begin(Path(script), project_packages, scenario, root)
+        return _begin(Path(script), project_packages, scenario, root, seeds)
     except Exception as e:  # noqa: BLE001 - an optimization: never a build's failure
         progress.note(f"{Path(script).stem}: the early compile of its C entry point did not start ({e}); the "
                       "warm-up compiles it instead")
@@ -150,14 +153,15 @@ def _flocked(path: Path):
     return f
 
 
-def _begin(script: Path, project_packages, scenario: Scenario, root: Path | None):
+def _begin(script: Path, project_packages, scenario: Scenario, root: Path | None, seeds: tuple = ()):
     model = script.stem
     packages = {SLAVE_DIR.name: SLAVE_DIR, **{Path(p).resolve().name: Path(p).resolve() for p in project_packages}}
     files = bundled_files(script, packages)
     if ENTRY not in files:
         return None
     key = key_of((rel, path.read_bytes()) for rel, path in files.items())
-    store = (Path(root) if root is not None else generic_root()) / model
+    root = Path(root) if root is not None else generic_root()
+    store = root / model
     if is_warmed(store / key, scenario):
         return None
     base = warm_up_base()
@@ -173,6 +177,7 @@ def _begin(script: Path, project_packages, scenario: Scenario, root: Path | None
         if key_lock is None:                    # another build warms this key up now; ours waits for it
             return None
         held.append(key_lock)
+        seed(store / key, [root / m / key for m in seeds])     # under the key's lock, as the warm-up seeds
         work = Path(tempfile.mkdtemp(prefix=f"{model}-entry-", dir=base))
         resources = work / "resources"
         for rel, path in files.items():

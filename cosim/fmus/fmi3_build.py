@@ -158,7 +158,9 @@ def build_dk3(out_dir="build/fmi3", postures=(1,), resolution=None, map_files=()
                                        documentation_folder=builds._stage_documentation(tmp, DK3_NAME))
         _archive(Path(raw), final, cls)
         if kernels:
-            _archive(Path(raw), final, cls, warm_up(warm_up_scenario3(postures[0], mode, robot))(final))
+            kernel_entries = warm_up(warm_up_scenario3(postures[0], mode, robot), model=DK3_NAME,
+                                     seeds=builds.DK_STORES)(final)
+            _archive(Path(raw), final, cls, kernel_entries)
     problems = _validate(final) if check else []
     return BuildResult(final, maps, postures[0], mode, time.perf_counter() - t0, map_seconds, problems)
 

@@ -61,7 +61,7 @@ except ImportError:                     # pragma: no cover - Windows: no lock
     fcntl = None
 
 __all__ = ["Run", "Scenario", "generic_root", "fmu_key", "shipped_kernels", "warm_up", "is_warmed", "record_seconds",
-           "warm_up_base", "generic_env", "KernelBuildError"]
+           "warm_up_base", "generic_env", "seed", "KernelBuildError"]
 
 _KEPT = "warm-up.json"
 
@@ -250,39 +250,77 @@ def _readable_record(folder: Path) -> dict:
 
 def record_seconds(folder: Path, seconds: dict) -> None:
     """Add ``{kernel: compile seconds}`` measured outside the warm-up (:mod:`cosim.fmus.early_compile`) to the
-    record of the store folder ``folder``, as the warm-up's own (the manifest then quotes them)."""
+    record of the store folder ``folder``, as the warm-up's own (the manifest then quotes them).  A kernel
+    already recorded keeps the longer time: a later run that found it compiled loads it in a second."""
     folder = Path(folder)
     with _locked(folder / ".lock"):
         record = _readable_record(folder)
-        record["seconds"].update({k: round(float(v), 1) for k, v in seconds.items()})
+        for k, v in seconds.items():
+            record["seconds"][k] = max(round(float(v), 1), record["seconds"].get(k, 0.0))
         (folder / _KEPT).write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
 
 
-def shipped_kernels(fmu: Path, scenario: Scenario, root: Path | None = None) -> dict[str, bytes]:
+def shipped_kernels(fmu: Path, scenario: Scenario, root: Path | None = None, model: str | None = None,
+                    seeds: tuple = ()) -> dict[str, bytes]:
     """The entries ``{"resources/kernels/...": bytes}`` of the kernels ``fmu`` calls along ``scenario``,
     compiled for a generic CPU, and their manifest (the module docstring).
 
     ``root``: the generic kernel cache (default :func:`generic_root`).  The child runs only when
     this key has not been warmed up along this scenario, numba and Python before (``warm-up.json``).
+    ``model``: the store folder's model name (default: the FMU file's stem).  ``seeds``: models whose
+    store folder of the same key seeds this one when it holds no kernel yet (:func:`_seed`).
     """
-    root = (Path(root) if root is not None else generic_root()) / Path(fmu).stem     # one FMU's kernels only
+    root = (Path(root) if root is not None else generic_root())
     bundled = _bundled(Path(fmu))
     key, done = key_of(bundled), _warmed(scenario)
-    folder = root / key
+    folder = root / (model or Path(fmu).stem) / key                                   # one FMU's kernels only
     folder.mkdir(parents=True, exist_ok=True)
     with _locked(folder / ".lock"):             # builds in parallel (batch workers): one warms up, the others wait
-        entries = _warmed_entries(fmu, scenario, root, folder, key, done)
+        seed(folder, [root / m / key for m in seeds])
+        entries = _warmed_entries(fmu, scenario, root / (model or Path(fmu).stem), folder, key, done)
         _record_files(bundled, folder)
         return entries
 
 
+def seed(folder: Path, sources: list) -> None:
+    """Copy into the store folder ``folder`` (held locked, holding no kernel yet) the kernels of the first of
+    ``sources`` (store folders of the same key, other models) that holds any.
+
+    FMUs of one code share most kernels (the 3-RRR's FMI 2.0 and 3.0 DK FMUs and the 3-RPR's DK FMU
+    call the same tracker step and its C entry point): the second FMU's warm-up then loads them instead
+    of compiling them again (minutes), and compiles only its own.  The folder stays this model's: it
+    ships what was seeded and what its runs added, and a rebuild ships the same bytes."""
+    if any(folder.rglob("*.nbi")):
+        return
+    for source in sources:
+        if source == folder or not (source / _KEPT).is_file():
+            continue
+        with _locked(source / ".lock", wait=False) as free:
+            if not free:                        # that model's warm-up writes it now: not complete, and no deadlock
+                continue
+            files = [p for p in sorted(source.rglob("*")) if p.suffix in (".nbi", ".nbc")]
+            for p in files:
+                target = folder / p.relative_to(source)
+                target.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copyfile(p, target)
+            seconds = _readable_record(source)["seconds"]
+        if files:                               # and their compile seconds: a host that must compile is told them
+            (folder / _KEPT).write_text(json.dumps({"seconds": seconds, "warmed": []}, indent=1, sort_keys=True) + "\n")
+            return
+
+
 @contextlib.contextmanager
-def _locked(path: Path):
-    """An exclusive lock on the file ``path`` (created), held for the ``with`` block (none without fcntl)."""
+def _locked(path: Path, wait: bool = True):
+    """An exclusive lock on the file ``path`` (created), held for the ``with`` block (none without fcntl); it
+    yields True, or with ``wait=False`` False at once when another process holds it."""
     with open(path, "a") as f:
         if fcntl is not None:
-            fcntl.flock(f, fcntl.LOCK_EX)   # released when the file closes
-        yield
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX if wait else fcntl.LOCK_EX | fcntl.LOCK_NB)   # released when f closes
+            except BlockingIOError:
+                yield False
+                return
+        yield True
 
 
 def _warmed_entries(fmu, scenario, root, folder, key, done) -> dict[str, bytes]:
@@ -316,6 +354,7 @@ def _warmed_entries(fmu, scenario, root, folder, key, done) -> dict[str, bytes]:
     return entries
 
 
-def warm_up(scenario: Scenario, root: Path | None = None):
-    """The ``kernels`` argument of :func:`cosim.fmus.packaging.build_fmu` for ``scenario``."""
-    return lambda fmu: shipped_kernels(fmu, scenario, root)
+def warm_up(scenario: Scenario, root: Path | None = None, model: str | None = None, seeds: tuple = ()):
+    """The ``kernels`` argument of :func:`cosim.fmus.packaging.build_fmu` for ``scenario`` (the other
+    arguments: :func:`shipped_kernels`')."""
+    return lambda fmu: shipped_kernels(fmu, scenario, root, model, seeds)

@@ -27,7 +27,7 @@ from solver import DEFAULT_RULE, MapTensor
 from solver.mapcache import default_cache_dir, labelling_digest
 from solver.rpr import RPR_WORK_BOUNDS, RPRManipulator
 
-from .builds import BuildResult, _stage_documentation, project_packages
+from .builds import DK_STORES, BuildResult, _stage_documentation, project_packages
 from .checks import validate
 from .kernels import Run, Scenario, warm_up
 from .packaging import build_fmu
@@ -125,7 +125,7 @@ def build_rpr_dk(out_dir="build", resolution=None, rule: str = DEFAULT_RULE, cac
                         data_files={"maps/posture1.npz": map_file, "maps/manifest.json": manifest,
                                     **stage_robot(tmp, robot)},
                         documentation_dir=_stage_documentation(tmp, RPR_NAME), check=check,
-                        kernels=warm_up(scenario) if kernels else None)
+                        kernels=warm_up(scenario, seeds=DK_STORES) if kernels else None)
     problems = validate(fmu) if check else []
     return BuildResult(fmu, {1: map_file}, 1, "default", time.perf_counter() - t0, map_seconds, problems)
 
