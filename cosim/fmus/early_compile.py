@@ -60,8 +60,8 @@ ENTRY_KERNEL = "solver._kernels.c_entry.entry"
 
 class EarlyCompile:
     """A child process compiling the C entry point of a bundle (made by :func:`begin`).  The child holds
-    the model's early-compile lock until it exits, so another build of the model waits for it
-    (:class:`Waiting`) instead of compiling the same entry point again."""
+    the early-compile lock of the model's store folder of this key until it exits, so another build of
+    the same model and code waits for it (:class:`Waiting`) instead of compiling the same entry point again."""
 
     def __init__(self, model: str, key: str, proc: subprocess.Popen, work: Path, folder: Path):
         self.model, self.key = model, key
@@ -165,14 +165,14 @@ def _begin(script: Path, project_packages, scenario: Scenario, root: Path | None
     if is_warmed(store / key, scenario):
         return None
     base = warm_up_base()
-    lock_path = base / f"{model}-entry.lock"
+    (store / key).mkdir(parents=True, exist_ok=True)
+    lock_path = store / key / ".entry.lock"     # in the store: builds into other stores, or of other code, never wait
     held = []
     try:
-        model_lock = _flocked(lock_path)
-        if model_lock is None:                  # another process compiles it: wait for that one
+        entry_lock = _flocked(lock_path)
+        if entry_lock is None:                  # another process compiles it: wait for that one
             return Waiting(model, lock_path)
-        held.append(model_lock)
-        (store / key).mkdir(parents=True, exist_ok=True)
+        held.append(entry_lock)
         key_lock = _flocked(store / key / ".lock")     # the warm-up's lock of this key (cosim.fmus.kernels)
         if key_lock is None:                    # another build warms this key up now; ours waits for it
             return None
