@@ -15,7 +15,7 @@ It prints every line the command writes to stderr with the seconds since it star
   issue's target (at most 90 s on 2 cores at a load of at most 1.5);
 - the longest silence between two stderr lines (target: a phase line at least every 10 s);
 - the same command again in the same clone (warm caches: what every later run costs);
-- with ``--tests``: the README's test command (``python -m pytest -q``) in the clone with the
+- with ``--tests``: the README's test command (``python -m pytest -q -n 2``) in the clone with the
   caches the first run left (cold for the test suite's own builds), then again (warm), each with
   its wall time (targets: 8 and 5 minutes) and pytest's summary line (its whole output in
   ``pytest-cold.txt`` and ``pytest-warm.txt`` of the work folder: ``--keep DIR`` keeps them).
@@ -105,9 +105,9 @@ def main(argv=None) -> None:
                 ("`python -m cosim` again (warm caches)", f"{warm:.1f} s", "")]
         if args.tests:
             for label, target in (("cold", TESTS_COLD), ("warm", TESTS_WARM)):
-                print(f"python -m pytest -q ({label}):", flush=True)
+                print(f"python -m pytest -q -n 2 ({label}):", flush=True)
                 log = work / f"pytest-{label}.txt"
-                t, _, code, _ = timed_run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider"], clone, env,
+                t, _, code, _ = timed_run([sys.executable, "-m", "pytest", "-q", "-n", "2", "-p", "no:cacheprovider"], clone, env,
                                           echo=False, stdout=log)
                 print(f"  {t / 60:.1f} min, exit {code}: " + log.read_text().strip().splitlines()[-1], flush=True)
                 rows.append((f"the README's test command, {label} (exit {code})", f"{t / 60:.1f} min",
