@@ -70,6 +70,16 @@ def test_a_fresh_process_steps_with_the_kernels_the_fmu_build_compiled(fmus, tmp
     assert got["error"] < 1e-9 and got["certain"]
 
 
+#: the children's one step: a tracker on the map (argv[1]), its honest start on the paper circle, one step
+_STEP_ONE = r"""
+model = Manipulator.paper()
+X = circle_path(50)
+q = ik(model, X, 1)
+tracker = Tracker(model, MapTensor.load(sys.argv[1]), start_tolerance=(1e-9, 1e-9, 1e-9))
+tracker.reset(X[0], q[0], warn=False)
+pose, info = tracker.step(q[1])
+"""
+
 #: a process that compiles a kernel before any FMU build filled the store (its first miss finds no store),
 #: then finds the store filled (an FMU build that ran meanwhile) and steps the tracker
 _LATE = r"""
@@ -85,12 +95,7 @@ assert not store.exists()
 wrap(7.0)                                                   # a miss with no store: compiled here
 before = shared_kernels.served()
 shutil.copytree(sys.argv[2], store)                         # the build that ran meanwhile
-model = Manipulator.paper()
-X = circle_path(50)
-q = ik(model, X, 1)
-tracker = Tracker(model, MapTensor.load(sys.argv[1]), start_tolerance=(1e-9, 1e-9, 1e-9))
-tracker.reset(X[0], q[0], warn=False)
-pose, info = tracker.step(q[1])
+""" + _STEP_ONE + r"""
 print(json.dumps({"before": before, "entry_hits": entry().cache_hits, "served": shared_kernels.served(),
                   "error": float(np.abs(pose - X[1]).max())}))
 """
@@ -117,12 +122,7 @@ from cosim.unit import extracted
 
 folder, _ = extracted(sys.argv[2])
 assert not cache_dir("fmu-kernels-generic").exists()
-model = Manipulator.paper()
-X = circle_path(50)
-q = ik(model, X, 1)
-tracker = Tracker(model, MapTensor.load(sys.argv[1]), start_tolerance=(1e-9, 1e-9, 1e-9))
-tracker.reset(X[0], q[0], warn=False)
-pose, info = tracker.step(q[1])
+""" + _STEP_ONE + r"""
 print(json.dumps({"entry_hits": entry().cache_hits, "served": shared_kernels.served(),
                   "error": float(np.abs(pose - X[1]).max()), "not_an_fmu": shared_kernels.serve_from_fmu(sys.argv[3])}))
 """
