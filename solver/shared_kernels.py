@@ -25,7 +25,8 @@ The FMUs a process runs are a second source (:func:`serve_from_fmu`): an extract
 ``resources/kernels/`` holds the same generic kernels, keyed and recorded the same way (its manifest
 names the key; the bundled files themselves are the record).  A batch worker on another machine
 receives the FMUs, not the store: from them it loads the kernels its own ``solver`` needs instead of
-compiling them (the project's hosts register every FMU they extract, :func:`cosim.unit.extracted`).
+compiling them (the project's FMU driver registers every FMU it extracts, :func:`cosim.unit.extracted`:
+the closed loop and the batch; an FMU whose sources differ from its manifest's key is refused).
 """
 from __future__ import annotations
 
@@ -78,10 +79,17 @@ def serve_from_fmu(resources) -> bool:
         key = manifest["key"]
         if manifest.get("cpu") != GENERIC_CPU or not isinstance(key, str):
             return False
-        files = {p.relative_to(resources).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
-                 for p in sorted(resources.rglob("*.py"))
-                 if len(p.relative_to(resources).parts) > 1 and p.relative_to(resources).parts[0] not in _NO_KERNELS}
+        sources = sorted((p.relative_to(resources).as_posix(), p) for p in resources.rglob("*.py"))
+        files, whole = {}, hashlib.sha256()
+        for name, path in sources:
+            if "/" in name and name.split("/")[0] not in _NO_KERNELS:
+                data = path.read_bytes()
+                files[name] = hashlib.sha256(data).hexdigest()
+                whole.update(name.encode() + b"\0")
+                whole.update(data + b"\0")
     except (OSError, ValueError, KeyError, TypeError):
+        return False
+    if whole.hexdigest()[:24] != key:           # sources edited after the build: its kernels are of other code
         return False
     _fmu_sources[str(resources)] = (resources / _SHIPPED, key, files)
     return True

@@ -140,7 +140,7 @@ def _fake_kernels(folder: Path, seconds: dict, warmed=()) -> None:
     (folder / kernels._KEPT).write_text(json.dumps({"seconds": seconds, "warmed": list(warmed)}))
 
 
-def test_a_new_store_folder_is_seeded_from_another_dk_of_the_same_code(dk_script, tmp_path, monkeypatch):
+def test_a_new_store_folder_is_seeded_from_another_dk_of_the_same_code(dk_script, tmp_path, monkeypatch, capsys):
     """One DK FMU's compile serves the others: the early compile and the warm-up of a model whose store folder
     of this key is empty copy the kernels (and their compile seconds) of another model's folder of the key;
     a folder that holds kernels, a model of another key and a folder being written are left alone."""
@@ -155,7 +155,9 @@ def test_a_new_store_folder_is_seeded_from_another_dk_of_the_same_code(dk_script
     early.stop()
     mine = store / DK_NAME / key.key
     assert sorted(p.name for p in mine.rglob("*.nb*")) == sorted(p.name for p in rpr.rglob("*.nb*"))
-    assert kernels._readable_record(mine) == {"seconds": {"solver._kernels.c_entry._publish": 72.7}, "warmed": []}
+    assert kernels._readable_record(mine) == {"seconds": {"solver._kernels.c_entry._publish": 72.7}, "warmed": [],
+                                              "seeded_from": "RPRDirectKinematics"}
+    assert not list(mine.rglob("*.seed-*"))                  # written under temporary names, renamed
     # a folder with kernels of its own is not seeded again
     (rpr / "solver" / "_kernels" / "extra-9.py311.nbi").write_bytes(b"x")
     kernels.seed(mine, [rpr])
@@ -166,8 +168,12 @@ def test_a_new_store_folder_is_seeded_from_another_dk_of_the_same_code(dk_script
     with kernels._locked(rpr / ".lock"):
         kernels.seed(fresh, [rpr])
     assert not any(fresh.rglob("*.nb*"))
-    kernels.seed(fresh, [fresh, store / "nothing" / key.key, rpr])
+    assert kernels.seed(fresh, [fresh, store / "nothing" / key.key, rpr]) == "RPRDirectKinematics"
     assert (fresh / "solver" / "_kernels" / "extra-9.py311.nbi").is_file()
+    # a seed that cannot be written fails nothing: it says so, and the warm-up compiles
+    (tmp_path / "a-file").write_text("")
+    assert kernels.seed(tmp_path / "a-file" / key.key, [rpr]) is None
+    assert "were not seeded" in capsys.readouterr().err
 
 
 def test_a_compile_time_recorded_twice_keeps_the_longer(tmp_path):

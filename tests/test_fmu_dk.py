@@ -127,7 +127,8 @@ def test_command_line(built, tmp, capsys, monkeypatch):
     out = tmp / "cli"
     generic = kernels.generic_root()
     monkeypatch.setenv(CACHE_ENV, str(tmp / "cli_cache"))              # the CLI uses the one map cache
-    shutil.copytree(generic, kernels.generic_root())                    # and kernel cache: reused, not compiled
+    shutil.copytree(generic, kernels.generic_root(),                    # and kernel cache: reused, not compiled
+                    ignore=shutil.ignore_patterns("*.tmp*", "*.lock", "*.seed-*"))   # (not another worker's writes)
     cached = builds.map_cache_path(tmp / "maps", 1, RES, DEFAULT_RULE, MODEL)
     in_cache = builds.map_cache_path(None, 1, RES, DEFAULT_RULE, MODEL)
     assert in_cache.parent == cache_dir("maps")

@@ -94,7 +94,8 @@ store = cache_dir("fmu-kernels-generic")
 assert not store.exists()
 wrap(7.0)                                                   # a miss with no store: compiled here
 before = shared_kernels.served()
-shutil.copytree(sys.argv[2], store)                         # the build that ran meanwhile
+# the build that ran meanwhile (not the files another test process writes into it now: xdist)
+shutil.copytree(sys.argv[2], store, ignore=shutil.ignore_patterns("*.tmp*", "*.lock", "*.seed-*"))
 """ + _STEP_ONE + r"""
 print(json.dumps({"before": before, "entry_hits": entry().cache_hits, "served": shared_kernels.served(),
                   "error": float(np.abs(pose - X[1]).max())}))
@@ -146,3 +147,19 @@ def test_the_fmu_runtimes_names_are_the_solvers():
 
     assert (shared_kernels._SHIPPED, shared_kernels._MANIFEST, shared_kernels._NO_KERNELS, shared_kernels.GENERIC_CPU) \
         == (kernel_cache.SHIPPED, kernel_cache.MANIFEST, kernel_cache.NO_KERNELS, kernel_cache.GENERIC_CPU)
+
+
+def test_an_fmu_whose_sources_are_not_its_keys_serves_nothing(fmus, tmp_path, monkeypatch):  # noqa: F811
+    """serve_from_fmu takes an FMU's kernels only while its bundled sources give its manifest's key: sources
+    edited after the build (a re-zipped FMU) would pair kernels of one code with the sources of another."""
+    from solver import shared_kernels
+
+    monkeypatch.setattr(shared_kernels, "_fmu_sources", {})
+    for name in ("as-built", "edited"):
+        with zipfile.ZipFile(Path(fmus["RRRDirectKinematics"])) as z:
+            z.extractall(tmp_path / name)
+    edited = tmp_path / "edited" / "resources" / "solver" / "angles.py"
+    edited.write_text(edited.read_text() + "\n# edited after the build\n")
+    assert shared_kernels.serve_from_fmu(tmp_path / "as-built" / "resources") is True
+    assert shared_kernels.serve_from_fmu(tmp_path / "edited" / "resources") is False
+    assert list(shared_kernels._fmu_sources) == [str(tmp_path / "as-built" / "resources")]

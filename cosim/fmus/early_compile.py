@@ -129,7 +129,8 @@ def begin(script: Path, project_packages, scenario: Scenario, root: Path | None 
     None when there is nothing to begin (the bundle has no
     entry point, the store already holds this key warmed up along ``scenario``, another build warms up
     this key now, the platform has no file locks) or it could not begin (said on stderr): the warm-up
-    then compiles it.  A :class:`Waiting` when another process compiles this model's entry point."""
+    then compiles it.  A :class:`Waiting` when another process compiles this model's entry point of this
+    code (the same store folder)."""
     if fcntl is None:
         return None
     try:

@@ -20,10 +20,11 @@ it to :func:`shipped_kernels` and builds it again with the entries returned:
    process of its own interpreter, which compiles the kernels for it (:mod:`fmu_src.kernel_warmup`).
 
 The generic cache lives under the project's cache root (``cache_dir("fmu-kernels-generic")``), one
-folder per model (an FMU ships its own kernels, not those another FMU of the same code warmed up),
-keyed by the bundled code: a rebuild of unchanged code compiles nothing (the child loads every
-kernel) and ships the same bytes, and FMUs of one code that differ only in start values (the DK
-FMU's posture and mode) share it.  Beside it, ``warm-up.json`` keeps the compile seconds measured
+folder per model (an FMU ships its own kernels, not those another FMU of the same code warmed up;
+except that a new folder of one of the DK FMUs, which run the same step, starts as a copy of another
+DK's folder of the same code, :func:`seed`), keyed by the bundled code: a rebuild of unchanged code
+compiles nothing (the child loads every kernel) and ships the same bytes, and FMUs of one code that
+differ only in start values (the DK FMU's posture and mode) share it.  Beside it, ``warm-up.json`` keeps the compile seconds measured
 when each kernel was first compiled (a rebuild quotes them unchanged) and which scenarios (with the
 numba and Python versions) were run: a rebuild of the same code and scenario starts no child at all.
 A record without compile seconds (its kernels were in the cache before any child timed them) runs
@@ -268,7 +269,7 @@ def shipped_kernels(fmu: Path, scenario: Scenario, root: Path | None = None, mod
     ``root``: the generic kernel cache (default :func:`generic_root`).  The child runs only when
     this key has not been warmed up along this scenario, numba and Python before (``warm-up.json``).
     ``model``: the store folder's model name (default: the FMU file's stem).  ``seeds``: models whose
-    store folder of the same key seeds this one when it holds no kernel yet (:func:`_seed`).
+    store folder of the same key seeds this one when it holds no kernel yet (:func:`seed`).
     """
     root = (Path(root) if root is not None else generic_root())
     bundled = _bundled(Path(fmu))
@@ -282,41 +283,66 @@ def shipped_kernels(fmu: Path, scenario: Scenario, root: Path | None = None, mod
         return entries
 
 
-def seed(folder: Path, sources: list) -> None:
+def seed(folder: Path, sources: list) -> str | None:
     """Copy into the store folder ``folder`` (held locked, holding no kernel yet) the kernels of the first of
-    ``sources`` (store folders of the same key, other models) that holds any.
+    ``sources`` (store folders of the same key, other models) that holds any; the source's model, or None.
 
     FMUs of one code share most kernels (the 3-RRR's FMI 2.0 and 3.0 DK FMUs and the 3-RPR's DK FMU
     call the same tracker step and its C entry point): the second FMU's warm-up then loads them instead
     of compiling them again (minutes), and compiles only its own.  The folder stays this model's: it
-    ships what was seeded and what its runs added, and a rebuild ships the same bytes."""
-    if any(folder.rglob("*.nbi")):
-        return
-    for source in sources:
-        if source == folder or not (source / _KEPT).is_file():
-            continue
-        with _locked(source / ".lock", wait=False) as free:
-            if not free:                        # that model's warm-up writes it now: not complete, and no deadlock
+    ships what was seeded and what its runs added, and a rebuild ships the same bytes.
+
+    Best effort: a source whose warm-up writes it now is skipped (not waited for: two builds seeding each
+    other never deadlock), an error copies nothing usable and the warm-up compiles, as without a seed.
+    Each file is written under a temporary name and renamed, the data files before the indexes and the
+    record last, so a build killed halfway leaves no truncated index (numba raises on one) and no record."""
+    try:
+        if any(folder.rglob("*.nbi")):
+            return None
+        for source in sources:
+            if source == folder or not (source / _KEPT).is_file():
                 continue
-            files = [p for p in sorted(source.rglob("*")) if p.suffix in (".nbi", ".nbc")]
-            for p in files:
-                target = folder / p.relative_to(source)
-                target.parent.mkdir(parents=True, exist_ok=True)
-                shutil.copyfile(p, target)
-            seconds = _readable_record(source)["seconds"]
-        if files:                               # and their compile seconds: a host that must compile is told them
-            (folder / _KEPT).write_text(json.dumps({"seconds": seconds, "warmed": []}, indent=1, sort_keys=True) + "\n")
-            return
+            with _locked(source / ".lock", wait=False, shared=True) as free:
+                if not free:                    # that model's warm-up writes it now: not complete
+                    continue
+                files = sorted((p for p in source.rglob("*") if p.suffix in (".nbi", ".nbc")),
+                               key=lambda p: (p.suffix == ".nbi", str(p)))
+                for p in files:
+                    _copy_atomically(p, folder / p.relative_to(source))
+                seconds = _readable_record(source)["seconds"]
+            if files:                           # and their compile seconds: a host that must compile is told them
+                record = {"seconds": seconds, "warmed": [], "seeded_from": source.parent.name}
+                _write_atomically(folder / _KEPT, json.dumps(record, indent=1, sort_keys=True) + "\n")
+                return source.parent.name
+    except OSError as e:
+        progress.note(f"{folder.parent.name}: its kernels were not seeded from another DK's ({e}); its warm-up "
+                      "compiles them")
+    return None
+
+
+def _copy_atomically(src: Path, dst: Path) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dst.with_name(dst.name + f".seed-{os.getpid()}")
+    shutil.copyfile(src, tmp)
+    os.replace(tmp, dst)
+
+
+def _write_atomically(dst: Path, text: str) -> None:
+    tmp = dst.with_name(dst.name + f".seed-{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, dst)
 
 
 @contextlib.contextmanager
-def _locked(path: Path, wait: bool = True):
+def _locked(path: Path, wait: bool = True, shared: bool = False):
     """An exclusive lock on the file ``path`` (created), held for the ``with`` block (none without fcntl); it
-    yields True, or with ``wait=False`` False at once when another process holds it."""
+    yields True, or with ``wait=False`` False at once when another process holds it.  ``shared``: a
+    reader's lock (readers share it; a writer's exclusive lock excludes them)."""
     with open(path, "a") as f:
         if fcntl is not None:
+            mode = (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | (0 if wait else fcntl.LOCK_NB)
             try:
-                fcntl.flock(f, fcntl.LOCK_EX if wait else fcntl.LOCK_EX | fcntl.LOCK_NB)   # released when f closes
+                fcntl.flock(f, mode)            # released when f closes
             except BlockingIOError:
                 yield False
                 return
@@ -329,8 +355,11 @@ def _warmed_entries(fmu, scenario, root, folder, key, done) -> dict[str, bytes]:
     record = json.loads(kept.read_text()) if kept.is_file() else {"seconds": {}, "warmed": []}
     if done not in record["warmed"] or not record["seconds"]:
         total = sum(v for k, v in record["seconds"].items() if not k.endswith(BESIDE))  # what is left to compile
-        with progress.phase(f"compiling the kernels {Path(fmu).stem} ships (generic x86-64 CPU)",
-                            f"about {total:.0f} s" if total else "a first build: up to a few minutes, once per code"):
+        if record.get("seeded_from") and not record["warmed"]:
+            hint = f"most of them from {record['seeded_from']}'s compile of the same code: seconds"
+        else:
+            hint = f"about {total:.0f} s" if total else "a first build: up to a few minutes, once per code"
+        with progress.phase(f"compiling the kernels {Path(fmu).stem} ships (generic x86-64 CPU)", hint):
             start = time.perf_counter()
             found = _run_child(Path(fmu), scenario, root)
             run = time.perf_counter() - start
