@@ -16,6 +16,16 @@ from solver.shared_kernels import FILES
 
 ROOT = Path(__file__).resolve().parents[1]
 
+#: the children's one step: a tracker on the map (argv[1]), its honest start on the paper circle, one step
+_STEP_ONE = r"""
+model = Manipulator.paper()
+X = circle_path(50)
+q = ik(model, X, 1)
+tracker = Tracker(model, MapTensor.load(sys.argv[1]), start_tolerance=(1e-9, 1e-9, 1e-9))
+tracker.reset(X[0], q[0], warn=False)
+pose, info = tracker.step(q[1])
+"""
+
 #: a fresh process with an empty numba cache of its own: the DK slave's in-process path (a tracker on a
 #: map, its honest start, steps through the C entry point), then what it loaded from where
 _CHILD = r"""
@@ -23,13 +33,8 @@ import json, sys
 import numpy as np
 from solver import Manipulator, MapTensor, Tracker, circle_path, ik, shared_kernels
 from solver._kernels.c_entry import entry
-
-model = Manipulator.paper()
-X = circle_path(50)
-q = ik(model, X, 1)
-tracker = Tracker(model, MapTensor.load(sys.argv[1]), start_tolerance=(1e-9, 1e-9, 1e-9))
-tracker.reset(X[0], q[0], warn=False)
-for k in range(1, 6):
+""" + _STEP_ONE + r"""
+for k in range(2, 6):
     pose, info = tracker.step(q[k])
 print(json.dumps({"entry_hits": entry().cache_hits, "served": shared_kernels.served(),
                   "error": float(np.abs(pose - X[5]).max()), "certain": bool(info.certain)}))
@@ -69,16 +74,6 @@ def test_a_fresh_process_steps_with_the_kernels_the_fmu_build_compiled(fmus, tmp
     assert any(s.startswith("c_entry._step-") for s in got["served"]), got
     assert got["error"] < 1e-9 and got["certain"]
 
-
-#: the children's one step: a tracker on the map (argv[1]), its honest start on the paper circle, one step
-_STEP_ONE = r"""
-model = Manipulator.paper()
-X = circle_path(50)
-q = ik(model, X, 1)
-tracker = Tracker(model, MapTensor.load(sys.argv[1]), start_tolerance=(1e-9, 1e-9, 1e-9))
-tracker.reset(X[0], q[0], warn=False)
-pose, info = tracker.step(q[1])
-"""
 
 #: a process that compiles a kernel before any FMU build filled the store (its first miss finds no store),
 #: then finds the store filled (an FMU build that ran meanwhile) and steps the tracker
