@@ -69,7 +69,8 @@ def serve_from_fmu(resources) -> bool:
     Returns
     -------
     bool
-        True when the FMU ships generic kernels with a readable manifest (registered once per folder).
+        True when the FMU ships generic kernels with a readable manifest whose key its bundled sources
+        give (registered once per folder).
     """
     resources = Path(resources)
     if str(resources) in _fmu_sources:
@@ -79,6 +80,8 @@ def serve_from_fmu(resources) -> bool:
         key = manifest["key"]
         if manifest.get("cpu") != GENERIC_CPU or not isinstance(key, str):
             return False
+        # the key by the FMU runtime's rule (fmu_src.kernel_cache.key_of, which the math may not import; the
+        # tests check that an FMU as built passes): names and bytes of the kernel packages' sources, sorted
         sources = sorted((p.relative_to(resources).as_posix(), p) for p in resources.rglob("*.py"))
         files, whole = {}, hashlib.sha256()
         for name, path in sources:

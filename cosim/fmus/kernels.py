@@ -271,14 +271,15 @@ def shipped_kernels(fmu: Path, scenario: Scenario, root: Path | None = None, mod
     ``model``: the store folder's model name (default: the FMU file's stem).  ``seeds``: models whose
     store folder of the same key seeds this one when it holds no kernel yet (:func:`seed`).
     """
-    root = (Path(root) if root is not None else generic_root())
+    root = Path(root) if root is not None else generic_root()
+    store = root / (model or Path(fmu).stem)    # one FMU's kernels only
     bundled = _bundled(Path(fmu))
     key, done = key_of(bundled), _warmed(scenario)
-    folder = root / (model or Path(fmu).stem) / key                                   # one FMU's kernels only
+    folder = store / key
     folder.mkdir(parents=True, exist_ok=True)
     with _locked(folder / ".lock"):             # builds in parallel (batch workers): one warms up, the others wait
         seed(folder, [root / m / key for m in seeds])
-        entries = _warmed_entries(fmu, scenario, root / (model or Path(fmu).stem), folder, key, done)
+        entries = _warmed_entries(fmu, scenario, store, folder, key, done)
         _record_files(bundled, folder)
         return entries
 
@@ -308,11 +309,11 @@ def seed(folder: Path, sources: list) -> str | None:
                 files = sorted((p for p in source.rglob("*") if p.suffix in (".nbi", ".nbc")),
                                key=lambda p: (p.suffix == ".nbi", str(p)))
                 for p in files:
-                    _copy_atomically(p, folder / p.relative_to(source))
+                    _write_atomically(folder / p.relative_to(source), p.read_bytes())
                 seconds = _readable_record(source)["seconds"]
             if files:                           # and their compile seconds: a host that must compile is told them
                 record = {"seconds": seconds, "warmed": [], "seeded_from": source.parent.name}
-                _write_atomically(folder / _KEPT, json.dumps(record, indent=1, sort_keys=True) + "\n")
+                _write_atomically(folder / _KEPT, (json.dumps(record, indent=1, sort_keys=True) + "\n").encode())
                 return source.parent.name
     except OSError as e:
         progress.note(f"{folder.parent.name}: its kernels were not seeded from another DK's ({e}); its warm-up "
@@ -320,16 +321,11 @@ def seed(folder: Path, sources: list) -> str | None:
     return None
 
 
-def _copy_atomically(src: Path, dst: Path) -> None:
+def _write_atomically(dst: Path, data: bytes) -> None:
+    """``data`` written to ``dst`` (its folder made) under a temporary name, then renamed into place."""
     dst.parent.mkdir(parents=True, exist_ok=True)
     tmp = dst.with_name(dst.name + f".seed-{os.getpid()}")
-    shutil.copyfile(src, tmp)
-    os.replace(tmp, dst)
-
-
-def _write_atomically(dst: Path, text: str) -> None:
-    tmp = dst.with_name(dst.name + f".seed-{os.getpid()}")
-    tmp.write_text(text)
+    tmp.write_bytes(data)
     os.replace(tmp, dst)
 
 
