@@ -1,37 +1,41 @@
-"""Compile a callee-only kernel once: its machine code is made in its callers, not for itself too.
+"""Compile a kernel once: the machine code of a kernel compiled for a caller is made in its callers only.
 
 numba compiles every ``@njit`` function it meets as a whole program of its own: it links the
-callees' LLVM modules into the function's module, optimises that module at ``-O3`` and emits its
-machine code, even when the function is compiled only because a caller calls it.  The caller then
-links the same callees again, optimises and emits them again, and so does the caller's caller.  A
-kernel ``d`` levels down is optimised and emitted ``d`` times; the certified step is about eight
-levels deep, so most of a first compile was LLVM redoing its own work.
+callees' LLVM modules into the function's module, optimises that module at ``-O3``, emits its
+machine code and, for a cached kernel, writes it to disk, even when the function is compiled only
+because a caller calls it.  The caller then links the same callees again, optimises and emits them
+again, and so does the caller's caller.  A kernel ``d`` levels down is optimised and emitted ``d``
+times; the certified step is about eight levels deep, so most of a first compile was LLVM redoing
+its own work.
 
-:func:`install` changes that for the project's callee-only kernels (``@njit(cache=False)`` in
-:mod:`solver._kernels` and :mod:`dynamics._kernels`, the rule of those packages) when numba compiles
-one *for a caller* (another compile is under way): the kernel's own module is optimised per function
-as before and linked into the caller, but it is not optimised as a whole and not turned into machine
-code of its own.  The outermost kernel (a cached ``@njit``, or the FMU's C entry point) optimises and
-emits the whole linked program once, as before.  The callees then reach their callers optimised per
-function only, so LLVM may inline differently; without fast-math its passes keep IEEE semantics, and
-the results are the same bit for bit (tests/test_lean_compile.py; the FMU tests compare FMUs built this
+:func:`install` changes that for the project's kernels (:mod:`solver._kernels` and
+:mod:`dynamics._kernels`) when numba compiles one *for a caller* (another compile is under way): the
+kernel's own module is optimised per function as before and linked into the caller, but it is not
+optimised as a whole, not turned into machine code of its own and not written to numba's disk cache
+(an entry already on disk, from an earlier Python call, is still loaded).  The outermost kernel (the
+kernel Python called, or the FMU's C entry point) optimises and emits the whole linked program once,
+as before, and is cached as before.  The callees then reach their callers optimised per function
+only, so LLVM may inline differently; without fast-math its passes keep IEEE semantics, and the
+results are the same bit for bit (tests/test_lean_compile.py; the FMU tests compare FMUs built this
 way with trackers compiled before it).
 
 Left to numba's own compile: a library that calls through numba's table of recursive references
-(only a library with machine code fills it), lifted loops and object-mode blocks, and C callbacks.
-Not handled, since no kernel does it: a callee-only kernel that needs its numba environment at run
-time (``print`` of an array, object-mode blocks inside it) would find none in the process that
-compiled it.
+(only a library with machine code fills it), lifted loops and object-mode blocks, C callbacks, and
+numba's own overloads (``np.dot``, string formatting).  Not handled, since no kernel does it: a kernel
+compiled for a caller that needs its numba environment at run time (``print`` of an array,
+object-mode blocks inside it) would find none in the process that compiled it.
 
-Measured on the C entry point of the DK FMU (fresh process, empty cache, one core):
-162 s to compile (114 s of it in LLVM) without, 107 s (63 s in LLVM) with; the tracker's step
-30.5 us both (docs/benchmarks.md, section ``first_run``).
+Measured on the C entry point of the DK FMU (fresh process, empty cache, one core): 162 s to compile
+(114 s of it in LLVM) with numba's own compile; 107-115 s with the ``cache=False`` kernels compiled
+for their callers only (55 s of it in 244 whole-program finalisations, 47 s of them for cached kernels
+the entry point calls); 69.5 s with every project kernel so (105 whole finalisations, 8.8 s, 7.0 s of
+them the entry point's own); the tracker's step the same (29.2 and 29.7 us in one run).
 
 Safety: such a kernel has no machine code of its own, so numba's table of Python-callable overloads
 never lists it.  Python calling it (a test, a user) compiles it whole on that call, as numba would
-have, and the Python call runs that.  The fallback is off with ``RRR_DK_LEAN_COMPILE=0``, and off by
-itself with a numba whose internals differ from the ones this patches (then every compile is
-numba's own: slower, never wrong).
+have (and writes a cached kernel to disk then), and the Python call runs that.  The fallback is off
+with ``RRR_DK_LEAN_COMPILE=0``, and off by itself with a numba whose internals differ from the ones
+this patches (then every compile is numba's own: slower, never wrong).
 """
 from __future__ import annotations
 
@@ -42,7 +46,7 @@ __all__ = ["install", "installed", "linked_only", "ENV"]
 
 #: The environment variable that turns the lean compile off (``0``).
 ENV = "RRR_DK_LEAN_COMPILE"
-#: The modules whose ``cache=False`` kernels are compiled for their callers only.
+#: The packages whose kernels are compiled for their callers only when a caller's compile needs them.
 KERNEL_PACKAGES = ("solver._kernels", "dynamics._kernels")
 _MARK = "_rrr_dk_lean_compile"
 _LINKED_ONLY = "_rrr_dk_linked_only"          # set on a library compiled for its callers only
@@ -50,7 +54,7 @@ _state = threading.local()                    # .stack: one flag per compile und
 
 
 def installed() -> bool:
-    """Whether this process compiles callee-only kernels for their callers only."""
+    """Whether this process compiles the project's kernels for their callers only (see the module doc)."""
     try:
         from numba.core import codegen
     except ImportError:
@@ -78,10 +82,26 @@ def _recursive(library) -> bool:
     return any(gv.name.startswith(".numba.unresolved$") for gv in library._final_module.global_variables)
 
 
-def _callee_only(dispatcher, caching) -> bool:
-    """A project kernel without a disk cache of its own (the packages' rule: callee-only)."""
+def _project_kernel(dispatcher) -> bool:
+    """A kernel of :data:`KERNEL_PACKAGES`."""
     module = getattr(getattr(dispatcher, "py_func", None), "__module__", "") or ""
-    return module.startswith(KERNEL_PACKAGES) and isinstance(getattr(dispatcher, "_cache", None), caching.NullCache)
+    return module.startswith(KERNEL_PACKAGES)
+
+
+class _LoadOnly:
+    """A kernel's disk cache while the kernel is compiled for a caller: an entry on disk (a whole compile of
+    an earlier Python call) is loaded as before; a linked-only overload is not written (it has no machine
+    code, and writing one would emit it)."""
+
+    def __init__(self, cache):
+        self._cache = cache
+
+    def save_overload(self, sig, cres):
+        if not getattr(cres.library, _LINKED_ONLY, False):
+            self._cache.save_overload(sig, cres)
+
+    def __getattr__(self, name):
+        return getattr(self._cache, name)
 
 
 def _patchable(codegen, cpu, dispatcher, ccallback, caching) -> bool:
@@ -97,7 +117,7 @@ def _patchable(codegen, cpu, dispatcher, ccallback, caching) -> bool:
 
 
 def install() -> None:
-    """Compile callee-only kernels for their callers only (once per process; not with
+    """Compile the project's kernels for their callers only when a caller needs them (once per process; not with
     ``RRR_DK_LEAN_COMPILE=0``, nor with a numba whose internals differ)."""
     if os.environ.get(ENV, "1").strip() == "0":
         return
@@ -152,10 +172,15 @@ def install() -> None:
                 cres = self.overloads.get(tuple(args))
                 if cres is not None and getattr(cres.library, _LINKED_ONLY, False):
                     del self.overloads[tuple(args)]          # Python calls it: compile it whole now
-            stack.append(for_caller and _callee_only(self, caching))
+            lean = for_caller and _project_kernel(self)
+            stack.append(lean)
+            cache = self._cache
+            if lean and not isinstance(cache, caching.NullCache):
+                self._cache = _LoadOnly(cache)
             try:
                 return compile_overload(self, sig)
             finally:
+                self._cache = cache
                 stack.pop()
 
     def whole_compile(original):
