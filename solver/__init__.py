@@ -17,7 +17,8 @@ solutions), ``ordering`` (their numbering rules), ``grid`` (the map grid over th
 space), ``maptensor`` (procedures 1 and 2), ``mapfile`` (the map file format),
 ``mapcache`` (the one map cache), ``cache`` (:func:`cache_dir`, the root of every disk
 cache), ``shared_kernels`` (the generic-CPU kernels an FMU build compiled serve this process too),
-``lean_compile`` (a kernel a caller needs compiled in its callers only), ``progress`` (phase lines and progress bars of long work), ``tracker``
+``lean_compile`` (a kernel a caller needs compiled in its callers only), ``precompile`` (a tracker's
+kernels compiled before its map exists), ``progress`` (phase lines and progress bars of long work), ``tracker``
 (procedure 3) with ``tracking``, ``tracker_state``, ``start``, ``encoder_grid`` and ``stuck``, ``baselines``,
 ``sensors`` (the encoder model: the tracker's joint tolerance and stuck threshold; its speed bound
 from the planned motion),

@@ -188,3 +188,35 @@ def test_the_dk_store_names_are_the_dk_fmus_models():
     from cosim.fmus.rpr_build import RPR_NAME
 
     assert DK_STORES == (DK_NAME, DK3_NAME, RPR_NAME)
+
+
+#: a child whose entry point compiled and whose tracker kernels then failed, then one where both compiled
+_TRACKER_FAILED = r"""
+import sys
+sys.path.insert(0, sys.argv[1])
+import fmu_src.kernel_cache as cache
+print("ENTRY " + cache.bundle_key(sys.argv[1]) + " 2.0")
+print("the tracker's own kernels were not compiled: ValueError: a toy map broke")
+"""
+_BOTH = r"""
+import sys
+sys.path.insert(0, sys.argv[1])
+import fmu_src.kernel_cache as cache
+print("ENTRY " + cache.bundle_key(sys.argv[1]) + " 2.0")
+print("TRACKER " + cache.bundle_key(sys.argv[1]) + " 1.5")
+"""
+
+
+def test_the_tracker_kernels_compiled_after_the_entry_point_are_recorded_and_their_failure_fails_nothing(
+        dk_script, tmp_path, monkeypatch, capsys):
+    for child, seconds in ((_BOTH, {early_compile.ENTRY_KERNEL: 2.0, early_compile.TRACKER_KERNELS: 1.5}),
+                           (_TRACKER_FAILED, {early_compile.ENTRY_KERNEL: 2.0})):
+        monkeypatch.setattr(early_compile, "_CHILD", child)
+        store = tmp_path / ("store" + str(len(seconds)))
+        early = early_compile.begin(dk_script, project_packages(), _scenario(), root=store)
+        assert early is not None and early.finish()              # the entry point compiled: a success
+        record = json.loads((store / DK_NAME / early.key / "warm-up.json").read_text())
+        assert record["seconds"] == {f"{name} {BESIDE}": s for name, s in seconds.items()}
+    err = capsys.readouterr().err
+    assert "the tracker's own kernels were not compiled: ValueError: a toy map broke" in err
+    assert "the warm-up compiles them" in err and "failed (exit" not in err

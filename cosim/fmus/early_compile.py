@@ -41,21 +41,33 @@ __all__ = ["ENTRY", "EarlyCompile", "Waiting", "begin"]
 #: The bundled file whose kernels :func:`begin` compiles (a bundle without it has nothing to begin).
 ENTRY = "solver/_kernels/c_entry.py"
 
-#: the child: the staged packages first on the path, the FMU runtime's cache locator, the entry point
+#: the child: the staged packages first on the path, the FMU runtime's cache locator, the entry point, then
+#: the kernels the tracker's Python side calls (solver.precompile: they share the entry point's callees,
+#: typed once here; a failure there leaves them to the warm-up and fails nothing)
 _CHILD = r"""
-import sys
+import sys, time
 sys.path.insert(0, sys.argv[1])
 import fmu_src.kernel_cache as cache
 cache.install()
 from solver._kernels.c_entry import entry
-import time
+key = cache.bundle_key(sys.argv[1])
 start = time.perf_counter()
 entry()
-print("ENTRY %s %.1f" % (cache.bundle_key(sys.argv[1]), time.perf_counter() - start))
+print("ENTRY %s %.1f" % (key, time.perf_counter() - start), flush=True)
+try:
+    from solver.precompile import compile_tracker
+    start = time.perf_counter()
+    compile_tracker()
+    print("TRACKER %s %.1f" % (key, time.perf_counter() - start), flush=True)
+except Exception as exc:
+    print("the tracker's own kernels were not compiled: %s: %s" % (type(exc).__name__, exc), flush=True)
 """
 
-#: the name its compile seconds are recorded under (the warm-up names kernels by module and function)
+#: the names its compile seconds are recorded under (the warm-up names kernels by module and function)
 ENTRY_KERNEL = "solver._kernels.c_entry.entry"
+TRACKER_KERNELS = "solver.precompile.compile_tracker"
+#: how the child's line begins when the tracker's own kernels failed to compile (the entry point did not)
+TRACKER_FAILED = "the tracker's own kernels were not compiled"
 
 
 class EarlyCompile:
@@ -70,17 +82,22 @@ class EarlyCompile:
     def finish(self) -> bool:
         """Wait for the compile (a phase line on stderr while it runs); True when it succeeded."""
         try:
-            with progress.phase(f"compiling the kernels {self.model} ships (generic x86-64 CPU): its C entry point, "
-                                "begun beside the map", "the rest follows along the FMU's runs"):
+            with progress.phase(f"compiling the kernels {self.model} ships (generic x86-64 CPU): its C entry point "
+                                "and the tracker's own, begun beside the map", "the rest follows along the FMU's runs"):
                 code = self._proc.wait()
             try:
                 out = (self._work / "out.txt").read_text(errors="replace")
             except OSError as e:
                 out = f"(its output is gone: {e})"
-            done = [line.split() for line in out.splitlines() if line.startswith(f"ENTRY {self.key} ")]
-            if code == 0 and done:
+            done = {name: [line.split() for line in out.splitlines() if line.startswith(f"{tag} {self.key} ")]
+                    for tag, name in (("ENTRY", ENTRY_KERNEL), ("TRACKER", TRACKER_KERNELS))}
+            if code == 0 and done[ENTRY_KERNEL]:
                 # its compile seconds join the warm-up's (what a host that must compile is told to expect)
-                record_seconds(self._folder, {f"{ENTRY_KERNEL} {BESIDE}": float(done[-1][2])})
+                record_seconds(self._folder, {f"{name} {BESIDE}": float(lines[-1][2])
+                                              for name, lines in done.items() if lines})
+                failed = [line for line in out.splitlines() if line.startswith(TRACKER_FAILED)]
+                if failed:
+                    progress.note(f"{self.model}: {failed[-1]} (the warm-up compiles them)")
                 return True
             tail = "\n".join(out.strip().splitlines()[-5:])
             progress.note(f"{self.model}: the early compile of its C entry point failed (exit {code}); the "
