@@ -45,7 +45,7 @@ from solver import DEFAULT_RULE, DEFAULT_STEP, ORDERING_RULES, Manipulator, MapT
 
 from .checks import validate
 from .map_report import report_maps
-from .early_compile import begin as begin_early_compile
+from .early_compile import EarlyCompile, begin as begin_early_compile
 from .kernels import Run, Scenario, warm_up
 from .robot_build import other_robot, robot_circle, robot_constant, robot_slave_scenario, stage_robot, with_robot_constant
 from .sources import LOADER_SOURCE, SLAVE_DIR, slave_readme, slave_script
@@ -58,6 +58,10 @@ __all__ = ["FMU_NAMES", "DK_NAME", "MODES", "DEFAULT_RESOLUTION", "BuildResult",
 #: The three FMUs, in the order of the closed loop's data flow (DK -> controller -> plant).
 FMU_NAMES = ("RRRDirectKinematics", "ComputedTorqueController", "RRRPlant")
 DK_NAME = "RRRDirectKinematics"
+#: How much :func:`build_fmus`' children lower their priority (``os.nice``) beside the DK's early compile, the
+#: longest step of a first build: the plant's and controller's builds from their start, the DK's own once that
+#: compile has begun (its map and warm-up), so that the compile keeps a core of its own.
+BACKGROUND_NICE = 10
 #: The store folders (:mod:`cosim.fmus.kernels`) of the DK FMUs, which run one tracker step: the FMI 2.0 and
 #: 3.0 3-RRR's (:mod:`cosim.fmus.fmi3_build`) and the 3-RPR's (:mod:`cosim.fmus.rpr_build`); a new folder of
 #: one is seeded from another's of the same code, so one of them compiles the step for all.
@@ -199,7 +203,7 @@ def stage_maps(tmp: Path, maps: dict[int, Path]) -> dict[str, Path]:
 
 def build_dk(out_dir="build", postures=(1,), resolution=None, map_files=(), mode: str = "default",
              rule: str = DEFAULT_RULE, cache_dir=None, check: bool = True, progress: bool | None = None,
-             log=print, kernels: bool = True, robot=None) -> BuildResult:
+             log=print, kernels: bool = True, robot=None, background: bool = False) -> BuildResult:
     """Build ``<out_dir>/RRRDirectKinematics.fmu`` (see the module docstring).
 
     ``robot``: a :class:`solver.robot.Robot` (a 3-RRR description, :func:`solver.robot.load_robot`), or
@@ -214,7 +218,9 @@ def build_dk(out_dir="build", postures=(1,), resolution=None, map_files=(), mode
     postures without a given map use the map cache ``cache_dir`` (default: the project's one map cache,
     ``solver.cache_dir("maps")``, moved by ``$RRR_DK_CACHE``); ``progress``: a map build's progress
     on stderr (None: the process default, :mod:`solver.progress`); ``kernels``: ship the compiled
-    kernels (:mod:`cosim.fmus.kernels`).
+    kernels (:mod:`cosim.fmus.kernels`); ``background``: once the C entry point's early compile has
+    begun, this process lowers its own priority by :data:`BACKGROUND_NICE` for good (a build child of
+    :func:`build_fmus`; not for a process that goes on with other work).
     """
     t0 = time.perf_counter()
     if mode not in MODES:
@@ -230,6 +236,8 @@ def build_dk(out_dir="build", postures=(1,), resolution=None, map_files=(), mode
     out_dir = Path(out_dir)
     cache_dir = None if cache_dir is None else Path(cache_dir)
     early = _early_compile(postures, mode, robot) if kernels else None   # the C entry point, beside the map
+    if background and isinstance(early, EarlyCompile):
+        lower_priority()                        # the compile began at ours: it now outranks the map and the rest
     try:
         t_map = time.perf_counter()
         postures, maps = _dk_maps(model, postures, resolution, map_files, rule, cache_dir, progress, log)
@@ -250,6 +258,15 @@ def build_dk(out_dir="build", postures=(1,), resolution=None, map_files=(), mode
             early.stop()
     problems = validate(fmu) if check else []
     return BuildResult(fmu, maps, postures[0], mode, time.perf_counter() - t0, map_seconds, problems)
+
+
+def lower_priority() -> None:
+    """Lower this process's priority by :data:`BACKGROUND_NICE` (POSIX ``nice``; for good: an unprivileged
+    process cannot raise it again).  Nothing where the system has no ``nice`` or refuses."""
+    try:
+        os.nice(BACKGROUND_NICE)
+    except (AttributeError, OSError):       # pragma: no cover - Windows, or a refusal
+        pass
 
 
 def _early_compile(postures, mode: str, robot):
@@ -387,7 +404,8 @@ def build_fmus(out_dir="build", resolution=None, force: bool = False, progress: 
             for name in todo:               # files, not pipes: a child never waits for us to read it
                 stdout = files.enter_context(open(Path(logs) / f"{name}.out", "w+"))
                 stderr = files.enter_context(open(Path(logs) / f"{name}.err", "w+")) if quiet else None
-                running[name] = (subprocess.Popen(_build_args(name, out, resolution, robot), cwd=str(SLAVE_DIR.parent),
+                args = _build_args(name, out, resolution, robot, background=DK_NAME in todo)
+                running[name] = (subprocess.Popen(args, cwd=str(SLAVE_DIR.parent),
                                                   stdout=stdout, stderr=stderr, text=True, env=env), stdout, stderr)
             failed = [_failure(paths[name], *run) for name, run in running.items()]
         finally:                            # interrupted (Ctrl-C) or failed to start one: stop the others
@@ -415,9 +433,12 @@ def _failure(path: Path, proc, stdout, stderr) -> str:
     return f"building {path.name} failed (exit {code}):\n{stdout.read()[-3000:]}\n{err}"
 
 
-def _build_args(name: str, out: Path, resolution, robot) -> list:
-    """The command line of the child process that builds FMU ``name`` into ``out``."""
+def _build_args(name: str, out: Path, resolution, robot, background: bool = False) -> list:
+    """The command line of the child process that builds FMU ``name`` into ``out`` (``background``: beside
+    the DK's early compile, at a lower priority, :data:`BACKGROUND_NICE`)."""
     args = [sys.executable, "-m", "cosim.fmus.cli", "--out", str(out), "--only", name, "--no-reference"]
+    if background:
+        args.append("--background")
     if robot is not None:
         args += ["--robot", str(Path(robot.source).resolve())]
     if name == DK_NAME and resolution is not None:

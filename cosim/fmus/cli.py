@@ -52,7 +52,7 @@ from pathlib import Path
 from solver import DEFAULT_RULE, ORDERING_RULES, MapTensorFileError
 
 from .sources import REFERENCE_DIR
-from .builds import DK_NAME, FMU_NAMES, MODES, build_dk, build_slave, parse_resolution
+from .builds import DK_NAME, FMU_NAMES, MODES, build_dk, build_slave, lower_priority, parse_resolution
 from ..unit import exit_process
 
 __all__ = ["main"]
@@ -85,6 +85,9 @@ def _parser(default_out) -> argparse.ArgumentParser:
                     help="a robot description (TOML, docs/robots.md): build the DK FMU of that robot")
     ap.add_argument("--fmi", choices=("2", "3"), default="2",
                     help="3: build the DK FMU for FMI 3.0 instead, <out>/fmi3/RRRDirectKinematics.fmu (pythonfmu3)")
+    ap.add_argument("--background", action="store_true",
+                    help="a build beside the DK's early compile (what build_fmus runs): lower this process's "
+                         "priority, a plant's or controller's build at once, the DK's once its compile has begun")
     return ap
 
 
@@ -156,13 +159,16 @@ def _build(args, robot=None) -> int:
             postures = args.posture if args.posture is not None else ([] if args.map else
                                                                        [robot.home_posture if robot else 1])
             result = build_dk(args.out, postures=postures, resolution=resolution, map_files=args.map,
-                              mode=args.mode, rule=args.rule, progress=None, robot=robot)
+                              mode=args.mode, rule=args.rule, progress=None, robot=robot,
+                              background=args.background)
             print(f"{result.fmu}: {result.size / 1e6:.3f} MB ({result.size:,} bytes), postures "
                   f"{sorted(result.maps)} (start {result.posture}), mode {result.mode}; built in "
                   f"{result.seconds:.1f} s (maps {result.map_seconds:.1f} s)")
             problems = result.problems
         else:
             t0 = time.perf_counter()
+            if args.background:
+                lower_priority()
             fmu = build_slave(name, args.out, robot=robot)
             print(f"{fmu}: {fmu.stat().st_size / 1e6:.3f} MB; built in {time.perf_counter() - t0:.1f} s")
             problems = []                          # build_slave validates (BuildError on a problem)
