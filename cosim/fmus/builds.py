@@ -61,7 +61,7 @@ DK_NAME = "RRRDirectKinematics"
 #: How much :func:`build_fmus`' children lower their priority (``os.nice``) beside the DK's early compile, the
 #: longest step of a first build: the plant's and controller's builds from their start, the DK's own once that
 #: compile has begun (its map and warm-up), so that the compile keeps a core of its own.
-BACKGROUND_NICE = 10
+BACKGROUND_NICE = 19
 #: The store folders (:mod:`cosim.fmus.kernels`) of the DK FMUs, which run one tracker step: the FMI 2.0 and
 #: 3.0 3-RRR's (:mod:`cosim.fmus.fmi3_build`) and the 3-RPR's (:mod:`cosim.fmus.rpr_build`); a new folder of
 #: one is seeded from another's of the same code, so one of them compiles the step for all.
