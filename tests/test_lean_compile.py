@@ -102,3 +102,43 @@ def test_a_cached_kernel_compiled_for_its_caller_is_written_to_disk_only_when_py
     # Python calls it: compiled whole, written to disk then, and equal to the caller's row
     assert lean["entries_after"] > 0
     assert lean["python_q"] == lean["batch_q"] == whole["python_q"]
+
+
+#: a fresh process: a project kernel (its module named as one) called with three constants, and one whose
+#: typing needs its constant (a heterogeneous tuple's index); prints their overloads and the caller's values
+_CONSTANTS_CHILD = r"""
+import json
+import numpy as np
+from numba import njit
+import solver                                        # installs the lean compile (unless turned off)
+
+def _scaled(a, k):
+    return a[k] * 2.0
+
+def _picked(k):
+    t = (1.5, 7)
+    return t[k]
+
+for f in (_scaled, _picked):
+    f.__module__ = "solver._kernels.probe"           # the rule is by module
+scaled, picked = njit(cache=False)(_scaled), njit(cache=False)(_picked)
+
+@njit(cache=False)
+def caller(a):
+    return scaled(a, 0) + scaled(a, 1) + scaled(a, 2) + picked(0) + picked(1)
+
+a = np.array([0.1, 0.2, 0.3])
+print(json.dumps({"value": float(caller(a)).hex(), "scaled": sorted(str(s) for s in scaled.overloads),
+                  "picked": sorted(str(s) for s in picked.overloads)}))
+"""
+
+
+def test_a_kernel_a_caller_calls_with_constants_is_compiled_once_for_their_plain_types(tmp_path):
+    lean = _child(tmp_path / "lean", _CONSTANTS_CHILD)
+    whole = _child(tmp_path / "whole", _CONSTANTS_CHILD, RRR_DK_LEAN_COMPILE="0")
+    # numba's own compile: one overload per constant; the lean one: the plain type, once
+    assert len(whole["scaled"]) == 3 and all("Literal[int]" in s for s in whole["scaled"])
+    assert len(lean["scaled"]) == 1 and "Literal" not in lean["scaled"][0] and "int64" in lean["scaled"][0]
+    # a kernel whose typing needs the constant keeps numba's literal compile
+    assert len(lean["picked"]) == 2 and all("Literal[int]" in s for s in lean["picked"])
+    assert lean["value"] == whole["value"]
