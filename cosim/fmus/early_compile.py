@@ -1,8 +1,8 @@
 """The DK's C entry point compiled beside the map: the build's longest step begun before its second longest.
 
 An FMU's generic kernels are compiled by running the built FMU along its runs
-(:mod:`cosim.fmus.kernels`), and the DK FMU embeds its map, so on a first build that compile (about
-2 minutes, most of it numba compiling the tracker's C entry point, :mod:`solver._kernels.c_entry`)
+(:mod:`cosim.fmus.kernels`), and the DK FMU embeds its map, so on a first build that compile (64-75 s
+on one core, most of it numba compiling the tracker's C entry point, :mod:`solver._kernels.c_entry`)
 started only once the map tensor was built, while one of the two cores idled.  The entry point needs
 no map.  :func:`begin` stages the packages the FMU will bundle, byte for byte
 (:func:`cosim.fmus.packaging.bundled_files`: the same files, hence the same kernel key) and compiles
@@ -10,6 +10,13 @@ the entry point from them in a child process, for the generic CPU, into the gene
 warm-up uses; the build makes its map meanwhile.  :meth:`EarlyCompile.finish` waits for it before
 the warm-up, which then loads the entry point from the store and compiles only the rest along the
 FMU's runs.
+
+After the entry point the child compiles the kernels the tracker's Python side calls
+(:func:`solver.precompile.compile_tracker`: the start's proof, the DK, procedure 2's look-up, ...).
+They call the entry point's callees, which this process has typed already; the warm-up, another
+process, would type them all again (5.5 s here against 29.7 s there).  And :func:`cosim.fmus.builds.build_fmus`
+runs its other builds at a lower priority (``BACKGROUND_NICE``) while this child runs, so that
+it keeps a core: it is the longest step of a first build.
 
 The warm-up still decides what an FMU ships (every kernel its runs call); this only fills the store
 sooner.  Nothing here can fail a build: a child that fails, or cannot start, leaves the compile to
