@@ -220,3 +220,36 @@ def test_the_tracker_kernels_compiled_after_the_entry_point_are_recorded_and_the
     err = capsys.readouterr().err
     assert "the tracker's own kernels were not compiled: ValueError: a toy map broke" in err
     assert "the warm-up compiles them" in err and "failed (exit" not in err
+
+
+def test_pending_says_whether_a_build_would_compile_the_entry_point(dk_script, tmp_path, monkeypatch):
+    store = tmp_path / "store"
+    plain = tmp_path / "Plain.py"
+    plain.write_text("import math\n")
+    assert not early_compile.pending(plain, project_packages(), Scenario([]), root=store)   # no entry point
+    assert early_compile.pending(dk_script, project_packages(), _scenario(), root=store)   # a first build
+    monkeypatch.setattr(early_compile, "_CHILD", _BOTH)
+    early = early_compile.begin(dk_script, project_packages(), _scenario(), root=store)
+    early.stop()
+    folder = store / DK_NAME / early.key
+    (folder / kernels._KEPT).write_text(json.dumps({"seconds": {"x": 1.0}, "warmed": [kernels._warmed(_scenario())]}))
+    assert not early_compile.pending(dk_script, project_packages(), _scenario(), root=store)   # warmed up
+    assert early_compile.pending(dk_script, project_packages(), Scenario([Run(3, 1e-3)]), root=store)
+
+
+def test_a_background_build_lowers_its_own_priority_only():
+    """``--background`` (what build_fmus passes on a first build of the DK's code) lowers the build process's
+    priority by BACKGROUND_NICE (capped at 19), not its parent's."""
+    import os
+    import subprocess
+    import sys
+
+    from cosim.fmus import builds
+
+    code = "import os; from cosim.fmus.builds import lower_priority; a = os.nice(0); lower_priority(); print(a, os.nice(0))"
+    before, after = map(int, subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                                            cwd=Path(__file__).resolve().parents[1]).stdout.split())
+    assert after == min(before + builds.BACKGROUND_NICE, 19)
+    assert os.nice(0) == before
+    assert "--background" in builds._build_args("RRRPlant", Path("out"), None, None, background=True)
+    assert "--background" not in builds._build_args("RRRPlant", Path("out"), None, None)

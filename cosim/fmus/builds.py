@@ -45,7 +45,7 @@ from solver import DEFAULT_RULE, DEFAULT_STEP, ORDERING_RULES, Manipulator, MapT
 
 from .checks import validate
 from .map_report import report_maps
-from .early_compile import EarlyCompile, begin as begin_early_compile
+from .early_compile import EarlyCompile, begin as begin_early_compile, pending as early_compile_pending
 from .kernels import Run, Scenario, warm_up
 from .robot_build import other_robot, robot_circle, robot_constant, robot_slave_scenario, stage_robot, with_robot_constant
 from .sources import LOADER_SOURCE, SLAVE_DIR, slave_readme, slave_script
@@ -59,9 +59,11 @@ __all__ = ["FMU_NAMES", "DK_NAME", "MODES", "DEFAULT_RESOLUTION", "BuildResult",
 FMU_NAMES = ("RRRDirectKinematics", "ComputedTorqueController", "RRRPlant")
 DK_NAME = "RRRDirectKinematics"
 #: How much :func:`build_fmus`' children lower their priority (``os.nice``) beside the DK's early compile, the
-#: longest step of a first build: the plant's and controller's builds from their start, the DK's own once that
-#: compile has begun (its map and warm-up), so that the compile keeps a core of its own.
-BACKGROUND_NICE = 19
+#: longest step of a first build of the DK's code: the plant's and controller's builds from their start, the
+#: DK's own once that compile has begun (its map and warm-up), so that the compile keeps a core of its own.
+#: (10: a task at nice 0 then gets about nine tenths of a core it shares with one of them; 19 measured the
+#: same and would starve these builds beside other work.)
+BACKGROUND_NICE = 10
 #: The store folders (:mod:`cosim.fmus.kernels`) of the DK FMUs, which run one tracker step: the FMI 2.0 and
 #: 3.0 3-RRR's (:mod:`cosim.fmus.fmi3_build`) and the 3-RPR's (:mod:`cosim.fmus.rpr_build`); a new folder of
 #: one is seeded from another's of the same code, so one of them compiles the step for all.
@@ -354,12 +356,12 @@ def is_stale(name: str, fmu: Path) -> bool:
     return fmu.stat().st_mtime < max(p.stat().st_mtime for p in (script, *bundled, *build_code))
 
 
-#: What a first build of each FMU does, and about how long it takes (2 cores; the map alone 20 s on an
-#: idle machine and 52-88 s on a loaded one; the kernels the DK FMU ships 145-170 s, the others' 15-30 s,
-#: once per code version; a rebuild 3-8 s): said when the build starts.
+#: What a first build of each FMU does, and about how long it takes (2 cores, the three at once: the DK's
+#: kernels 85-90 s, its map beside them 30-45 s; the others' kernels 20-35 s at a lower priority; once per
+#: code version; a rebuild 3-8 s): said when the build starts.
 FIRST_BUILD = {
-    DK_NAME: "the first time it builds the map tensor (procedure 1) and compiles the kernels it ships: 2 to 4 "
-             "min; later builds reuse both",
+    DK_NAME: "the first time it builds the map tensor (procedure 1) and compiles the kernels it ships: about "
+             "1.5 min; later builds reuse both",
     "ComputedTorqueController": "the first time it compiles the kernels it ships: about 30 s; later a few seconds",
     "RRRPlant": "the first time it compiles the kernels it ships: about 30 s; later a few seconds",
 }
@@ -396,6 +398,10 @@ def build_fmus(out_dir="build", resolution=None, force: bool = False, progress: 
     if not todo:
         return paths
     detail = "; ".join(f"{name}: {FIRST_BUILD[name]}" for name in todo)
+    # a first build of the DK's code: its early compile is the longest step; the other builds go lower
+    first = robot.home_posture if robot is not None else 1
+    background = DK_NAME in todo and early_compile_pending(slave_script(DK_NAME), project_packages(),
+                                                           warm_up_scenario(DK_NAME, first, "default", robot))
     # the children report their own phases (and say that a long one goes on)
     with _progress.phase(f"building {', '.join(todo)} in {out}", detail, enabled=progress, heartbeat=False), \
             tempfile.TemporaryDirectory(prefix="rrr-dk-builds-") as logs, contextlib.ExitStack() as files:
@@ -404,7 +410,7 @@ def build_fmus(out_dir="build", resolution=None, force: bool = False, progress: 
             for name in todo:               # files, not pipes: a child never waits for us to read it
                 stdout = files.enter_context(open(Path(logs) / f"{name}.out", "w+"))
                 stderr = files.enter_context(open(Path(logs) / f"{name}.err", "w+")) if quiet else None
-                args = _build_args(name, out, resolution, robot, background=DK_NAME in todo)
+                args = _build_args(name, out, resolution, robot, background=background)
                 running[name] = (subprocess.Popen(args, cwd=str(SLAVE_DIR.parent),
                                                   stdout=stdout, stderr=stderr, text=True, env=env), stdout, stderr)
             failed = [_failure(paths[name], *run) for name, run in running.items()]

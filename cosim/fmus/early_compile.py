@@ -14,9 +14,9 @@ FMU's runs.
 After the entry point the child compiles the kernels the tracker's Python side calls
 (:func:`solver.precompile.compile_tracker`: the start's proof, the DK, procedure 2's look-up, ...).
 They call the entry point's callees, which this process has typed already; the warm-up, another
-process, would type them all again (5.5 s here against 29.7 s there).  And :func:`cosim.fmus.builds.build_fmus`
-runs its other builds at a lower priority (``BACKGROUND_NICE``) while this child runs, so that
-it keeps a core: it is the longest step of a first build.
+process, would type them all again (5.5 s here against 29.7 s there).  And on a first build of this code
+(:func:`pending`) :func:`cosim.fmus.builds.build_fmus` runs its other builds at a lower priority
+(``BACKGROUND_NICE``), so that this child keeps a core: it is the longest step of that build.
 
 The warm-up still decides what an FMU ships (every kernel its runs call); this only fills the store
 sooner.  Nothing here can fail a build: a child that fails, or cannot start, leaves the compile to
@@ -43,7 +43,7 @@ try:
 except ImportError:                     # pragma: no cover - Windows: no early compile
     fcntl = None
 
-__all__ = ["ENTRY", "EarlyCompile", "Waiting", "begin"]
+__all__ = ["ENTRY", "EarlyCompile", "Waiting", "begin", "pending"]
 
 #: The bundled file whose kernels :func:`begin` compiles (a bundle without it has nothing to begin).
 ENTRY = "solver/_kernels/c_entry.py"
@@ -178,13 +178,33 @@ def _flocked(path: Path):
     return f
 
 
-def _begin(script: Path, project_packages, scenario: Scenario, root: Path | None, seeds: tuple = ()):
-    model = script.stem
+def pending(script: Path, project_packages, scenario: Scenario, root: Path | None = None) -> bool:
+    """Whether a build of ``script`` would compile its C entry point beside the map: its bundle has one and
+    the store does not hold its code warmed up along ``scenario`` (a first build of this code).  What
+    :func:`cosim.fmus.builds.build_fmus` asks before it lowers its other builds' priority; False when
+    it cannot tell."""
+    try:
+        files, key = _bundle(Path(script), project_packages)
+    except Exception:  # noqa: BLE001 - a hint for the scheduling only
+        return False
+    root = Path(root) if root is not None else generic_root()
+    return files is not None and not is_warmed(root / Path(script).stem / key, scenario)
+
+
+def _bundle(script: Path, project_packages):
+    """The files the FMU of ``script`` bundles and their kernel key, or (None, None) without an entry point."""
     packages = {SLAVE_DIR.name: SLAVE_DIR, **{Path(p).resolve().name: Path(p).resolve() for p in project_packages}}
     files = bundled_files(script, packages)
     if ENTRY not in files:
+        return None, None
+    return files, key_of((rel, path.read_bytes()) for rel, path in files.items())
+
+
+def _begin(script: Path, project_packages, scenario: Scenario, root: Path | None, seeds: tuple = ()):
+    model = script.stem
+    files, key = _bundle(script, project_packages)
+    if files is None:
         return None
-    key = key_of((rel, path.read_bytes()) for rel, path in files.items())
     root = Path(root) if root is not None else generic_root()
     store = root / model
     if is_warmed(store / key, scenario):
