@@ -22,8 +22,9 @@ way with trackers compiled before it).
 Constants: numba types a call with constant arguments with their literal types (``Literal[int](0)``,
 ``Literal[bool](True)``) and compiles the callee once per distinct constant (six times one kernel of
 the tube chain).  A project kernel compiled for a caller is compiled once for the plain types instead
-(the caller's call converts its constants); one whose typing needs a constant (a typing error without
-it) gets the literal compile as before.  The same arithmetic either way, so the same results.
+(the caller's call converts its constants); one whose compile needs a constant (a numba error without
+it: ``numba.literally``, a literal-only overload) gets the literal compile as before, and so does a
+kernel that calls itself (numba matches a recursive call by its literal types).  The same arithmetic either way, so the same results.
 
 Left to numba's own compile: a library that calls through numba's table of recursive references
 (only a library with machine code fills it), lifted loops and object-mode blocks, C callbacks, and
@@ -40,7 +41,10 @@ fewer); the tracker's step the same (29.2 and 29.7 us in one run).
 
 Safety: such a kernel has no machine code of its own, so numba's table of Python-callable overloads
 never lists it.  Python calling it (a test, a user) compiles it whole on that call, as numba would
-have (and writes a cached kernel to disk then), and the Python call runs that.  The fallback is off
+have (and writes a cached kernel to disk then), and the Python call runs that.  Not covered, since
+nothing in the project does it: code that takes such an overload's entry point itself
+(``dispatcher.overloads[sig].entry_point``, ``get_overload``) would call address 0, and so would a
+Python call of it made from inside a compile (a typing hook).  The fallback is off
 with ``RRR_DK_LEAN_COMPILE=0``, and off by itself with a numba whose internals differ from the ones
 this patches (then every compile is numba's own: slower, never wrong).
 """
@@ -109,6 +113,8 @@ class _LoadOnly:
     an earlier Python call) is loaded as before; a linked-only overload is not written (it has no machine
     code, and writing one would emit it)."""
 
+    __slots__ = ("_cache",)
+
     def __init__(self, cache):
         self._cache = cache
 
@@ -117,6 +123,8 @@ class _LoadOnly:
             self._cache.save_overload(sig, cres)
 
     def __getattr__(self, name):
+        if name == "_cache":                  # not set (a copy): no endless lookup
+            raise AttributeError(name)
         return getattr(self._cache, name)
 
 
@@ -195,12 +203,14 @@ def install() -> None:
             if lean and not isinstance(cache, caching.NullCache):
                 self._cache = _LoadOnly(cache)
             try:
-                plain = _plain(sig) if lean else None
+                # not while this kernel compiles already (a recursive call: numba matches it by the
+                # literal types)
+                plain = _plain(sig) if lean and not self.is_compiling else None
                 if plain is not None:
                     try:                               # the caller converts its constants to the plain types
                         return compile_overload(self, plain)
-                    except errors.TypingError:         # a kernel whose typing needs the constant
-                        pass
+                    except errors.NumbaError:          # a kernel whose typing or lowering needs the constant
+                        pass                           # (numba.literally, a literal-only overload)
                 return compile_overload(self, sig)
             finally:
                 self._cache = cache

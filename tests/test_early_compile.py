@@ -4,6 +4,7 @@ first DK build, the session's included; these tests replace the child's script b
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -226,15 +227,32 @@ def test_pending_says_whether_a_build_would_compile_the_entry_point(dk_script, t
     store = tmp_path / "store"
     plain = tmp_path / "Plain.py"
     plain.write_text("import math\n")
-    assert not early_compile.pending(plain, project_packages(), Scenario([]), root=store)   # no entry point
-    assert early_compile.pending(dk_script, project_packages(), _scenario(), root=store)   # a first build
+    assert not early_compile.pending(plain, project_packages(), root=store)      # no entry point
+    assert early_compile.pending(dk_script, project_packages(), root=store)      # a first build of this code
     monkeypatch.setattr(early_compile, "_CHILD", _BOTH)
     early = early_compile.begin(dk_script, project_packages(), _scenario(), root=store)
-    early.stop()
-    folder = store / DK_NAME / early.key
-    (folder / kernels._KEPT).write_text(json.dumps({"seconds": {"x": 1.0}, "warmed": [kernels._warmed(_scenario())]}))
-    assert not early_compile.pending(dk_script, project_packages(), _scenario(), root=store)   # warmed up
-    assert early_compile.pending(dk_script, project_packages(), Scenario([Run(3, 1e-3)]), root=store)
+    assert early.finish()                                                        # the record is written
+    assert not early_compile.pending(dk_script, project_packages(), root=store)
+    assert not early_compile.pending(dk_script, ["/no/such/package"], root=store)   # cannot tell: False
+
+
+def test_the_real_child_compiles_the_tracker_kernels_from_the_project_file(dk_script, tmp_path, fmus):  # noqa: F811
+    """The real child (not a stand-in): solver.precompile is not bundled, so the child loads it from the
+    building project's file and runs it on the staged solver; here on a copy of the session's store for
+    this code (the entry point and the tracker's kernels load from it: seconds, not a compile)."""
+    key = fmu_key(fmus[DK_NAME])
+    store = tmp_path / "store"
+    shutil.copytree(kernels.generic_root() / DK_NAME / key, store / DK_NAME / key,
+                    ignore=shutil.ignore_patterns("*.tmp*", "*.lock", "*.seed-*", kernels._KEPT))
+    early = early_compile.begin(dk_script, project_packages(), _scenario(), root=store)
+    assert isinstance(early, early_compile.EarlyCompile) and early.key == key
+    work = early._work
+    early._proc.wait(timeout=600)
+    out = (work / "out.txt").read_text()
+    assert early.finish(), out
+    assert f"ENTRY {key} " in out and f"TRACKER {key} " in out, out
+    record = json.loads((store / DK_NAME / key / kernels._KEPT).read_text())
+    assert f"{early_compile.TRACKER_KERNELS} {BESIDE}" in record["seconds"]
 
 
 def test_a_background_build_lowers_its_own_priority_only():

@@ -357,8 +357,9 @@ def is_stale(name: str, fmu: Path) -> bool:
 
 
 #: What a first build of each FMU does, and about how long it takes (2 cores, the three at once: the DK's
-#: kernels 85-90 s, its map beside them 30-45 s; the others' kernels 20-35 s at a lower priority; once per
-#: code version; a rebuild 3-8 s): said when the build starts.
+#: kernels 80-86 s, its map beside them 42-44 s at a lower priority after 17-29 s of its own kernels; the
+#: others' kernels 20-39 s at a lower priority; once per code version; a rebuild 3-8 s): said when the build
+#: starts.
 FIRST_BUILD = {
     DK_NAME: "the first time it builds the map tensor (procedure 1) and compiles the kernels it ships: about "
              "1.5 min; later builds reuse both",
@@ -399,9 +400,7 @@ def build_fmus(out_dir="build", resolution=None, force: bool = False, progress: 
         return paths
     detail = "; ".join(f"{name}: {FIRST_BUILD[name]}" for name in todo)
     # a first build of the DK's code: its early compile is the longest step; the other builds go lower
-    first = robot.home_posture if robot is not None else 1
-    background = DK_NAME in todo and early_compile_pending(slave_script(DK_NAME), project_packages(),
-                                                           warm_up_scenario(DK_NAME, first, "default", robot))
+    background = DK_NAME in todo and early_compile_pending(slave_script(DK_NAME), project_packages())
     # the children report their own phases (and say that a long one goes on)
     with _progress.phase(f"building {', '.join(todo)} in {out}", detail, enabled=progress, heartbeat=False), \
             tempfile.TemporaryDirectory(prefix="rrr-dk-builds-") as logs, contextlib.ExitStack() as files:

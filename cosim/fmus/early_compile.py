@@ -1,8 +1,8 @@
 """The DK's C entry point compiled beside the map: the build's longest step begun before its second longest.
 
 An FMU's generic kernels are compiled by running the built FMU along its runs
-(:mod:`cosim.fmus.kernels`), and the DK FMU embeds its map, so on a first build that compile (64-75 s
-on one core, most of it numba compiling the tracker's C entry point, :mod:`solver._kernels.c_entry`)
+(:mod:`cosim.fmus.kernels`), and the DK FMU embeds its map, so on a first build that compile (about
+70 s on one core, 64 s of it numba compiling the tracker's C entry point, :mod:`solver._kernels.c_entry`)
 started only once the map tensor was built, while one of the two cores idled.  The entry point needs
 no map.  :func:`begin` stages the packages the FMU will bundle, byte for byte
 (:func:`cosim.fmus.packaging.bundled_files`: the same files, hence the same kernel key) and compiles
@@ -14,7 +14,8 @@ FMU's runs.
 After the entry point the child compiles the kernels the tracker's Python side calls
 (:func:`solver.precompile.compile_tracker`: the start's proof, the DK, procedure 2's look-up, ...).
 They call the entry point's callees, which this process has typed already; the warm-up, another
-process, would type them all again (5.5 s here against 29.7 s there).  And on a first build of this code
+process, would type them all again (5.5 s here; the warm-up took 29.7 s when it compiled them, 1.1-1.6 s
+now).  And on a first build of this code
 (:func:`pending`) :func:`cosim.fmus.builds.build_fmus` runs its other builds at a lower priority
 (``BACKGROUND_NICE``), so that this child keeps a core: it is the longest step of that build.
 
@@ -34,7 +35,7 @@ from pathlib import Path
 from fmu_src.kernel_cache import BUNDLE_MARK, key_of
 from solver import progress
 
-from .kernels import BESIDE, Scenario, generic_env, generic_root, is_warmed, record_seconds, seed, warm_up_base
+from .kernels import _KEPT, BESIDE, Scenario, generic_env, generic_root, is_warmed, record_seconds, seed, warm_up_base
 from .packaging import bundled_files
 from .sources import SLAVE_DIR
 
@@ -49,10 +50,11 @@ __all__ = ["ENTRY", "EarlyCompile", "Waiting", "begin", "pending"]
 ENTRY = "solver/_kernels/c_entry.py"
 
 #: the child: the staged packages first on the path, the FMU runtime's cache locator, the entry point, then
-#: the kernels the tracker's Python side calls (solver.precompile: they share the entry point's callees,
-#: typed once here; a failure there leaves them to the warm-up and fails nothing)
+#: the kernels the tracker's Python side calls (solver.precompile, argv[2]: not bundled, so loaded from the
+#: building project's file, running the staged solver; the kernels share the entry point's callees, typed
+#: once here; a failure there leaves them to the warm-up and fails nothing)
 _CHILD = r"""
-import sys, time
+import importlib.util, sys, time
 sys.path.insert(0, sys.argv[1])
 import fmu_src.kernel_cache as cache
 cache.install()
@@ -62,9 +64,11 @@ start = time.perf_counter()
 entry()
 print("ENTRY %s %.1f" % (key, time.perf_counter() - start), flush=True)
 try:
-    from solver.precompile import compile_tracker
+    spec = importlib.util.spec_from_file_location("solver.precompile", sys.argv[2])
+    precompile = sys.modules[spec.name] = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(precompile)
     start = time.perf_counter()
-    compile_tracker()
+    precompile.compile_tracker()
     print("TRACKER %s %.1f" % (key, time.perf_counter() - start), flush=True)
 except Exception as exc:
     print("the tracker's own kernels were not compiled: %s: %s" % (type(exc).__name__, exc), flush=True)
@@ -98,13 +102,16 @@ class EarlyCompile:
                 out = f"(its output is gone: {e})"
             done = {name: [line.split() for line in out.splitlines() if line.startswith(f"{tag} {self.key} ")]
                     for tag, name in (("ENTRY", ENTRY_KERNEL), ("TRACKER", TRACKER_KERNELS))}
-            if code == 0 and done[ENTRY_KERNEL]:
+            if done[ENTRY_KERNEL]:               # the entry point is in the store, even if the rest failed
                 # its compile seconds join the warm-up's (what a host that must compile is told to expect)
                 record_seconds(self._folder, {f"{name} {BESIDE}": float(lines[-1][2])
                                               for name, lines in done.items() if lines})
                 failed = [line for line in out.splitlines() if line.startswith(TRACKER_FAILED)]
                 if failed:
                     progress.note(f"{self.model}: {failed[-1]} (the warm-up compiles them)")
+                elif not done[TRACKER_KERNELS]:      # the child died after the entry point (a crash, a kill)
+                    progress.note(f"{self.model}: the early compile ended (exit {code}) after its C entry point, "
+                                  "before the tracker's own kernels (the warm-up compiles them)")
                 return True
             tail = "\n".join(out.strip().splitlines()[-5:])
             progress.note(f"{self.model}: the early compile of its C entry point failed (exit {code}); the "
@@ -178,23 +185,27 @@ def _flocked(path: Path):
     return f
 
 
-def pending(script: Path, project_packages, scenario: Scenario, root: Path | None = None) -> bool:
-    """Whether a build of ``script`` would compile its C entry point beside the map: its bundle has one and
-    the store does not hold its code warmed up along ``scenario`` (a first build of this code).  What
-    :func:`cosim.fmus.builds.build_fmus` asks before it lowers its other builds' priority; False when
-    it cannot tell."""
+def pending(script: Path, project_packages, root: Path | None = None) -> bool:
+    """Whether a build of ``script`` is a first build of its code: its bundle has the C entry point and the
+    store holds no warm-up of its key (then the build compiles the entry point beside the map).  What
+    :func:`cosim.fmus.builds.build_fmus` asks before it lowers its other builds' priority (cheap: no
+    scenario, no kernel); False when it cannot tell."""
     try:
         files, key = _bundle(Path(script), project_packages)
+        root = Path(root) if root is not None else generic_root()
+        return files is not None and not (root / Path(script).stem / key / _KEPT).is_file()
     except Exception:  # noqa: BLE001 - a hint for the scheduling only
         return False
-    root = Path(root) if root is not None else generic_root()
-    return files is not None and not is_warmed(root / Path(script).stem / key, scenario)
+
+
+def _package_dirs(project_packages) -> dict:
+    """``{name: folder}`` of the packages a bundle is made of (the slaves' and ``project_packages``)."""
+    return {SLAVE_DIR.name: SLAVE_DIR, **{Path(p).resolve().name: Path(p).resolve() for p in project_packages}}
 
 
 def _bundle(script: Path, project_packages):
     """The files the FMU of ``script`` bundles and their kernel key, or (None, None) without an entry point."""
-    packages = {SLAVE_DIR.name: SLAVE_DIR, **{Path(p).resolve().name: Path(p).resolve() for p in project_packages}}
-    files = bundled_files(script, packages)
+    files = bundled_files(script, _package_dirs(project_packages))
     if ENTRY not in files:
         return None, None
     return files, key_of((rel, path.read_bytes()) for rel, path in files.items())
@@ -205,6 +216,7 @@ def _begin(script: Path, project_packages, scenario: Scenario, root: Path | None
     files, key = _bundle(script, project_packages)
     if files is None:
         return None
+    precompile = _package_dirs(project_packages)["solver"] / "precompile.py"
     root = Path(root) if root is not None else generic_root()
     store = root / model
     if is_warmed(store / key, scenario):
@@ -232,7 +244,7 @@ def _begin(script: Path, project_packages, scenario: Scenario, root: Path | None
         env = generic_env(store)
         try:
             with open(work / "out.txt", "w") as out:   # the child inherits both locks: held until it exits
-                proc = subprocess.Popen([sys.executable, "-c", _CHILD, str(resources)], stdout=out,
+                proc = subprocess.Popen([sys.executable, "-c", _CHILD, str(resources), str(precompile)], stdout=out,
                                         stderr=subprocess.STDOUT, env=env, cwd=work,
                                         pass_fds=tuple(f.fileno() for f in held))
         except BaseException:
