@@ -24,7 +24,8 @@ Constants: numba types a call with constant arguments with their literal types (
 the tube chain).  A project kernel compiled for a caller is compiled once for the plain types instead
 (the caller's call converts its constants); one whose compile needs a constant (a numba error without
 it: ``numba.literally``, a literal-only overload) gets the literal compile as before, and so does a
-kernel that calls itself (numba matches a recursive call by its literal types).  The same arithmetic either way, so the same results.
+kernel that calls itself (numba matches a recursive call by its literal types).  The same arithmetic
+either way, so the same results.
 
 Left to numba's own compile: a library that calls through numba's table of recursive references
 (only a library with machine code fills it), lifted loops and object-mode blocks, C callbacks, and
@@ -134,15 +135,15 @@ def _patchable(codegen, cpu, dispatcher, ccallback, caching) -> bool:
     needs = [(codegen.CPUCodeLibrary, ("finalize", "_get_module_for_linking", "_finalize_dynamic_globals",
                                        "_raise_if_finalized", "_ensure_finalized")),
              (codegen, ("require_global_compiler_lock",)), (cpu.CPUContext, ("get_executable",)),
-             (dispatcher.Dispatcher, ("compile", "add_overload")), (dispatcher, ("LiftedCode",)),
+             (dispatcher.Dispatcher, ("compile", "add_overload", "is_compiling")), (dispatcher, ("LiftedCode",)),
              (ccallback.CFunc, ("compile",)),
              (caching, ("NullCache",))]
     return all(hasattr(owner, name) for owner, names in needs for name in names)
 
 
 def install() -> None:
-    """Compile the project's kernels for their callers only when a caller needs them (once per process; not with
-    ``RRR_DK_LEAN_COMPILE=0``, nor with a numba whose internals differ)."""
+    """Compile the project's kernels for their callers only when a caller needs them (once per process; not
+    with ``RRR_DK_LEAN_COMPILE=0``, nor with a numba whose internals differ)."""
     if os.environ.get(ENV, "1").strip() == "0":
         return
     try:
