@@ -45,7 +45,8 @@ from solver import DEFAULT_RULE, DEFAULT_STEP, ORDERING_RULES, Manipulator, MapT
 
 from .checks import validate
 from .map_report import report_maps
-from .early_compile import EarlyCompile, begin as begin_early_compile, pending as early_compile_pending
+from .early_compile import BACKGROUND_NICE, EarlyCompile, lower_priority  # noqa: F401 (re-exported)
+from .early_compile import begin as begin_early_compile, pending as early_compile_pending
 from .kernels import Run, Scenario, warm_up
 from .robot_build import other_robot, robot_circle, robot_constant, robot_slave_scenario, stage_robot, with_robot_constant
 from .sources import LOADER_SOURCE, SLAVE_DIR, slave_readme, slave_script
@@ -58,12 +59,6 @@ __all__ = ["FMU_NAMES", "DK_NAME", "MODES", "DEFAULT_RESOLUTION", "BuildResult",
 #: The three FMUs, in the order of the closed loop's data flow (DK -> controller -> plant).
 FMU_NAMES = ("RRRDirectKinematics", "ComputedTorqueController", "RRRPlant")
 DK_NAME = "RRRDirectKinematics"
-#: How much :func:`build_fmus`' children lower their priority (``os.nice``) beside the DK's early compile, the
-#: longest step of a first build of the DK's code: the plant's and controller's builds from their start, the
-#: DK's own once that compile has begun (its map and warm-up), so that the compile keeps a core of its own.
-#: (10: a task at nice 0 then gets about nine tenths of a core it shares with one of them; 19 measured the
-#: same and would starve these builds beside other work.)
-BACKGROUND_NICE = 10
 #: The store folders (:mod:`cosim.fmus.kernels`) of the DK FMUs, which run one tracker step: the FMI 2.0 and
 #: 3.0 3-RRR's (:mod:`cosim.fmus.fmi3_build`) and the 3-RPR's (:mod:`cosim.fmus.rpr_build`); a new folder of
 #: one is seeded from another's of the same code, so one of them compiles the step for all.
@@ -260,15 +255,6 @@ def build_dk(out_dir="build", postures=(1,), resolution=None, map_files=(), mode
             early.stop()
     problems = validate(fmu) if check else []
     return BuildResult(fmu, maps, postures[0], mode, time.perf_counter() - t0, map_seconds, problems)
-
-
-def lower_priority() -> None:
-    """Lower this process's priority by :data:`BACKGROUND_NICE` (POSIX ``nice``; for good: an unprivileged
-    process cannot raise it again).  Nothing where the system has no ``nice`` or refuses."""
-    try:
-        os.nice(BACKGROUND_NICE)
-    except (AttributeError, OSError):       # pragma: no cover - Windows, or a refusal
-        pass
 
 
 def _early_compile(postures, mode: str, robot):

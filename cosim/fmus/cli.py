@@ -52,7 +52,8 @@ from pathlib import Path
 from solver import DEFAULT_RULE, ORDERING_RULES, MapTensorFileError
 
 from .sources import REFERENCE_DIR
-from .builds import DK_NAME, FMU_NAMES, MODES, build_dk, build_slave, lower_priority, parse_resolution
+from .builds import DK_NAME, FMU_NAMES, MODES, build_dk, build_slave, parse_resolution
+from .early_compile import lower_priority
 from ..unit import exit_process
 
 __all__ = ["main"]

@@ -26,6 +26,7 @@ the warm-up, as before, with one line on stderr.
 from __future__ import annotations
 
 import errno
+import os
 import shutil
 import subprocess
 import sys
@@ -44,8 +45,14 @@ try:
 except ImportError:                     # pragma: no cover - Windows: no early compile
     fcntl = None
 
-__all__ = ["ENTRY", "EarlyCompile", "Waiting", "begin", "pending"]
+__all__ = ["ENTRY", "EarlyCompile", "Waiting", "begin", "pending", "lower_priority", "BACKGROUND_NICE"]
 
+#: How much :func:`cosim.fmus.builds.build_fmus`' children lower their priority (``os.nice``) beside the DK's
+#: early compile, the longest step of a first build of the DK's code: the plant's and controller's builds from their start, the
+#: DK's own once that compile has begun (its map and warm-up), so that the compile keeps a core of its own.
+#: (10: a task at nice 0 then gets about nine tenths of a core it shares with one of them; 19 measured the
+#: same and would starve these builds beside other work.)
+BACKGROUND_NICE = 10
 #: The bundled file whose kernels :func:`begin` compiles (a bundle without it has nothing to begin).
 ENTRY = "solver/_kernels/c_entry.py"
 
@@ -183,6 +190,15 @@ def _flocked(path: Path):
             return None
         raise                                   # no locks here (a file system without them): not begun
     return f
+
+
+def lower_priority() -> None:
+    """Lower this process's priority by :data:`BACKGROUND_NICE` (POSIX ``nice``; for good: an unprivileged
+    process cannot raise it again).  Nothing where the system has no ``nice`` or refuses."""
+    try:
+        os.nice(BACKGROUND_NICE)
+    except (AttributeError, OSError):       # pragma: no cover - Windows, or a refusal
+        pass
 
 
 def pending(script: Path, project_packages, root: Path | None = None) -> bool:
