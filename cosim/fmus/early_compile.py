@@ -36,7 +36,8 @@ from pathlib import Path
 from fmu_src.kernel_cache import BUNDLE_MARK, key_of
 from solver import progress
 
-from .kernels import _KEPT, BESIDE, Scenario, generic_env, generic_root, is_warmed, record_seconds, seed, warm_up_base
+from .kernels import (BESIDE, Scenario, generic_env, generic_root, has_record, is_warmed, record_seconds, seed,
+                      warm_up_base)
 from .packaging import bundled_files
 from .sources import SLAVE_DIR
 
@@ -209,7 +210,7 @@ def pending(script: Path, project_packages, root: Path | None = None) -> bool:
     try:
         files, key = _bundle(Path(script), project_packages)
         root = Path(root) if root is not None else generic_root()
-        return files is not None and not (root / Path(script).stem / key / _KEPT).is_file()
+        return files is not None and not has_record(root / Path(script).stem / key)
     except Exception:  # noqa: BLE001 - a hint for the scheduling only
         return False
 

@@ -61,8 +61,8 @@ try:
 except ImportError:                     # pragma: no cover - Windows: no lock
     fcntl = None
 
-__all__ = ["Run", "Scenario", "generic_root", "fmu_key", "shipped_kernels", "warm_up", "is_warmed", "record_seconds",
-           "warm_up_base", "generic_env", "seed", "KernelBuildError"]
+__all__ = ["Run", "Scenario", "generic_root", "fmu_key", "shipped_kernels", "warm_up", "is_warmed", "has_record",
+           "record_seconds", "warm_up_base", "generic_env", "seed", "KernelBuildError"]
 
 _KEPT = "warm-up.json"
 
@@ -230,6 +230,12 @@ def _warmed(scenario: Scenario) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:24]
 
 
+def has_record(folder: Path) -> bool:
+    """Whether the store folder ``folder`` holds a record (``warm-up.json``): a warm-up, an early compile or a
+    seed wrote its kernels' compile seconds there."""
+    return (Path(folder) / _KEPT).is_file()
+
+
 def is_warmed(folder: Path, scenario: Scenario) -> bool:
     """Whether the store folder ``folder`` (``<root>/<model>/<key>``) has been warmed up along ``scenario``
     with this numba and Python (its ``warm-up.json``): a build of that key would start no child."""
@@ -301,7 +307,7 @@ def seed(folder: Path, sources: list) -> str | None:
         if any(folder.rglob("*.nbi")):
             return None
         for source in sources:
-            if source == folder or not (source / _KEPT).is_file():
+            if source == folder or not has_record(source):
                 continue
             with _locked(source / ".lock", wait=False, shared=True) as free:
                 if not free:                    # that model's warm-up writes it now: not complete
