@@ -24,24 +24,33 @@ statement: SIGABRT, "corrupted double-linked list", raised in the C runtime's ex
 finalizers (a core dump shows libgfortran's ``close_units``) on a heap corrupted earlier; with the
 loader every run exits 0.
 
-Measure the rate (``--import-first``: the script imports ``solver`` and ``dynamics`` first, as the
-project's processes do, so the FMUs use those copies)::
+How often it aborts depends on the heap, so waiting for the abort needs many runs.  The tests run
+each process under ``tests/c_host/quarantine_free.c`` instead (``LD_PRELOAD``): freed blocks of
+that size are filled with a pattern and kept, and the process ends with status 86 and the block's
+changed byte when one was written after its free().  A run with the loader's fix left out fails that
+way every time (:func:`test_the_detector_catches_the_crash_every_time_without_the_loaders_fix`), so
+one run per case suffices; each case also runs once as a user runs it, without the detector.
+
+Measure the abort rate without the detector (``--import-first``: the script imports ``solver`` and
+``dynamics`` first, as the project's processes do, so the FMUs use those copies)::
 
     python tests/test_exit.py --runs 100 [--fmu-dir build] [--import-first]
 """
 from __future__ import annotations
 
 import collections
+import os
 import signal
 import subprocess
 import sys
 import textwrap
+import zipfile
 from pathlib import Path
 
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from host_support import run_python, session_fmus  # noqa: E402
+from host_support import CC, REPO, run_python, session_fmus  # noqa: E402
 
 SCRIPT = """
     import sys
@@ -70,24 +79,58 @@ SCRIPT = """
             fmu.fmi2FreeInstance(fmu.component)
     print("script end", flush=True)
 """
-#: the reproducer's runs in the test (each about 1.5 s once numba's kernel cache holds the FMUs' kernels)
-RUNS = 6
-#: plain ``fmpy simulate`` runs of each FMU (about 1.2 s each, two at a time)
-SIMULATE_RUNS = 20
 ABORT = -signal.SIGABRT
+#: the exit status of a process in which the detector found a block written after its free()
+DETECTED = 86
+DETECTOR_SOURCE = Path(__file__).resolve().parent / "c_host" / "quarantine_free.c"
+NAMES = ("RRRDirectKinematics", "RRRPlant", "ComputedTorqueController")
+needs_cc = pytest.mark.skipif(CC is None, reason="no C compiler (cc or gcc) on PATH: the use-after-free "
+                                                 "detector (tests/c_host/quarantine_free.c) cannot be built")
+
+
+def compile_detector(folder: Path) -> Path:
+    """``tests/c_host/quarantine_free.c`` compiled into ``folder`` (a library for ``LD_PRELOAD``)."""
+    lib = folder / "quarantine_free.so"
+    proc = subprocess.run([CC, "-std=c11", "-O1", "-Wall", "-Werror", "-fPIC", "-shared", "-o", str(lib),
+                           str(DETECTOR_SOURCE), "-lpthread"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    return lib
+
+
+def detector_env(lib: Path | None) -> dict | None:
+    """The environment of a child run under the detector ``lib`` (None: this process's)."""
+    return None if lib is None else dict(os.environ, LD_PRELOAD=str(lib))
+
+
+def run_script(paths, detector: Path | None = None, import_first: bool = False) -> subprocess.CompletedProcess:
+    """One run of :data:`SCRIPT` on ``paths`` (under ``detector``, if given); asserts it did all its work."""
+    code = ("import solver, dynamics  # noqa: F401\n" if import_first else "") + textwrap.dedent(SCRIPT)
+    proc = subprocess.run([sys.executable, "-c", code, *map(str, paths)], capture_output=True, text=True,
+                          timeout=900, cwd=str(REPO), env=detector_env(detector))
+    assert "script end" in proc.stdout, proc.stderr[-3000:]
+    return proc
 
 
 def reproduce(paths, runs: int, import_first: bool = False) -> collections.Counter:
-    """Exit statuses of ``runs`` runs of :data:`SCRIPT` on ``paths``; asserts each run did all its work."""
-    code = ("import solver, dynamics  # noqa: F401\n" if import_first else "") + textwrap.dedent(SCRIPT)
+    """Exit statuses of ``runs`` plain runs of :data:`SCRIPT` on ``paths``."""
     statuses = collections.Counter()
     for _ in range(runs):
-        proc = run_python(code, *paths, timeout=900)
-        assert "script end" in proc.stdout, proc.stderr[-3000:]
+        proc = run_script(paths, import_first=import_first)
         if proc.returncode == ABORT:
             assert "corrupted" in proc.stderr or "free()" in proc.stderr, proc.stderr[-2000:]
         statuses[proc.returncode] += 1
     return statuses
+
+
+def fmpy_simulate(fmu: Path, workdir: Path, detector: Path | None = None) -> subprocess.CompletedProcess:
+    """One plain ``fmpy simulate <fmu>`` command line (under ``detector``, if given)."""
+    fmpy_cli = Path(sys.executable).with_name("fmpy")
+    cmd = [str(fmpy_cli)] if fmpy_cli.exists() else [sys.executable, "-m", "fmpy"]
+    out = workdir / f"{fmu.stem}-{'detector' if detector else 'plain'}.csv"
+    proc = subprocess.run([*cmd, "simulate", str(fmu), "--stop-time", "0.05", "--output-file", str(out)],
+                          capture_output=True, text=True, timeout=900, cwd=str(workdir), env=detector_env(detector))
+    assert proc.returncode != 0 or out.is_file(), proc.stderr[-2000:]
+    return proc
 
 
 @pytest.fixture(scope="module")
@@ -95,44 +138,63 @@ def fmus(tmp_path_factory):
     return session_fmus(tmp_path_factory)
 
 
+@pytest.fixture(scope="module")
+def detector(tmp_path_factory):
+    return compile_detector(tmp_path_factory.mktemp("detector"))
+
+
+def _without_the_fix(fmu: Path, out: Path) -> Path:
+    """``fmu`` with its loader compiled from sources that leave out the atexit fix (loader_common.c)."""
+    from cosim.fmus import native
+
+    sources = out.parent / "unfixed-loader"
+    sources.mkdir(exist_ok=True)
+    files = []
+    for source in native.LOADER_FILES:
+        text = source.read_text()
+        if source.name == "loader_common.c":
+            fixed = "if (release_py_state) atexit(release_wrapper_state);"
+            assert fixed in text, "the loader's fix moved: update this test"
+            text = text.replace(fixed, "(void)release_wrapper_state;")
+        (sources / source.name).write_text(text)
+        files.append(sources / source.name)
+    loader = native.compile_loader(files=tuple(files))
+    binary = f"binaries/{native.PLATFORMS[0]}/{fmu.stem}.so"
+    with zipfile.ZipFile(fmu) as z, zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as o:
+        assert binary in z.namelist()
+        for info in z.infolist():
+            o.writestr(info, loader if info.filename == binary else z.read(info))
+    return out
+
+
+@needs_cc
+def test_the_detector_catches_the_crash_every_time_without_the_loaders_fix(fmus, detector, tmp_path):
+    """Without the loader's atexit handler every run under the detector ends with its status and the
+    block's byte 8 (the use count of the freed control block) one less: the one-run tests below can fail."""
+    unfixed = _without_the_fix(fmus["RRRPlant"], tmp_path / "RRRPlant.fmu")
+    for proc in (run_script([unfixed], detector), fmpy_simulate(unfixed, tmp_path, detector)):
+        assert proc.returncode == DETECTED, (proc.returncode, proc.stderr[-2000:])
+        assert "was written after free() (byte 8 is 0x10, not 0x11)" in proc.stderr, proc.stderr[-2000:]
+
+
+@needs_cc
 @pytest.mark.parametrize("which", ["all three", "RRRPlant"])
-def test_a_plain_fmpy_script_exits_cleanly(fmus, which, record_property):
-    """The reproducer exits 0 every time (before the loader's fix the plant alone aborted in 37 of
-    100 runs, all three in 3 of 100)."""
+def test_a_plain_fmpy_script_exits_cleanly(fmus, detector, which, record_property):
+    """The reproducer writes no freed block (the detector) and exits 0 as a user runs it (before the
+    loader's fix the plant alone aborted in 37 of 100 runs, all three in 3 of 100)."""
     paths = list(fmus.values()) if which == "all three" else [fmus[which]]
-    statuses = reproduce(paths, RUNS)
-    record_property("exit_statuses", dict(statuses))
-    print(f"plain fmpy script, {which}, {RUNS} runs: exit statuses {dict(statuses)} ({ABORT}: SIGABRT at exit)")
-    assert statuses == {0: RUNS}, statuses
+    statuses = {kind: run_script(paths, lib).returncode for kind, lib in (("detector", detector), ("plain", None))}
+    record_property("exit_statuses", statuses)
+    assert statuses == {"detector": 0, "plain": 0}, statuses
 
 
-def simulate_statuses(fmu, runs: int, workdir: Path) -> collections.Counter:
-    """Exit statuses of ``runs`` plain ``fmpy simulate <fmu>`` command lines (two at a time)."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    fmpy_cli = Path(sys.executable).with_name("fmpy")
-    cmd = [str(fmpy_cli)] if fmpy_cli.exists() else [sys.executable, "-m", "fmpy"]
-
-    def one(k):
-        out = workdir / f"{Path(fmu).stem}-{k}.csv"
-        proc = subprocess.run([*cmd, "simulate", str(fmu), "--stop-time", "0.05", "--output-file", str(out)],
-                              capture_output=True, text=True, timeout=900, cwd=str(workdir))
-        assert proc.returncode != 0 or out.is_file(), proc.stderr[-2000:]
-        return proc.returncode, proc.stderr[-1500:]
-
-    with ThreadPoolExecutor(2) as pool:
-        results = list(pool.map(one, range(runs)))
-    bad = [err for status, err in results if status != 0]
-    assert not bad, bad[0]
-    return collections.Counter(status for status, _ in results)
-
-
-@pytest.mark.parametrize("name", ["RRRDirectKinematics", "RRRPlant", "ComputedTorqueController"])
-def test_plain_fmpy_simulate_exits_cleanly(fmus, name, tmp_path):
-    """``fmpy simulate <FMU>`` (fmpy's command line) 20 times per FMU: exit status 0 every time."""
-    statuses = simulate_statuses(fmus[name], SIMULATE_RUNS, tmp_path)
-    print(f"fmpy simulate {name}: {SIMULATE_RUNS} runs, exit statuses {dict(statuses)}")
-    assert statuses == {0: SIMULATE_RUNS}
+@needs_cc
+@pytest.mark.parametrize("name", NAMES)
+def test_plain_fmpy_simulate_exits_cleanly(fmus, detector, name, tmp_path):
+    """``fmpy simulate <FMU>`` (fmpy's command line) writes no freed block and exits 0."""
+    for lib in (detector, None):
+        proc = fmpy_simulate(Path(fmus[name]), tmp_path, lib)
+        assert proc.returncode == 0, (lib, proc.returncode, proc.stderr[-2000:])
 
 
 EXIT = """
@@ -169,9 +231,7 @@ def main(argv=None) -> int:
     ap.add_argument("--import-first", action="store_true")
     ap.add_argument("--only", nargs="+", default=None, metavar="NAME", help="these FMUs (default: all three)")
     args = ap.parse_args(argv)
-    from cosim.fmus.builds import FMU_NAMES
-
-    paths = [Path(args.fmu_dir) / f"{n}.fmu" for n in (args.only or FMU_NAMES)]
+    paths = [Path(args.fmu_dir) / f"{n}.fmu" for n in (args.only or NAMES)]
     statuses = reproduce(paths, args.runs, args.import_first)
     print(f"{args.runs} runs ({', '.join(p.name for p in paths)}; import first: {args.import_first}): "
           + ", ".join(f"exit status {s}: {n}" for s, n in sorted(statuses.items())) + f" ({ABORT} = SIGABRT)")
