@@ -86,6 +86,7 @@ MANIFEST = "manifest.json"
 GENERIC_CPU = "generic"
 _MARKER = "_rrr_dk_bundle_locator"        # set on our locator class: installed once per process
 _KEYS: dict[str, str] = {}                # resources folder -> key (one hash per folder and process)
+_FOLDER_KEYS: dict[str, dict] = {}        # resources folder -> {folder inside: key of the .py files directly in it}
 _BUNDLES: dict[str, str | None] = {}      # source folder -> its resources folder (None: not in an FMU)
 _MANIFESTS: dict[str, dict] = {}          # resources folder -> its manifest ({} when none)
 _SLAVES: list = []                        # weak references to the attached slave instances
@@ -151,13 +152,36 @@ def key_of(files) -> str:
     return h.hexdigest()[:24]
 
 
+#: the packages whose kernels FMUs ship (in their ``_kernels`` folders), each importing only those before
+#: it (``solver`` never imports ``dynamics``): a kernel of one is the same machine code in any bundle whose
+#: copies of its folder and of those folders before it are the same bytes
+KERNEL_ORDER = ("solver", "dynamics")
+
+
 def bundle_key(resources: str) -> str:
     """The key (:func:`key_of`) of the FMU bundle in the folder ``resources`` (one hash per folder and process)."""
     key = _KEYS.get(resources)
     if key is None:
         base = Path(resources)
-        key = _KEYS[resources] = key_of((p.relative_to(base).as_posix(), p.read_bytes()) for p in base.rglob("*.py"))
+        files = [(p.relative_to(base).as_posix(), p.read_bytes()) for p in base.rglob("*.py")]
+        key = _KEYS[resources] = key_of(files)
+        folders = {name.rpartition("/")[0] for name, _ in kernel_files(files)}
+        _FOLDER_KEYS[resources] = {folder: key_of(f for f in files if f[0].rpartition("/")[0] == folder)
+                                   for folder in folders}
     return key
+
+
+def _same_kernels(inside: str, resources: str, other: str) -> bool:
+    """Whether the kernels of the folder ``inside`` (relative to ``resources``) are the same code in the
+    bundle ``other``: the same bytes in that folder and in the kernel folders of the packages it
+    imports (:data:`KERNEL_ORDER`)."""
+    inside = inside.replace(os.sep, "/")
+    package = inside.split("/")[0]
+    before = KERNEL_ORDER[:KERNEL_ORDER.index(package)] if package in KERNEL_ORDER else ()
+    bundle_key(other)
+    mine, theirs = _FOLDER_KEYS.get(resources, {}), _FOLDER_KEYS[other]
+    return all(mine.get(f) is not None and mine.get(f) == theirs.get(f)
+               for f in (inside, *(f"{p}/_kernels" for p in before)))
 
 
 def manifest(resources: str) -> dict:
@@ -223,9 +247,9 @@ def _locator_class(caching):
             self.kernel = f"{py_func.__module__}.{py_func.__qualname__}"
             self._lineno = py_func.__code__.co_firstlineno
             self._key = bundle_key(resources)
-            inside = os.path.relpath(os.path.dirname(os.path.abspath(py_file)), resources)
-            self._cache_path = os.path.join(root, self._key, inside)
-            self.shipped = os.path.join(resources, SHIPPED, inside)
+            self.inside = os.path.relpath(os.path.dirname(os.path.abspath(py_file)), resources)
+            self._cache_path = os.path.join(root, self._key, self.inside)
+            self.shipped = os.path.join(resources, SHIPPED, self.inside)
 
         def get_cache_path(self):
             return self._cache_path
@@ -238,7 +262,7 @@ def _locator_class(caching):
 
         @classmethod
         def from_function(cls, py_func, py_file):
-            resources = bundle_of(py_file) if os.path.isfile(py_file) else None
+            resources = bundle_of(py_file) if os.path.isfile(py_file) else _gone_bundle(py_file)
             if resources is None:
                 return None
             for root in (lambda: str(cache_root()), _scratch_root):
@@ -254,16 +278,57 @@ def _locator_class(caching):
     return BundleLocator
 
 
+def _gone_bundle(py_file: str) -> str | None:
+    """The resources folder of ``py_file`` when the file is gone but its folder was seen in an FMU bundle
+    whose key this process knows, else None (fmpy's ``simulate_fmu`` deletes each extraction after its
+    run, and a kernel made later from such a module, a fast lane's compiled step, is still that bundle's)."""
+    resources = _BUNDLES.get(os.path.dirname(os.path.abspath(py_file)))
+    return resources if resources is not None and resources in _KEYS else None
+
+
+def _shipped_folders(locator):
+    """``(folder, source stamp)`` of the shipped kernels to look in for ``locator``'s kernel, in order.
+
+    First its bundle's own.  Then the same folder in the other live bundles (:func:`_live_bundles`)
+    whose copies of the kernel's folders are the same bytes (:func:`_same_kernels`).  Python
+    imports ``solver`` and ``dynamics`` once per process, from the first FMU that brings them: the
+    DK FMU run after the plant runs the plant's ``solver``, whose shipped kernels are the plant's, and
+    an FMU run after an earlier one's extraction was deleted runs modules of a folder that is gone.
+    Each FMU ships the kernels its own runs call, so they are found in its own bundle.
+    """
+    if os.path.isdir(locator.shipped):
+        yield locator.shipped, locator.get_source_stamp()
+    seen = {locator.resources}
+    for resources in _live_bundles():
+        if resources in seen:
+            continue
+        seen.add(resources)
+        folder = os.path.join(resources, SHIPPED, locator.inside)
+        if os.path.isdir(folder) and _same_kernels(locator.inside, locator.resources, resources):
+            yield folder, bundle_key(resources)
+
+
+def _live_bundles():
+    """The FMU resources folders of this process that still exist, the latest first: those of the attached
+    slaves, then those on ``sys.path`` (pythonfmu puts an FMU's there to import its slave module, whose
+    import may already call kernels, before the slave is attached)."""
+    attached = [getattr(ref(), "resources", None) for ref in reversed(_SLAVES)]
+    for resources in attached + [p for p in reversed(sys.path) if isinstance(p, str)]:
+        if resources and os.path.isfile(os.path.join(resources, BUNDLE_MARK)):
+            yield resources
+
+
 def _load_shipped(cache, caching, sig, target_context):
     """The shipped entry of ``sig`` for ``cache`` (a numba ``Cache`` of a bundle kernel), or None."""
     locator = cache._impl.locator
-    if not os.path.isdir(locator.shipped):
-        return None
     sig_key, (triple, _cpu, _features), code = cache._index_key(sig, target_context.codegen())
-    files = caching.IndexDataCacheFile(cache_path=locator.shipped, filename_base=cache._impl.filename_base,
-                                       source_stamp=locator.get_source_stamp())
-    data = files.load((sig_key, (triple, GENERIC_CPU, ""), code))
-    return None if data is None else cache._impl.rebuild(target_context, data)
+    for folder, stamp in _shipped_folders(locator):
+        files = caching.IndexDataCacheFile(cache_path=folder, filename_base=cache._impl.filename_base,
+                                           source_stamp=stamp)
+        data = files.load((sig_key, (triple, GENERIC_CPU, ""), code))
+        if data is not None:
+            return cache._impl.rebuild(target_context, data)
+    return None
 
 
 def _patched_load(original, caching):

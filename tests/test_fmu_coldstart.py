@@ -200,24 +200,83 @@ def test_a_forced_compile_runs_in_a_child_process_not_on_a_small_host_stack(fmus
     assert not any("child process" in m for m in again["messages"]), again["messages"]
 
 
-@pytest.mark.parametrize("name", ["RRRPlant", "ComputedTorqueController"])
-def test_a_host_without_numba_imported_still_compiles_in_a_child(fmus, tmp_path, name):
+def test_a_host_without_numba_imported_still_compiles_in_a_child(fmus, tmp_path):
     """The plant and the controller import their kernels in setup(), after the instantiation decides; a host
     that has not imported numba (fmpy alone) must still get the child, and each FMU its own (they share a
-    kernel key, not their kernels): nothing compiled in the host, one after the other, same caches."""
-    stripped = {n: _without_kernels(fmus[n], tmp_path / f"{n}.fmu") for n in ("RRRPlant", "ComputedTorqueController")}
+    kernel key, not their kernels): nothing compiled in the host, the plant then the controller in the
+    plant's caches."""
     caches = None
-    for n in ("RRRPlant", "ComputedTorqueController") if name == "ComputedTorqueController" else (name,):
+    for n in ("RRRPlant", "ComputedTorqueController"):
+        stripped = _without_kernels(fmus[n], tmp_path / f"{n}.fmu")
         work = tmp_path / n
         work.mkdir()
         env = {"COLD_LATE_LISTENER": "1"}
         if caches is not None:                      # the controller after the plant, in the plant's caches
             env.update(NUMBA_CACHE_DIR=str(caches / "numba"), RRR_DK_CACHE=str(caches / "rrr-dk"))
-        report, made = _cold(stripped[n], work, env)
+        report, made = _cold(stripped, work, env)
         caches = caches or made
         assert report["error"] is None, report["stderr"][-3000:]
         assert report["compiled"] == [], (n, report["compiled"])
         assert any("in a child process" in m for m in report["messages"]), (n, report["messages"])
+
+
+#: argv: FMUs.  Runs each in turn as ``fmpy.simulate_fmu`` does (extract, instantiate, steps, free,
+#: delete the extraction) in one process; prints each instance's fast-lane steps and numba's compiles.
+SEQUENCE = textwrap.dedent(r"""
+    import gc, json, shutil, sys
+    from numba.core import event
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    compiled = []
+
+    class Compiles(event.Listener):
+        def on_start(self, ev):
+            compiled.append(ev.data["dispatcher"].py_func.__qualname__)
+        def on_end(self, ev):
+            pass
+
+    event.register("numba:compile", Compiles())
+    steps = []
+    for path in sys.argv[1:]:
+        md = read_model_description(path)
+        folder = extract(path)
+        fmu = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                        instanceName="x")
+        fmu.instantiate()
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.exitInitializationMode()
+        for k in range(5):
+            fmu.doStep(k * 1e-3, 1e-3)
+        slave, = [o for o in gc.get_objects() if type(o).__name__ == md.modelName]
+        steps.append([md.modelName, None if slave._lane is None else int(slave._lane.struct.fast_steps)])
+        fmu.terminate()
+        fmu.freeInstance()
+        del slave
+        shutil.rmtree(folder)
+    print("SEQ " + json.dumps({"steps": steps, "compiled": compiled}))
+""")
+
+
+def test_fmus_run_one_after_another_from_deleted_extractions_keep_their_lanes(fmus, tmp_path):
+    """Python keeps the packages of the first FMU that brought them, and fmpy's ``simulate_fmu`` deletes
+    each extraction after its run.  The DK FMU after the plant runs the plant's ``solver`` (which
+    ships none of the DK's kernels: it compiled them on the host's thread, 86 s), and the controller
+    after the plant makes its fast lane from a deleted file (it had none): each kernel is found in the
+    shipped kernels of a live FMU of the same code, nothing is compiled, every instance has its lane."""
+    order = ("RRRPlant", "ComputedTorqueController", "RRRDirectKinematics", "RRRPlant")
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "NUMBA_CPU_NAME", "NUMBA_CPU_FEATURES")}
+    env.update(NUMBA_CACHE_DIR=str(tmp_path / "numba"), RRR_DK_CACHE=str(tmp_path / "rrr-dk"))
+    proc = subprocess.run([sys.executable, "-c", SEQUENCE, *(str(fmus[n]) for n in order)], capture_output=True,
+                          text=True, env=env, cwd=str(tmp_path), timeout=600)
+    line = next((x for x in proc.stdout.splitlines() if x.startswith("SEQ ")), None)
+    assert line is not None, f"the child failed ({proc.returncode}):\n{proc.stderr[-4000:]}"
+    report = json.loads(line[4:])
+    assert "no fast lane" not in proc.stderr, proc.stderr[-3000:]
+    assert [name for name, _ in report["steps"]] == list(order)
+    assert all(steps and steps > 0 for _, steps in report["steps"]), report["steps"]
+    assert report["compiled"] == [], report["compiled"]
 
 
 def test_a_failed_child_compile_fails_the_instantiation_with_the_reason(fmus, tmp_path):
