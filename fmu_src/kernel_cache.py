@@ -34,6 +34,9 @@ the index's source stamp, in place of numba's mtime and size, so extraction date
    name, CPU features); the host's CPU is not ``generic``, so a shipped entry is looked up with the
    generic CPU in the key.  Generic code is plain x86-64 (what the CPU runs is the object code,
    loaded as it is), so it runs on any x86-64 CPU, slower only by the vector extensions it does not use.
+   A kernel not found there is looked up in the shipped kernels of the process's other live FMUs
+   whose copies of its kernel folders are the same bytes (:func:`_shipped_folders`): Python imports
+   ``solver`` once per process, so the DK FMU after the plant runs the plant's copy.
 2. *User cache* (written): ``<root>/<key>/<folder inside resources>``, ``root`` being
    ``$NUMBA_CACHE_DIR`` if set, else ``fmu-kernels`` under the project's one cache root (the rule
    of :func:`solver.cache_dir`: ``$RRR_DK_CACHE``, else ``$XDG_CACHE_HOME/rrr-dk``, else
