@@ -1,4 +1,6 @@
 """IK in 8 postures, all six DK solutions, J and K: properties that could fail."""
+import math
+
 import numpy as np
 import pytest
 from hypothesis import assume, given
@@ -117,6 +119,21 @@ def scan_solutions(model, q, n=20001):
         g = np.sum((P - C[..., 2, :]) ** 2, axis=-1) - l2[2] ** 2
         return g, P, disc
 
+    Dl, bl, l2l = D.tolist(), b.tolist(), [float(v) for v in l2]
+
+    def branch1(phi, sign):
+        """``branch`` at one phi in plain floats (the refinements call it hundreds of times)."""
+        c, s = math.cos(phi), math.sin(phi)
+        C = [(Dl[i][0] - (c * bl[i][0] - s * bl[i][1]), Dl[i][1] - (s * bl[i][0] + c * bl[i][1])) for i in range(3)]
+        dx, dy = C[1][0] - C[0][0], C[1][1] - C[0][1]
+        dist = math.hypot(dx, dy)
+        a = (l2l[0] ** 2 - l2l[1] ** 2 + dist ** 2) / (2 * dist)
+        disc = l2l[0] ** 2 - a ** 2
+        h = math.sqrt(max(disc, 0.0))
+        ex, ey = dx / dist, dy / dist
+        P = (C[0][0] + a * ex - sign * h * ey, C[0][1] + a * ey + sign * h * ex)
+        return (P[0] - C[2][0]) ** 2 + (P[1] - C[2][1]) ** 2 - l2l[2] ** 2, P, disc
+
     phis = np.linspace(-np.pi, np.pi, n)
     _, _, disc = branch(phis, 1.0)
     valid = disc >= 0
@@ -126,7 +143,7 @@ def scan_solutions(model, q, n=20001):
         lo, hi = (phis[i], phis[i + 1]) if valid[i] else (phis[i + 1], phis[i])
         for _ in range(60):
             mid = 0.5 * (lo + hi)
-            if branch(mid, 1.0)[2] >= 0:
+            if branch1(mid, 1.0)[2] >= 0:
                 lo = mid
             else:
                 hi = mid
@@ -145,14 +162,14 @@ def scan_solutions(model, q, n=20001):
         cand = i[(g[i - 1] * g[i] > 0) & (g[i] * g[i + 1] > 0) & ~gap[i - 1] & ~gap[i]
                  & (np.abs(g[i]) < np.abs(g[i - 1])) & (np.abs(g[i]) <= np.abs(g[i + 1]))]
         for i in cand:
-            gg = lambda p, sg=sign, s0=np.sign(g[i]): s0 * branch(p, sg)[0]
+            gg = lambda p, sg=sign, s0=float(np.sign(g[i])): s0 * branch1(p, sg)[0]
             m = minimize_scalar(gg, bounds=(grid[i - 1], grid[i + 1]), method="bounded",
                                 options={"xatol": 1e-14})
             if m.fun < 0:
                 brackets += [(grid[i - 1], m.x), (m.x, grid[i + 1])]
         for a, c in brackets:
-            r = brentq(lambda p: branch(p, sign)[0], a, c, xtol=1e-15, rtol=1e-15)
-            P = branch(r, sign)[1]
+            r = brentq(lambda p: branch1(p, sign)[0], a, c, xtol=1e-15, rtol=1e-15)
+            P = branch1(r, sign)[1]
             out.append([P[0], P[1], r])
     out = np.array(out).reshape(-1, 3)
     # a root at phi = +-pi appears at both ends of the grid
