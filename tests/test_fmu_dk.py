@@ -138,6 +138,8 @@ def test_command_line(built, tmp, capsys, monkeypatch):
     text = capsys.readouterr().out
     assert "reused" in text and "validation: OK" in text and "MB" in text
     assert (out / "RRRDirectKinematics.fmu").read_bytes() == built.fmu.read_bytes()
+    # built with the reference's options: the reference runs ran these FMUs, none built again
+    assert text.count("equal to the kept") == 3 and not list((out / "reference").glob("*.fmu"))
     # a given map file (the DK FMU only: the command's default path, all three and the references, ran above)
     assert build_main(["--out", str(out), "--map", str(cached), "--posture", "1", "--only", "RRRDirectKinematics",
                        "--no-reference"]) == 0

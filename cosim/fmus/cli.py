@@ -13,7 +13,8 @@
    ``solver.cache_dir("maps")``, which ``$RRR_DK_CACHE`` moves) or the
    ``--map`` files, ``--mode`` and ``--posture`` as start values of its parameters;
    ``ComputedTorqueController`` and ``RRRPlant``.  ``--only`` builds some of them.
-2. The reference run of each FMU (:mod:`cosim.fmus.references`) is built into ``<out>/reference/`` and
+2. The reference run of each FMU (:mod:`cosim.fmus.references`) is built into ``<out>/reference/`` (an
+   FMU that step 1 built with the reference's options is run as it is: builds are deterministic) and
    written as ``<out>/reference/<FMU>.csv``; each is compared with the kept
    ``fmu_src/reference/<FMU>.csv`` (the tests compare with those).  ``--no-reference`` skips it.
 
@@ -154,6 +155,7 @@ def _robot(args):
 def _build(args, robot=None) -> int:
     """Step 1 (see the module docstring); the exit status."""
     status = 0
+    args.built = {}
     for name in args.only:
         if name == DK_NAME:
             resolution = None if args.resolution is None else parse_resolution(args.resolution)
@@ -166,11 +168,13 @@ def _build(args, robot=None) -> int:
                   f"{sorted(result.maps)} (start {result.posture}), mode {result.mode}; built in "
                   f"{result.seconds:.1f} s (maps {result.map_seconds:.1f} s)")
             problems = result.problems
+            args.built[name] = result
         else:
             t0 = time.perf_counter()
             if args.background:
                 lower_priority()
             fmu = build_slave(name, args.out, robot=robot)
+            args.built[name] = fmu
             print(f"{fmu}: {fmu.stat().st_size / 1e6:.3f} MB; built in {time.perf_counter() - t0:.1f} s")
             problems = []                          # build_slave validates (BuildError on a problem)
         if problems:
@@ -181,12 +185,30 @@ def _build(args, robot=None) -> int:
     return status
 
 
-def _references(out, csv_dir) -> None:
+def _reusable(args) -> dict:
+    """The FMUs step 1 built with the reference runs' options (the paper's robot; the DK of posture 1 alone
+    at the reference resolution, mode and rule), which step 2 runs instead of building them again."""
+    from .references import REFERENCE
+
+    built = dict(getattr(args, "built", {}))
+    dk = built.get(DK_NAME)
+    if dk is not None:
+        same = (not args.map and sorted(dk.maps) == [REFERENCE["posture"]] and dk.posture == REFERENCE["posture"]
+                and dk.mode == REFERENCE["mode"] and args.rule == REFERENCE["rule"]
+                and args.resolution is not None
+                and all(abs(a - b) <= 1e-12 * b for a, b in zip(parse_resolution(args.resolution),
+                                                                REFERENCE["resolution"])))
+        if not same:
+            del built[DK_NAME]
+    return built
+
+
+def _references(out, csv_dir, built=None) -> None:
     """Step 2 (see the module docstring)."""
     from .references import write_references
 
     t0 = time.perf_counter()
-    paths = write_references(out, csv_dir)
+    paths = write_references(out, csv_dir, built=built)
     for path in paths.values():
         kept = _KEPT / path.name
         if path.resolve() == kept.resolve():
@@ -235,7 +257,7 @@ def main(argv=None, default_out="build") -> int:
             return 0
         status = _build(args, robot)
         if status == 0 and not args.no_reference:
-            _references(args.out, Path(args.out) / "reference")
+            _references(args.out, Path(args.out) / "reference", _reusable(args))
         if status == 0 and args.ssp:
             status = _ssp(args.out)
     except (ValueError, MapTensorFileError, RuntimeError) as exc:

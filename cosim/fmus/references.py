@@ -172,14 +172,22 @@ def read_reference_csv(path=REFERENCE_DIR / f"{DK_NAME}.csv") -> tuple[list[str]
 
 
 # ---------------------------------------------------------------------- all three
-def write_references(out_dir="build", csv_dir=REFERENCE_DIR, log=print) -> dict[str, Path]:
-    """Build the reference FMUs into ``<out_dir>/reference``, run them, write ``<csv_dir>/<name>.csv``."""
+def write_references(out_dir="build", csv_dir=REFERENCE_DIR, log=print, built=None) -> dict[str, Path]:
+    """Build the reference FMUs into ``<out_dir>/reference``, run them, write ``<csv_dir>/<name>.csv``.
+
+    ``built``: {FMU name: :class:`BuildResult` (the DK) or path (the plant, the controller)} of FMUs
+    just built with the reference's options (builds are byte for byte deterministic), run instead of
+    building them again.
+    """
+    built = built or {}
     folder = Path(out_dir) / "reference"
-    dk = build_dk(folder, postures=(REFERENCE["posture"],), resolution=REFERENCE["resolution"],
-                  mode=REFERENCE["mode"], rule=REFERENCE["rule"], cache_dir=Path(out_dir) / "maps", log=log)
+    dk = built.get(DK_NAME) or build_dk(folder, postures=(REFERENCE["posture"],), resolution=REFERENCE["resolution"],
+                                        mode=REFERENCE["mode"], rule=REFERENCE["rule"],
+                                        cache_dir=Path(out_dir) / "maps", log=log)
     if dk.problems:
         raise RuntimeError("reference FMU does not validate: " + "; ".join(dk.problems))
     paths = {DK_NAME: write(DK_NAME, run_circle(dk.fmu), Path(csv_dir) / f"{DK_NAME}.csv", _dk_header(dk))}
     for name in RUNS:
-        paths[name] = write(name, run(name, build_slave(name, folder)), Path(csv_dir) / f"{name}.csv")
+        fmu = built.get(name) or build_slave(name, folder)
+        paths[name] = write(name, run(name, fmu), Path(csv_dir) / f"{name}.csv")
     return paths
