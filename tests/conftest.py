@@ -39,18 +39,17 @@ def pytest_collection_modifyitems(session, config, items):
 _COARSE_MAPS = {}
 
 
-def coarse_map(model, posture):
+def coarse_map(model, posture, rule="aspect"):
     """A coarse map of ``posture`` (20 mm, 4 deg) over the default bounds: quick, for tracker tests;
-    built once per session and posture."""
-    from solver import MapTensor, default_bounds
+    loaded once per session and posture from the project's map cache (:func:`solver.mapcache.cached_map`,
+    which checks the file and builds it there when missing: about 2.3 s a posture)."""
+    from solver.mapcache import cached_map
 
-    if posture not in _COARSE_MAPS:
-        step = (0.02, 0.02, np.deg2rad(4.0))
-        b = default_bounds(model, step)
-        span = b[:, 1] - b[:, 0]
-        shape = (int(round(span[0] / step[0])) + 1, int(round(span[1] / step[1])) + 1, 90)
-        _COARSE_MAPS[posture] = MapTensor.build(model, posture, bounds=b, shape=shape, rule="aspect")
-    return _COARSE_MAPS[posture]
+    key = (model.digest(), posture, rule)
+    if key not in _COARSE_MAPS:
+        _COARSE_MAPS[key] = cached_map(model, posture, rule=rule, step=(0.02, 0.02, np.deg2rad(4.0)),
+                                       progress=False, log=lambda text: None)
+    return _COARSE_MAPS[key]
 
 
 @pytest.fixture(scope="session")

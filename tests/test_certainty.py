@@ -2,10 +2,9 @@
 import numpy as np
 import pytest
 
-from conftest import pose_distance
+from conftest import coarse_map, pose_distance
 from experiments.suite import hard_suite
-from solver import (CERTIFICATES, MapTensor, SolverInputError, Tracker, TrackerState, default_bounds, dk_all, ik,
-                    wrap_angle)
+from solver import CERTIFICATES, SolverInputError, Tracker, TrackerState, dk_all, ik, wrap_angle
 from solver._kernels.certify import TINY, follow_branch
 from solver._kernels.kinematics import geometry
 from solver._kernels.krawczyk import W_SIZE, krawczyk, newton_on_path
@@ -13,16 +12,6 @@ from solver.baselines import NewtonSeparationTracker
 from solver.direct_kinematics import kernel_constants
 from solver.tracker_state import STATE_FLOATS
 from solver.trajectories import circle_path
-
-STEP = (0.02, 0.02, np.deg2rad(4.0))
-
-
-def coarse_map(model, posture):
-    b = default_bounds(model, STEP)
-    span = b[:, 1] - b[:, 0]
-    shape = (int(round(span[0] / STEP[0])) + 1, int(round(span[1] / STEP[1])) + 1, 90)
-    return MapTensor.build(model, posture, bounds=b, shape=shape, rule="aspect")
-
 
 @pytest.fixture(scope="module")
 def geo(model):

@@ -2,20 +2,11 @@
 import numpy as np
 import pytest
 
+from conftest import coarse_map
 from experiments.suite import default_suite, make_path, near_singular_circle
-from solver import (STATUS, Manipulator, MapTensor, SolverInputError, Tracker, TrackerError, TrackerState,
-                    circle_path, default_bounds, dk_all, ik, jacobians, wrap_angle)
+from solver import (STATUS, Manipulator, SolverInputError, Tracker, TrackerError, TrackerState, circle_path, dk_all,
+                    ik, jacobians, wrap_angle)
 from solver.baselines import BASELINES, NewtonTracker
-
-STEP = (0.02, 0.02, np.deg2rad(4.0))
-
-
-def coarse_map(model, posture, rule="aspect"):
-    b = default_bounds(model, STEP)
-    span = b[:, 1] - b[:, 0]
-    shape = (int(round(span[0] / STEP[0])) + 1, int(round(span[1] / STEP[1])) + 1, 90)
-    return MapTensor.build(model, posture, bounds=b, shape=shape, rule=rule)
-
 
 @pytest.fixture(scope="module")
 def maps(model):
