@@ -17,8 +17,9 @@ It prints every line the command writes to stderr with the seconds since it star
 - the same command again in the same clone (warm caches: what every later run costs);
 - with ``--tests``: the README's test command (``python -m pytest -q -n 2``) in the clone with the
   caches the first run left (cold for the test suite's own builds), then again (warm), each with
-  its wall time (targets: 8 and 5 minutes) and pytest's summary line (its whole output in
-  ``pytest-cold.txt`` and ``pytest-warm.txt`` of the work folder: ``--keep DIR`` keeps them).
+  its wall time (targets: 8 and 5 minutes) and pytest's summary line (its whole output, with the 40
+  slowest tests, in ``pytest-cold.txt`` and ``pytest-warm.txt`` of the work folder: ``--keep DIR``
+  keeps them).
 
 Numbers, no assertions; the machine's load average is printed (compiles take longer on a loaded
 machine).  Writes the section ``first_run`` of docs/benchmarks.md and its headline rows.
@@ -107,7 +108,8 @@ def main(argv=None) -> None:
             for label, target in (("cold", TESTS_COLD), ("warm", TESTS_WARM)):
                 print(f"python -m pytest -q -n 2 ({label}):", flush=True)
                 log = work / f"pytest-{label}.txt"
-                t, _, code, _ = timed_run([sys.executable, "-m", "pytest", "-q", "-n", "2", "-p", "no:cacheprovider"], clone, env,
+                t, _, code, _ = timed_run([sys.executable, "-m", "pytest", "-q", "-n", "2", "-p", "no:cacheprovider",
+                                           "--durations=40"], clone, env,
                                           echo=False, stdout=log)
                 print(f"  {t / 60:.1f} min, exit {code}: " + log.read_text().strip().splitlines()[-1], flush=True)
                 rows.append((f"the README's test command, {label} (exit {code})", f"{t / 60:.1f} min",
