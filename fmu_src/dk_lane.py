@@ -25,9 +25,9 @@ import math
 
 import numpy as np
 
-from . import kernel_cache
+from . import kernel_locator
 
-kernel_cache.install()    # before the first import of solver: its kernels find the FMU's shipped cache
+kernel_locator.install()    # before the first import of solver: its kernels find the FMU's shipped cache
 
 from solver._kernels.c_entry import (IO_DONE, IO_EPISODE, IO_LAST_H, IO_LAST_Q, IO_NO_BOUND, IO_RATE,  # noqa: E402
                                      IO_SHARE, IO_SINCE_STEP, IO_SINCE_TIME, IO_STEPS, IO_TIME, SLOTS)

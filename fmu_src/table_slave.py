@@ -56,7 +56,7 @@ values: finite iff all are; the exact per-variable loop only when it is not, to 
 culprit).  ``fmi2Set*``/``fmi2Get*`` take one dictionary lookup per value reference
 (:mod:`fmu_src.value_access`).
 Compiled kernels of bundled packages are cached on disk per FMU content
-(:mod:`fmu_src.kernel_cache`, installed when this module is imported).
+(:mod:`fmu_src.kernel_cache`; :mod:`fmu_src.kernel_locator`, installed when this module is imported).
 
 Rules for slave scripts: import only the runtime of ``fmu_src`` (``table_slave``, ``variables``,
 ``slave_state``, ``dk_variables``; the host side is not bundled); keep module-level code to imports and the class
@@ -89,7 +89,7 @@ from typing import Any, ClassVar
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
 from pythonfmu.enums import Fmi2Status
 
-from . import kernel_cache, kernel_warmup
+from . import kernel_cache, kernel_locator, kernel_warmup
 from .fmi_states import (ERROR, INITIALIZATION_MODE, INSTANTIATED, STEP_COMPLETE, STEP_FAILED, TERMINATED, FmiStates,
                          behind_loader)
 from .slave_state import StateHandling, values_getter
@@ -97,7 +97,7 @@ from .value_access import ValueAccess
 from .value_checks import _IN_PAR, _OUT, ValueChecks
 from .variables import CAUSALITIES, INITIALS, VARIABILITIES, TableError, Var, check_table
 
-kernel_cache.install()
+kernel_locator.install()
 
 __all__ = ["Var", "TableSlave", "StepRefused", "TableError", "check_table"]
 

@@ -309,8 +309,8 @@ KERNEL = "from numba import njit\n\n@njit(cache=True)\ndef thrice(x):\n    retur
 #: argv: resources folder; calls the bundle's kernel, prints the compiled kernels and the announcements
 TINY = textwrap.dedent(r"""
     import json, logging, sys
-    from fmu_src import kernel_cache
-    kernel_cache.install()
+    from fmu_src import kernel_cache, kernel_locator
+    kernel_locator.install()
     from numba.core import event
     compiled = []
     class Compiles(event.Listener):

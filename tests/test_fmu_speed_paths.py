@@ -17,7 +17,7 @@ import pytest
 import dynamics  # noqa: F401  (before any FMU: the FMUs then use the host's packages)
 from cosim import Scenario
 from cosim.loop.results import COLUMNS, FLAG_COLUMNS
-from fmu_src import kernel_cache, slave_state
+from fmu_src import kernel_cache, kernel_locator, slave_state
 from fmu_src.fmi_states import STEP_COMPLETE, STEP_FAILED
 from fmu_src.table_slave import StepRefused, TableSlave, Var
 
@@ -261,10 +261,10 @@ def test_bundle_kernels_are_cached_by_content_wherever_extracted(tmp_path, monke
     import numba.core.caching as caching
 
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
-    kernel_cache.install()
+    kernel_locator.install()
     impl = getattr(caching, "CacheImpl", None) or caching._CacheImpl
     assert sum(getattr(c, "_rrr_dk_bundle_locator", False) for c in impl._locator_classes) == 1
-    kernel_cache.install()                              # idempotent
+    kernel_locator.install()                              # idempotent
     assert sum(getattr(c, "_rrr_dk_bundle_locator", False) for c in impl._locator_classes) == 1
 
     first, second = _bundle(tmp_path / "a"), _bundle(tmp_path / "b")  # the same content, two folders
