@@ -65,7 +65,8 @@ _CHILD = r"""
 import importlib.util, sys, time
 sys.path.insert(0, sys.argv[1])
 import fmu_src.kernel_cache as cache
-cache.install()
+import fmu_src.kernel_locator as locator
+locator.install()
 from solver._kernels.c_entry import entry
 key = cache.bundle_key(sys.argv[1])
 start = time.perf_counter()
