@@ -172,7 +172,11 @@ def bundle_key(resources: str) -> str:
 def _same_kernels(inside: str, resources: str, other: str) -> bool:
     """Whether the kernels of the folder ``inside`` (relative to ``resources``) are the same code in the
     bundle ``other``: the same bytes in that folder and in the kernel folders of the packages it
-    imports (:data:`KERNEL_ORDER`)."""
+    imports (:data:`KERNEL_ORDER`; ``tests/test_kernel_stamp.py`` holds the kernel folders to importing
+    nothing else of the project).  It compares the two bundles' copies: in a process that imported
+    ``solver`` from an FMU of another build than ``dynamics`` (FMUs of two versions of this code), a
+    ``dynamics`` kernel's callees are not the copies compared; numba's user cache keyed by the bundle
+    has the same limit."""
     inside = inside.replace(os.sep, "/")
     package = inside.split("/")[0]
     before = KERNEL_ORDER[:KERNEL_ORDER.index(package)] if package in KERNEL_ORDER else ()

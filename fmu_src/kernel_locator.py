@@ -100,8 +100,11 @@ def shipped_folders(locator):
             continue
         seen.add(resources)
         folder = os.path.join(resources, SHIPPED, locator.inside)
-        if os.path.isdir(folder) and _same_kernels(locator.inside, locator.resources, resources):
-            yield folder, bundle_key(resources)
+        try:
+            if os.path.isdir(folder) and _same_kernels(locator.inside, locator.resources, resources):
+                yield folder, bundle_key(resources)
+        except OSError:                      # a bundle being deleted while it is read: not a source
+            continue
 
 
 def _live_bundles():

@@ -108,7 +108,15 @@ def run_script(paths, detector: Path | None = None, import_first: bool = False) 
     proc = subprocess.run([sys.executable, "-c", code, *map(str, paths)], capture_output=True, text=True,
                           timeout=900, cwd=str(REPO), env=detector_env(detector))
     assert "script end" in proc.stdout, proc.stderr[-3000:]
+    _checked(proc, detector)
     return proc
+
+
+def _checked(proc: subprocess.CompletedProcess, detector: Path | None) -> None:
+    """A run under the detector that exited 0 did check at exit (its line on stderr): not a check that
+    never ran (a program's fflush(NULL) would run it early)."""
+    if detector is not None and proc.returncode == 0:
+        assert "freed blocks intact (at exit)" in proc.stderr, proc.stderr[-2000:]
 
 
 def reproduce(paths, runs: int, import_first: bool = False) -> collections.Counter:
@@ -130,6 +138,7 @@ def fmpy_simulate(fmu: Path, workdir: Path, detector: Path | None = None) -> sub
     proc = subprocess.run([*cmd, "simulate", str(fmu), "--stop-time", "0.05", "--output-file", str(out)],
                           capture_output=True, text=True, timeout=900, cwd=str(workdir), env=detector_env(detector))
     assert proc.returncode != 0 or out.is_file(), proc.stderr[-2000:]
+    _checked(proc, detector)
     return proc
 
 
@@ -140,7 +149,8 @@ def fmus(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def detector(tmp_path_factory):
-    return compile_detector(tmp_path_factory.mktemp("detector"))
+    """The detector library, or None without a C compiler (the plain runs still run)."""
+    return None if CC is None else compile_detector(tmp_path_factory.mktemp("detector"))
 
 
 def _without_the_fix(fmu: Path, out: Path) -> Path:
@@ -177,22 +187,21 @@ def test_the_detector_catches_the_crash_every_time_without_the_loaders_fix(fmus,
         assert "was written after free() (byte 8 is 0x10, not 0x11)" in proc.stderr, proc.stderr[-2000:]
 
 
-@needs_cc
 @pytest.mark.parametrize("which", ["all three", "RRRPlant"])
 def test_a_plain_fmpy_script_exits_cleanly(fmus, detector, which, record_property):
-    """The reproducer writes no freed block (the detector) and exits 0 as a user runs it (before the
-    loader's fix the plant alone aborted in 37 of 100 runs, all three in 3 of 100)."""
+    """The reproducer writes no freed block (the detector, with a C compiler) and exits 0 as a user runs it
+    (before the loader's fix the plant alone aborted in 37 of 100 runs, all three in 3 of 100)."""
     paths = list(fmus.values()) if which == "all three" else [fmus[which]]
-    statuses = {kind: run_script(paths, lib).returncode for kind, lib in (("detector", detector), ("plain", None))}
+    runs = (("detector", detector), ("plain", None)) if detector else (("plain", None),)
+    statuses = {kind: run_script(paths, lib).returncode for kind, lib in runs}
     record_property("exit_statuses", statuses)
-    assert statuses == {"detector": 0, "plain": 0}, statuses
+    assert statuses == {kind: 0 for kind, _ in runs}, statuses
 
 
-@needs_cc
 @pytest.mark.parametrize("name", NAMES)
 def test_plain_fmpy_simulate_exits_cleanly(fmus, detector, name, tmp_path):
-    """``fmpy simulate <FMU>`` (fmpy's command line) writes no freed block and exits 0."""
-    for lib in (detector, None):
+    """``fmpy simulate <FMU>`` (fmpy's command line) writes no freed block (with a C compiler) and exits 0."""
+    for lib in (detector, None) if detector else (None,):
         proc = fmpy_simulate(Path(fmus[name]), tmp_path, lib)
         assert proc.returncode == 0, (lib, proc.returncode, proc.stderr[-2000:])
 

@@ -25,21 +25,24 @@ NAMES = ("RRRDirectKinematics", "RRRPlant", "ComputedTorqueController")
 
 #: argv: FMU, extraction folder, (optional) manifest text to put in place of the shipped one.
 #: Prints the kernels numba compiled, the host log's messages and where ``solver`` came from.
-CHILD = textwrap.dedent(r"""
-    import json, os, stat, sys
-
+#: the children's first lines: ``compiled``, the kernels numba compiles in this (host) process (their
+#: qualified names) once ``listen()`` was called
+LISTEN = textwrap.dedent(r"""
     compiled = []
 
-    def listen():                                      # numba's compile events of this (host) process
+    def listen():
         from numba.core import event
 
         class Compiles(event.Listener):
             def on_start(self, ev):
-                f = ev.data["dispatcher"].py_func
-                compiled.append(f"{f.__module__}.{f.__qualname__}")
+                compiled.append(ev.data["dispatcher"].py_func.__qualname__)
             def on_end(self, ev):
                 pass
         event.register("numba:compile", Compiles())
+""")
+
+CHILD = LISTEN + textwrap.dedent(r"""
+    import json, os, stat, sys
 
     late = os.environ.get("COLD_LATE_LISTENER") == "1"  # a host that has not imported numba when it instantiates
     if not late:
@@ -222,21 +225,12 @@ def test_a_host_without_numba_imported_still_compiles_in_a_child(fmus, tmp_path)
 
 #: argv: FMUs.  Runs each in turn as ``fmpy.simulate_fmu`` does (extract, instantiate, steps, free,
 #: delete the extraction) in one process; prints each instance's fast-lane steps and numba's compiles.
-SEQUENCE = textwrap.dedent(r"""
+SEQUENCE = LISTEN + textwrap.dedent(r"""
     import gc, json, shutil, sys
-    from numba.core import event
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
-    compiled = []
-
-    class Compiles(event.Listener):
-        def on_start(self, ev):
-            compiled.append(ev.data["dispatcher"].py_func.__qualname__)
-        def on_end(self, ev):
-            pass
-
-    event.register("numba:compile", Compiles())
+    listen()
     steps = []
     for path in sys.argv[1:]:
         md = read_model_description(path)
@@ -307,18 +301,11 @@ def test_what_the_fmu_carries(fmus):
 KERNEL = "from numba import njit\n\n@njit(cache=True)\ndef thrice(x):\n    return 3.0 * x\n"
 
 #: argv: resources folder; calls the bundle's kernel, prints the compiled kernels and the announcements
-TINY = textwrap.dedent(r"""
+TINY = LISTEN + textwrap.dedent(r"""
     import json, logging, sys
     from fmu_src import kernel_cache, kernel_locator
     kernel_locator.install()
-    from numba.core import event
-    compiled = []
-    class Compiles(event.Listener):
-        def on_start(self, ev):
-            compiled.append(ev.data["dispatcher"].py_func.__qualname__)
-        def on_end(self, ev):
-            pass
-    event.register("numba:compile", Compiles())
+    listen()
     class Slave:                                   # what kernel_cache.attach needs of a pythonfmu slave
         def __init__(self, resources):
             self.resources, self.said = resources, []

@@ -5,6 +5,7 @@ module kept its old machine code after that module changed (a CI cache kept betw
 with "cannot assign slice of shape (0,) from input of shape (3,)").  A small kernel package in a
 temporary folder, run in fresh processes, shows the stamp at work.
 """
+import ast
 import os
 import subprocess
 import sys
@@ -87,3 +88,29 @@ def test_the_key_covers_every_module_of_the_folder_and_its_dependencies(tmp_path
     there = os.path.join(os.path.dirname(dynamics._kernels.__file__), "")
     assert cache_stamp._FOLDERS[here] == (here,)
     assert cache_stamp._FOLDERS[there] == (there, here)
+
+
+#: what a kernel folder may import of the project: itself and the kernel folders before it (solver's before dynamics')
+KERNEL_FOLDERS = {"solver": ("solver._kernels",), "dynamics": ("dynamics._kernels", "solver._kernels")}
+PROJECT = ("solver", "dynamics", "fmu_src", "cosim", "experiments")
+
+
+def test_kernel_modules_import_only_the_kernel_folders_their_keys_cover():
+    """Both caches of compiled kernels key a kernel on the bytes of its ``_kernels`` folder and of the kernel
+    folders before it (``cache_stamp``'s ``depends_on``; ``fmu_src.kernel_cache``'s per-folder keys, which let an
+    FMU load another FMU's shipped kernels): a kernel module that imported a constant from elsewhere in the
+    project would bake it into machine code those keys do not cover."""
+    wrong = []
+    for package, allowed in KERNEL_FOLDERS.items():
+        for path in sorted((ROOT / package / "_kernels").glob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.ImportFrom) and node.level == 1:
+                    continue                                   # the same folder
+                names = ([node.module or ""] if isinstance(node, ast.ImportFrom) and node.level == 0 else
+                         [a.name for a in node.names] if isinstance(node, ast.Import) else
+                         [f"{'.' * node.level}{node.module or ''}"] if isinstance(node, ast.ImportFrom) else [])
+                for name in names:
+                    if name.startswith(".") or (name.split(".")[0] in PROJECT
+                                                and not any(name == a or name.startswith(a + ".") for a in allowed)):
+                        wrong.append(f"{path.relative_to(ROOT)}:{node.lineno}: {name}")
+    assert not wrong, wrong
