@@ -161,7 +161,7 @@ def fmu_rows(build_dir, path, q, tol, speed, stuck, shares, dt) -> list:
     of the communication step: (share, wall seconds (n - 1,), CPU seconds, certain (n - 1,))."""
     from fmpy.fmi2 import fmi2Boolean, fmi2Real, fmi2True
 
-    from cosim.fmus.builds import build_fmus
+    from cosim.fmus.fmu_set import build_fmus
     from cosim.unit import FMUUnit
 
     fmu_path = build_fmus(build_dir)["RRRDirectKinematics"]

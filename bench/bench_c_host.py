@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cosim.fmus.builds import build_fmus
+from cosim.fmus.fmu_set import build_fmus
 from report import publish, table            # bench/ is on sys.path when a script there runs
 from solver import Manipulator, MapTensor, Tracker, circle_path, ik
 

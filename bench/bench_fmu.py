@@ -2,7 +2,7 @@
 
     python bench/bench_fmu.py [--build-dir build] [--n 1000] [--passes 7]
 
-The three FMUs are built into ``--build-dir`` first if missing (:func:`cosim.fmus.builds.build_fmus`).
+The three FMUs are built into ``--build-dir`` first if missing (:func:`cosim.fmus.fmu_set.build_fmus`).
 The host imports ``solver`` and ``dynamics`` before loading the FMUs (as any host that runs them
 repeatedly should), so the FMUs run this process's compiled kernels.  The machine is shared: every
 figure is a median, and each FMU pass alternates with an in-process pass over the same inputs, so
@@ -41,7 +41,7 @@ import numpy as np
 import dynamics  # noqa: F401  (first: the FMUs then use the host's packages)
 import fmu3_step
 import solver
-from cosim.fmus.builds import build_fmus
+from cosim.fmus.fmu_set import build_fmus
 from cosim.unit import FMUUnit, exit_process
 from solver import Manipulator, MapTensor, Tracker, circle_path
 

@@ -128,7 +128,7 @@ def main(argv=None) -> int:
     ap.add_argument("--fmi2-reset", type=int, default=0, help="fmi2Reset calls on one DK instance (part 2)")
     args = ap.parse_args(argv)
 
-    from cosim.fmus.builds import build_fmus
+    from cosim.fmus.fmu_set import build_fmus
 
     print(f"machine: {os.uname().machine}, {os.cpu_count()} cores, python {sys.version.split()[0]}, "
           f"load average {os.getloadavg()[0]:.2f}")

@@ -21,7 +21,7 @@ __all__ = ["fmu3_path", "compare"]
 
 def fmu3_path(build_dir) -> Path:
     """``<build_dir>/fmi3/RRRDirectKinematics.fmu``, built first if missing or stale."""
-    from cosim.fmus.builds import is_stale
+    from cosim.fmus.fmu_set import is_stale
     from cosim.fmus.fmi3_build import DK3_FILE, DK3_NAME, build_dk3
     from cosim.fmus.sources import slave_script
 

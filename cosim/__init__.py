@@ -22,7 +22,8 @@ Sub-packages, one concern each:
 Import direction: this package imports :mod:`solver`, :mod:`dynamics`, :mod:`fmu_src`, fmpy,
 pythonfmu, libcosimpy and (in :mod:`cosim.batch` only) dask; nothing in those imports it.
 """
-from cosim.fmus.builds import FMU_NAMES, build_fmus
+from cosim.fmus.builds import FMU_NAMES
+from cosim.fmus.fmu_set import build_fmus
 from cosim.unit import FMUUnit, exit_process, fmus_loaded, remove_extracted
 
 from .loop.master import ClosedLoop, simulate_fig3

@@ -10,7 +10,7 @@ Runs the default scenario (the robot starts at rest on the circle and follows it
 1 ms step, Gauss-Seidel master; options below change it); ``--robot FILE`` runs the loop of the robot
 that file describes (docs/robots.md) on its own reference circle, writes ``<out>/closed_loop.csv`` and the
 plots in ``<out>/figures/``, and prints the tracking metrics.  The FMUs are built into
-``--build-dir`` by :func:`cosim.fmus.builds.build_fmus` when missing or stale, and packed with the
+``--build-dir`` by :func:`cosim.fmus.fmu_set.build_fmus` when missing or stale, and packed with the
 closed loop's system structure into ``<build-dir>/RRRClosedLoop.ssp``.
 """
 from __future__ import annotations
@@ -20,7 +20,7 @@ import sys
 from dataclasses import asdict
 from pathlib import Path
 
-from cosim.fmus.builds import build_fmus
+from cosim.fmus.fmu_set import build_fmus
 from cosim.fmus.robot_build import loop_robot
 from solver.progress import phase
 from cosim.unit import exit_process

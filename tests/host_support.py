@@ -2,7 +2,7 @@
 test_c_host.py, test_host_life.py).
 
 * :func:`session_fmus`: the three FMUs (DK map 40 mm / 6 deg), built once per test session into the
-  session's temporary folder (:func:`cosim.fmus.builds.build_fmus` reuses what is there).
+  session's temporary folder (:func:`cosim.fmus.fmu_set.build_fmus` reuses what is there).
 * :func:`run_python`: a script in a child process (an FMU host of its own: the child loads the
   FMUs, not this process), with its exit status, stdout and stderr.
 * The C host (``tests/c_host/fmi2_host.c``, no Python in its process): :func:`compile_host`,
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cosim.fmus.builds import build_fmus
+from cosim.fmus.fmu_set import build_fmus
 
 #: the coarse map of the tests (fast to build; the tracker's answers do not depend on it)
 RESOLUTION = (0.04, float(np.deg2rad(6.0)))

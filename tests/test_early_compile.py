@@ -262,12 +262,12 @@ def test_a_background_build_lowers_its_own_priority_only():
     import subprocess
     import sys
 
-    from cosim.fmus import builds
+    from cosim.fmus import early_compile, fmu_set
 
-    code = "import os; from cosim.fmus.builds import lower_priority; a = os.nice(0); lower_priority(); print(a, os.nice(0))"
+    code = "import os; from cosim.fmus.early_compile import lower_priority; a = os.nice(0); lower_priority(); print(a, os.nice(0))"
     before, after = map(int, subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                                             cwd=Path(__file__).resolve().parents[1]).stdout.split())
-    assert after == min(before + builds.BACKGROUND_NICE, 19)
+    assert after == min(before + early_compile.BACKGROUND_NICE, 19)
     assert os.nice(0) == before
-    assert "--background" in builds._build_args("RRRPlant", Path("out"), None, None, background=True)
-    assert "--background" not in builds._build_args("RRRPlant", Path("out"), None, None)
+    assert "--background" in fmu_set._build_args("RRRPlant", Path("out"), None, None, background=True)
+    assert "--background" not in fmu_set._build_args("RRRPlant", Path("out"), None, None)

@@ -497,7 +497,8 @@ def test_an_fmu_is_stale_when_any_module_it_bundles_changes(tmp_path):
     or than the build code, and keeps a newer one."""
     import os
 
-    from cosim.fmus.builds import is_stale, project_packages
+    from cosim.fmus.builds import project_packages
+    from cosim.fmus.fmu_set import is_stale
     from cosim.fmus.packaging import bundled_files
     from cosim.fmus.sources import SLAVE_DIR, slave_script
 

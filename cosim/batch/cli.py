@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from cosim.fmus.builds import build_fmus, parse_resolution
+from cosim.fmus.builds import parse_resolution
+from cosim.fmus.fmu_set import build_fmus
 from cosim.fmus.robot_build import loop_robot
 from cosim.unit import exit_process
 

@@ -16,7 +16,7 @@ After the entry point the child compiles the kernels the tracker's Python side c
 They call the entry point's callees, which this process has typed already; the warm-up, another
 process, would type them all again (5.5 s here; the warm-up took 29.7 s when it compiled them, 1.1-1.6 s
 now).  And on a first build of this code
-(:func:`pending`) :func:`cosim.fmus.builds.build_fmus` runs its other builds at a lower priority
+(:func:`pending`) :func:`cosim.fmus.fmu_set.build_fmus` runs its other builds at a lower priority
 (``BACKGROUND_NICE``), so that this child keeps a core: it is the longest step of that build.
 
 The warm-up still decides what an FMU ships (every kernel its runs call); this only fills the store
@@ -48,7 +48,7 @@ except ImportError:                     # pragma: no cover - Windows: no early c
 
 __all__ = ["ENTRY", "EarlyCompile", "Waiting", "begin", "pending", "lower_priority", "BACKGROUND_NICE"]
 
-#: How much :func:`cosim.fmus.builds.build_fmus`' children lower their priority (``os.nice``) beside the DK's
+#: How much :func:`cosim.fmus.fmu_set.build_fmus`' children lower their priority (``os.nice``) beside the DK's
 #: early compile, the longest step of a first build of the DK's code: the plant's and controller's builds from their start, the
 #: DK's own once that compile has begun (its map and warm-up), so that the compile keeps a core of its own.
 #: (10: a task at nice 0 then gets about nine tenths of a core it shares with one of them; 19 measured the
@@ -138,7 +138,7 @@ class EarlyCompile:
 
 
 class Waiting:
-    """Another process (a build beside this one, or the :func:`cosim.fmus.builds.build_fmus` that started
+    """Another process (a build beside this one, or the :func:`cosim.fmus.fmu_set.build_fmus` that started
     this build) compiles the model's C entry point: :meth:`finish` waits for it."""
 
     def __init__(self, model: str, lock_path: Path):
@@ -206,7 +206,7 @@ def lower_priority() -> None:
 def pending(script: Path, project_packages, root: Path | None = None) -> bool:
     """Whether a build of ``script`` is a first build of its code: its bundle has the C entry point and the
     store holds no warm-up of its key (then the build compiles the entry point beside the map).  What
-    :func:`cosim.fmus.builds.build_fmus` asks before it lowers its other builds' priority (cheap: no
+    :func:`cosim.fmus.fmu_set.build_fmus` asks before it lowers its other builds' priority (cheap: no
     scenario, no kernel); False when it cannot tell."""
     try:
         files, key = _bundle(Path(script), project_packages)
