@@ -119,15 +119,14 @@ def _live_bundles():
 
 def _load_shipped(cache, caching, sig, target_context):
     """The shipped entry of ``sig`` for ``cache`` (a numba ``Cache`` of a bundle kernel), or None."""
-    locator = cache._impl.locator
-    folders = list(shipped_folders(locator))
-    if not folders:                          # (a build's warm-up: nothing shipped yet; the key costs a pickle)
-        return None
-    sig_key, (triple, _cpu, _features), code = cache._index_key(sig, target_context.codegen())
-    for folder, stamp in folders:
+    key = None
+    for folder, stamp in shipped_folders(cache._impl.locator):    # lazily: the bundle's own folder first
+        if key is None:                      # (a build's warm-up has no folder: the key costs a pickle)
+            sig_key, (triple, _cpu, _features), code = cache._index_key(sig, target_context.codegen())
+            key = (sig_key, (triple, GENERIC_CPU, ""), code)
         files = caching.IndexDataCacheFile(cache_path=folder, filename_base=cache._impl.filename_base,
                                            source_stamp=stamp)
-        data = files.load((sig_key, (triple, GENERIC_CPU, ""), code))
+        data = files.load(key)
         if data is not None:
             return cache._impl.rebuild(target_context, data)
     return None

@@ -152,10 +152,11 @@ def _robot(args):
     return robot
 
 
-def _build(args, robot=None) -> int:
-    """Step 1 (see the module docstring); the exit status."""
+def _build(args, robot=None) -> tuple[int, dict]:
+    """Step 1 (see the module docstring); the exit status and what was built ({FMU name: the DK's
+    :class:`BuildResult` or the path of the plant's or controller's FMU})."""
     status = 0
-    args.built = {}
+    built = {}
     for name in args.only:
         if name == DK_NAME:
             resolution = None if args.resolution is None else parse_resolution(args.resolution)
@@ -168,13 +169,13 @@ def _build(args, robot=None) -> int:
                   f"{sorted(result.maps)} (start {result.posture}), mode {result.mode}; built in "
                   f"{result.seconds:.1f} s (maps {result.map_seconds:.1f} s)")
             problems = result.problems
-            args.built[name] = result
+            built[name] = result
         else:
             t0 = time.perf_counter()
             if args.background:
                 lower_priority()
             fmu = build_slave(name, args.out, robot=robot)
-            args.built[name] = fmu
+            built[name] = fmu
             print(f"{fmu}: {fmu.stat().st_size / 1e6:.3f} MB; built in {time.perf_counter() - t0:.1f} s")
             problems = []                          # build_slave validates (BuildError on a problem)
         if problems:
@@ -182,19 +183,19 @@ def _build(args, robot=None) -> int:
             status = 1
         else:
             print("validation: OK (fmpy.validation + cosim.fmus.checks.validate report nothing)")
-    return status
+    return status, built
 
 
-def _reusable(args) -> dict:
-    """The FMUs step 1 built with the reference runs' options (the paper's robot; the DK of posture 1 alone
-    at the reference resolution, mode and rule), which step 2 runs instead of building them again."""
+def _reusable(args, built: dict) -> dict:
+    """Of ``built`` (step 1's), the FMUs built with the reference runs' options (the paper's robot; the DK of
+    posture 1 alone at the reference resolution, mode and rule), which step 2 runs instead of building them
+    again."""
     from .references import REFERENCE
 
-    built = dict(getattr(args, "built", {}))
+    built = dict(built)
     dk = built.get(DK_NAME)
     if dk is not None:
-        same = (not args.map and sorted(dk.maps) == [REFERENCE["posture"]] and dk.posture == REFERENCE["posture"]
-                and dk.mode == REFERENCE["mode"] and args.rule == REFERENCE["rule"]
+        same = (not args.map and sorted(dk.maps) == [REFERENCE["posture"]] and dk.mode == REFERENCE["mode"] and args.rule == REFERENCE["rule"]
                 and args.resolution is not None
                 and all(abs(a - b) <= 1e-12 * b for a, b in zip(parse_resolution(args.resolution),
                                                                 REFERENCE["resolution"])))
@@ -255,9 +256,9 @@ def main(argv=None, default_out="build") -> int:
         if args.write_reference:
             _references(args.out, _KEPT)
             return 0
-        status = _build(args, robot)
+        status, built = _build(args, robot)
         if status == 0 and not args.no_reference:
-            _references(args.out, Path(args.out) / "reference", _reusable(args))
+            _references(args.out, Path(args.out) / "reference", _reusable(args, built))
         if status == 0 and args.ssp:
             status = _ssp(args.out)
     except (ValueError, MapTensorFileError, RuntimeError) as exc:
