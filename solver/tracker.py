@@ -149,7 +149,6 @@ import numpy as np
 from ._kernels import layout as _lay
 from ._kernels.anytime import ANY_CUT, ANY_SIZE, walk_floats
 from ._kernels.clock import cycles_per_second
-from ._kernels.stepper import tracker_track
 from .checks import SolverInputError
 from .grid import default_bounds
 from .manipulator import Manipulator
@@ -375,9 +374,9 @@ class Tracker(CEntry, _TrackerBase):
 
     def _loop(self, qs, k0, a, X, Xp, info_f, info_i, bound, since, cut, cyc):
         budget = 0.0 if self.step_budget is None else self.step_budget * cycles_per_second()
-        tracker_track(self._mode, self._rule, qs, k0, budget, a, self._state_pack, self._model_pack,
-                      self._sample_to_sextic, self._labels, self._map_pack, self._stencil, self._params,
-                      self._out_real, self._out_int, self._anytime, X, Xp, info_f, info_i, bound, since, cut, cyc)
+        assert a is self._flat
+        self._stream(qs, k0, budget, dict(X=X, X_pred=Xp, info_f=info_f, info_i=info_i, bound=bound, since=since,
+                                          cut=cut, cycles=cyc))
 
     def _walk(self):
         n = walk_floats(self._anytime)

@@ -3,8 +3,8 @@
 
 Every step of a tracker is one call of the same machine code: in process through ctypes (the joints,
 the time step and the deadline written into the tracker's scalars ``io``, one call of four scalars
-instead of a 17-argument numba dispatch), and from a C caller (the DK FMU's loader) directly, on
-the same flat state.  The table that the entry point reads holds the addresses of the tracker's
+instead of a 17-argument numba dispatch), a whole stream of :meth:`solver.Tracker.track` in one call,
+and from a C caller (the DK FMU's loader) directly, on the same flat state.  The table that the entry point reads holds the addresses of the tracker's
 arrays, which live as long as the tracker.
 """
 from __future__ import annotations
@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from ._kernels.anytime import ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON
-from ._kernels.c_entry import (CMD_ADVANCE, CMD_PACKED, IO_DEADLINE, IO_DONE, IO_DT, IO_SIZE, entry, make_table,
-                               set_rows)
+from ._kernels.c_entry import (CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_BUDGET, IO_DEADLINE, IO_DONE, IO_DT, IO_K0,
+                               IO_SIZE, entry, make_table, set_rows, stream_table)
 from .tracker_state import TrackerError
 from ._kernels.state_layout import STATE_FLOATS
 
@@ -57,6 +57,17 @@ class CEntry:
         if io[IO_DONE] != 1.0:
             self._failed()
         return since
+
+    def _stream(self, qs, k0, budget, arrays: dict) -> None:
+        """Steps to the joints ``qs[k0:]`` ((n, 3) rad, C-contiguous) in one call of the entry point, each with
+        a budget of ``budget`` cycles (0.0: none), into the rows ``k0``.. of the stream's result ``arrays``
+        (:func:`solver._kernels.c_entry.stream_table`)."""
+        table = stream_table(self._table, dict(qs=qs, **arrays))
+        io = self._io
+        io[IO_K0], io[IO_BUDGET] = k0, budget
+        (self._call or self._entry())(table.ctypes.data, CMD_TRACK, 0.0, 0.0)
+        if io[IO_DONE] != 1.0:
+            self._failed()
 
     def _failed(self):
         """A compiled kernel raised inside the entry point (numba printed it): the step's data is not

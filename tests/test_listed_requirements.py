@@ -7,7 +7,8 @@ bundled code needs at run time, also those it loads without an import statement 
 
 For each FMU (the DK, plant and controller of the session, and the 3-RPR's DK) a virtual environment
 under ``build/listed-host-<digest of the list>`` holds fmpy (this environment's version) and the
-FMU's list, nothing of the project (made once, reused while the list and fmpy are the same).  The
+FMU's list, nothing of the project (made once, reused while the list's requirements and fmpy are the
+same: the two DK FMUs share one, the plant and the controller another).  The
 C host's call sequence (``tests/c_host/fmi2_host.c``: instantiate, start values, initialization, 100
 steps on a moving input, terminate, free) runs through fmpy in that environment and through the C
 host with ``$RRR_DK_PYTHON`` pointing at it; both exit 0 and their outputs equal those of this
@@ -52,7 +53,9 @@ def fmus(tmp_path_factory):
 
 
 def _listed_python(text: str) -> Path:
-    """A virtual environment with fmpy and the requirements ``text`` only (made once per list)."""
+    """A virtual environment with fmpy and the requirements ``text`` only (made once per list of
+    requirements: FMUs whose lists differ only in their comments share one)."""
+    text = "".join(line.split("#")[0].strip() + "\n" for line in text.splitlines() if line.split("#")[0].strip())
     digest = hashlib.sha256((text + FMPY).encode()).hexdigest()[:12]
     venv = REPO / "build" / f"listed-host-{digest}"
     python = venv / "bin" / "python"

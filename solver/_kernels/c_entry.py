@@ -10,6 +10,9 @@ the rows ``T_*``), so the same machine code serves
   (through ctypes: one call of three scalars instead of a 17-argument numba dispatch);
 - :data:`CMD_PACKED`: the step of a caller that wrote the state and anytime packs itself (the
   TrackerState path, :meth:`solver.TrackerState.pack`);
+- :data:`CMD_TRACK`: a whole stream (what :meth:`solver.Tracker.track` calls once): the steps to the joints
+  ``qs[k:]`` for ``k`` from ``io[IO_K0]``, each with a budget of ``io[IO_BUDGET]`` cycles (0: none), into
+  the rows of the stream's result arrays (:func:`.stepper.record`); returns the number of steps;
 - :data:`CMD_PUBLISH`: a *guarded* step a C host (the DK FMU's loader) takes at time ``t`` over ``h``
   seconds: the joints are read from a value array at the slots ``SLOT_Q*``, the step's outputs are
   written to the value arrays at the other slots (:data:`SLOTS`), and the step is *undone* (the flat
@@ -22,8 +25,8 @@ and return 0; ``io[IO_DONE]`` then stays 0.0, which every caller checks: :meth:`
 raises, the loader's lane takes the step on the Python path from the committed state.
 
 The one entry point is also what keeps the step's machine code compiled, cached and shipped once:
-:func:`.stepper.tracker_advance` is compiled into this function only (and into the stream loops,
-which FMUs never call).
+:func:`.stepper.tracker_advance` is compiled into this function only: a stream, an in-process step and an
+FMU's step run the same machine code, compiled once.
 
 Shapes are fixed by the table: a C caller cannot hand a wrong array to the kernels, it can only
 hand a wrong address, which is why the table is built here from live numpy arrays and kept with them.
@@ -39,22 +42,22 @@ from numba import carray, cfunc, njit, types
 from .anytime import ANY_CUT
 from .clock import cycles
 from .pointers import address_pointer
-from .layout import (F_COND, I_AMBIGUOUS, I_CERTAIN, I_LABEL, I_N_REAL, I_NEAR_BORDER, I_STATUS, I_TRUST, OUT_BOUND,
-                     OUT_INFO, OUT_X)
-from .stepper import copy_state, tracker_advance
+from .layout import (F_COND, I_AMBIGUOUS, I_CERTAIN, I_LABEL, I_N_REAL, I_NEAR_BORDER, I_STATUS, I_TRUST, INFO_F_SIZE,
+                     INFO_I_SIZE, OUT_BOUND, OUT_INFO, OUT_X)
+from .stepper import copy_state, record, tracker_advance
 
-__all__ = ["entry", "make_table", "CMD_ADVANCE", "CMD_PACKED", "CMD_PUBLISH", "FALL_BACK", "PUBLISHED", "IO_SIZE", "SLOTS",
+__all__ = ["entry", "make_table", "stream_table", "CMD_ADVANCE", "CMD_PACKED", "CMD_PUBLISH", "CMD_TRACK", "FALL_BACK", "PUBLISHED", "IO_SIZE", "SLOTS",
            "N_ARRAYS"]
 
-CMD_ADVANCE, CMD_PACKED, CMD_PUBLISH = 0, 1, 2
+CMD_ADVANCE, CMD_PACKED, CMD_PUBLISH, CMD_TRACK = 0, 1, 2, 3
 #: What a :data:`CMD_PUBLISH` step returns when it undid itself (the caller takes the step its own way),
 #: and when it published (anything else, 0 from a cfunc whose kernel raised included, is not published).
 FALL_BACK, PUBLISHED = 1, 2
 
 # the arrays of the table, 4 int64 each: address, then up to three dimensions
 (T_A, T_PK, T_MODEL, T_S2S, T_LABELS, T_MAP, T_STENCIL, T_PARAMS, T_OUT_REAL, T_OUT_INT, T_ANYTIME, T_IO, T_BACKUP,
- T_REAL, T_INT, T_BOOL, T_SLOTS) = range(17)
-N_ARRAYS = 17
+ T_REAL, T_INT, T_BOOL, T_SLOTS, T_QS, T_XS, T_XS_PRED, T_INFO_F, T_INFO_I, T_BOUNDS, T_SINCE, T_CUT, T_CYCLES) = range(26)
+N_ARRAYS = 26
 T_MODE, T_RULE = 4 * N_ARRAYS, 4 * N_ARRAYS + 1      # two integers after the arrays
 TABLE_SIZE = 4 * N_ARRAYS + 2
 
@@ -65,7 +68,8 @@ IO_SINCE_STEP, IO_SINCE_TIME = 8, 9                  # publish, in/out: the unce
 IO_TIME, IO_NO_BOUND, IO_STEPS = 10, 11, 12          # publish, out: t + h; in: the bound of no bound; out: count
 IO_DONE = 13                                         # out: 1.0 when the call ran to its end (0.0: it raised)
 IO_LAST_Q, IO_LAST_H = 14, 17                        # publish, out: joints (3) and h of the last published step
-IO_SIZE = 18
+IO_K0, IO_BUDGET = 18, 19                            # track, in: the first row to step, each step's budget (cycles)
+IO_SIZE = 20
 
 #: The slots of a published step: value references in the caller's value arrays (float64 ``real``,
 #: int32 ``integer``, int32 ``boolean``), in this order.
@@ -128,6 +132,35 @@ def _publish(tb, t, h, a, pk, model, s2s, labels, mp, stencil, params, out_real,
     return PUBLISHED
 
 
+@njit(cache=False)                  # compiled into the entry point only
+def _track(tb, a, pk, model, s2s, labels, mp, stencil, params, out_real, out_int, anytime, io, packed):
+    """The stream of :data:`CMD_TRACK` (see the module doc): the number of steps taken."""
+    n = tb[4 * T_QS + 1]
+    qs = carray(address_pointer(tb[4 * T_QS]), (n, 3), np.float64)
+    X = carray(address_pointer(tb[4 * T_XS]), (n, 3), np.float64)
+    X_pred = carray(address_pointer(tb[4 * T_XS_PRED]), (n, 3), np.float64)
+    info_f = carray(address_pointer(tb[4 * T_INFO_F]), (n, tb[4 * T_INFO_F + 2]), np.float64)
+    info_i = carray(address_pointer(tb[4 * T_INFO_I]), (n, tb[4 * T_INFO_I + 2]), np.int64)
+    bound = carray(address_pointer(tb[4 * T_BOUNDS]), (n, 3), np.float64)
+    since_out = carray(address_pointer(tb[4 * T_SINCE]), (n,), np.int64)
+    cut_out = carray(address_pointer(tb[4 * T_CUT]), (n,), np.bool_)
+    cyc = carray(address_pointer(tb[4 * T_CYCLES]), (n,), np.int64)
+    k0, budget = int(io[IO_K0]), io[IO_BUDGET]
+    q = io[IO_Q:IO_Q + 3]           # the step's arguments typed as CMD_ADVANCE's: tracker_advance compiles once
+    for k in range(k0, n):
+        for i in range(3):
+            q[i] = qs[k, i]
+        c0 = cycles()
+        io[IO_DT] = math.nan
+        io[IO_DEADLINE] = float(c0) + budget if budget > 0.0 else 0.0
+        since = tracker_advance(tb[T_MODE], tb[T_RULE], q, io[IO_DT], io[IO_DEADLINE], a, pk, model, s2s, labels, mp,
+                                stencil, params, out_real, out_int, anytime, packed)
+        c1 = cycles()
+        cut = io[IO_DEADLINE] > 0.0 and out_int[I_CERTAIN] == 0 and anytime[ANY_CUT] > 0.0
+        record(k, out_real, out_int, since, cut, c0, c1, X, X_pred, info_f, info_i, bound, since_out, cut_out, cyc)
+    return max(n - k0, 0)
+
+
 def _step(table, cmd, t, h):
     """The entry point's body (module doc)."""
     tb = carray(table, (TABLE_SIZE,), np.int64)
@@ -149,6 +182,11 @@ def _step(table, cmd, t, h):
         if tb[4 * T_SLOTS] == 0:
             return FALL_BACK
         r = _publish(tb, t, h, a, pk, model, s2s, labels, mp, stencil, params, out_real, out_int, anytime, io)
+    elif cmd == CMD_TRACK:
+        if tb[4 * T_CYCLES] == 0:
+            return 0
+        r = _track(tb, a, pk, model, s2s, labels, mp, stencil, params, out_real, out_int, anytime, io,
+                   cmd == CMD_PACKED)                    # a typed False, as the call below
     else:
         r = tracker_advance(tb[T_MODE], tb[T_RULE], io[IO_Q:IO_Q + 3], io[IO_DT], io[IO_DEADLINE], a, pk, model, s2s,
                             labels, mp, stencil, params, out_real, out_int, anytime, cmd == CMD_PACKED)
@@ -179,7 +217,8 @@ def make_table(mode: int, rule: int, arrays: dict) -> np.ndarray:
     """The table (TABLE_SIZE,) int64 of :func:`entry` for a tracker's ``arrays`` (name -> array: ``a``,
     ``pk``, ``model``, ``s2s``, ``labels``, ``map``, ``stencil``, ``params``, ``out_real``, ``out_int``,
     ``anytime``, ``io``, ``backup``; a publishing caller adds ``real``, ``integer``, ``boolean``, ``slots``
-    with :func:`set_rows`).  The caller keeps the arrays alive as long as the table."""
+    with :func:`set_rows`, a tracking one ``qs``, ``X``, ``X_pred``, ``info_f``, ``info_i``, ``bound``,
+    ``since``, ``cut``, ``cycles``).  The caller keeps the arrays alive as long as the table."""
     table = np.zeros(TABLE_SIZE, dtype=np.int64)
     set_rows(table, arrays)
     table[T_MODE], table[T_RULE] = int(mode), int(rule)
@@ -189,10 +228,25 @@ def make_table(mode: int, rule: int, arrays: dict) -> np.ndarray:
 _ROWS = {"a": T_A, "pk": T_PK, "model": T_MODEL, "s2s": T_S2S, "labels": T_LABELS, "map": T_MAP,
          "stencil": T_STENCIL, "params": T_PARAMS, "out_real": T_OUT_REAL, "out_int": T_OUT_INT,
          "anytime": T_ANYTIME, "io": T_IO, "backup": T_BACKUP, "real": T_REAL, "integer": T_INT, "boolean": T_BOOL,
-         "slots": T_SLOTS}
+         "slots": T_SLOTS, "qs": T_QS, "X": T_XS, "X_pred": T_XS_PRED, "info_f": T_INFO_F, "info_i": T_INFO_I,
+         "bound": T_BOUNDS, "since": T_SINCE, "cut": T_CUT, "cycles": T_CYCLES}
 _DTYPES = {"labels": np.int8, "stencil": np.int64, "out_int": np.int64, "integer": np.int32, "boolean": np.int32,
-           "slots": np.int64}
-_NDIM = {"s2s": 3, "labels": 3, "stencil": 2}
+           "slots": np.int64, "info_i": np.int64, "since": np.int64, "cut": np.bool_, "cycles": np.int64}
+_NDIM = {"s2s": 3, "labels": 3, "stencil": 2, "qs": 2, "X": 2, "X_pred": 2, "info_f": 2, "info_i": 2, "bound": 2}
+
+
+def stream_table(table: np.ndarray, arrays: dict) -> np.ndarray:
+    """A copy of ``table`` whose stream rows (:data:`CMD_TRACK`) point at ``arrays``: ``qs``, ``X``, ``X_pred``,
+    ``bound`` (n, 3), ``info_f`` (n, INFO_F_SIZE), ``info_i`` (n, INFO_I_SIZE) int64, ``since`` and ``cycles``
+    (n,) int64, ``cut`` (n,) bool; the row counts are checked against ``qs``'s, which the loop reads."""
+    n = arrays["qs"].shape[0]
+    for name, array in arrays.items():
+        cols = {"info_f": INFO_F_SIZE, "info_i": INFO_I_SIZE}.get(name, 3)
+        if array.shape[:1] != (n,) or (array.ndim == 2 and array.shape[1] != cols):
+            raise ValueError(f"stream table {name!r}: expected shape ({n}, {cols}) or ({n},), got {array.shape}")
+    out = table.copy()
+    set_rows(out, arrays)
+    return out
 
 
 def set_rows(table: np.ndarray, arrays: dict) -> None:

@@ -4,8 +4,9 @@ The tracker's data is one flat array (:mod:`.state_layout`, the same floats as
 :meth:`solver.TrackerState.as_array`).  :func:`pack_state` writes the state pack a step reads
 (:mod:`.layout` ``STATE_*``), :func:`advance_state` writes the next state from the step's result pack
 into the same array, and :func:`tracker_advance` / :func:`baseline_advance` do the three in one call:
-the Python of a step is then the argument checks and one call.  :func:`tracker_track` /
-:func:`baseline_track` run a whole stream in a compiled loop.
+the Python of a step is then the argument checks and one call.  The tracker's stream loop is the C
+entry point's (:mod:`.c_entry`, ``CMD_TRACK``: the step compiled once); :func:`baseline_track` runs a
+baseline's stream in a compiled loop.
 
 These are :meth:`solver.TrackerState.pack` and :meth:`solver.TrackerState.after` (the stuck-joint
 detector off), float for float: the suites' results are bit-identical whichever runs
@@ -17,7 +18,7 @@ import math
 
 from numba import njit
 
-from .anytime import ANY_CUT, ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON, walk_floats
+from .anytime import ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON, walk_floats
 from .baselines import baseline_step
 from .certify import CERT_CONTINUATION, CERT_REACQUIRED
 from .clock import cycles
@@ -221,7 +222,7 @@ def advance_state(a, q, dt, out_real, out_int, anytime, walks):
     return since
 
 
-@njit(cache=False)  # compiled into its callers: the C entry point (c_entry) and the stream loop
+@njit(cache=False)  # compiled into its one caller, the C entry point (c_entry)
 def tracker_advance(mode, rule, q, dt, deadline, a, pk, model_pack, sample_to_sextic, labels, map_pack, stencil,
                     params, out_real, out_int, anytime, packed):
     """One tracker step (:func:`.tracker.tracker_step`) from the flat state ``a``, advanced in place:
@@ -231,9 +232,9 @@ def tracker_advance(mode, rule, q, dt, deadline, a, pk, model_pack, sample_to_se
 
     ``packed``: the caller wrote the state pack ``pk`` and the anytime pack (the step of a
     :class:`solver.TrackerState` object, :meth:`solver.TrackerState.pack`): only the step runs, ``a`` is
-    not read nor written (returns 0).  Compiled into its callers only (``cache=False``): the C entry point
-    :func:`.c_entry.entry`, which every step of a :class:`solver.Tracker` and the DK FMU's loader call,
-    and the stream loop :func:`tracker_track`; its machine code is cached and shipped inside them.
+    not read nor written (returns 0).  Compiled into its one caller only (``cache=False``): the C entry
+    point :func:`.c_entry.entry`, which every step and stream of a :class:`solver.Tracker` and the DK
+    FMU's loader call; its machine code is cached and shipped inside it.
     """
     if packed:
         tracker_step(mode, rule, q, pk, model_pack, sample_to_sextic, labels, map_pack, stencil, params, out_real,
@@ -280,26 +281,11 @@ def record(k, out_real, out_int, since, cut, c0, c1, X, X_pred, info_f, info_i, 
 
 
 @njit(cache=True)
-def tracker_track(mode, rule, qs, k0, budget, a, pk, model_pack, sample_to_sextic, labels, map_pack, stencil, params,
-                  out_real, out_int, anytime, X, X_pred, info_f, info_i, bound, since_out, cut_out, cyc):
-    """Tracker steps to the joints ``qs[k0:]`` ((n, 3) rad) from the flat state ``a`` (at ``qs[k0 - 1]``), each
-    with a budget of ``budget`` cycles (0.0: none); rows ``k0``.. of the result arrays (:func:`record`)."""
-    packed = k0 < 0                 # False, typed bool: a literal False would compile tracker_advance again
-    for k in range(k0, qs.shape[0]):
-        c0 = cycles()
-        deadline = float(c0) + budget if budget > 0.0 else 0.0
-        since = tracker_advance(mode, rule, qs[k], math.nan, deadline, a, pk, model_pack, sample_to_sextic, labels,
-                                map_pack, stencil, params, out_real, out_int, anytime, packed)
-        c1 = cycles()
-        cut = deadline > 0.0 and out_int[I_CERTAIN] == 0 and anytime[ANY_CUT] > 0.0
-        record(k, out_real, out_int, since, cut, c0, c1, X, X_pred, info_f, info_i, bound, since_out, cut_out, cyc)
-
-
-@njit(cache=True)
 def baseline_track(kind, rule, qs, k0, a, pk, model_pack, sample_to_sextic, params, out_real, out_int, X, X_pred,
                    info_f, info_i, bound, since_out, cut_out, cyc):
-    """Baseline steps to the joints ``qs[k0:]`` (n, 3) from the flat state ``a``; as :func:`tracker_track`."""
-    packed = k0 < 0                 # False, typed bool (see tracker_track)
+    """Baseline steps to the joints ``qs[k0:]`` ((n, 3) rad) from the flat state ``a`` (at ``qs[k0 - 1]``); rows
+    ``k0``.. of the result arrays (:func:`record`)."""
+    packed = k0 < 0                 # False, typed bool: a literal False would compile baseline_advance again
     for k in range(k0, qs.shape[0]):
         c0 = cycles()
         since = baseline_advance(kind, rule, qs[k], math.nan, a, pk, model_pack, sample_to_sextic, params,
