@@ -9,6 +9,7 @@ from solver import Tracker, circle_path, ik
 from solver.baselines import BASELINES
 from solver.checks import SolverInputError
 from solver.tracker_state import TrackerError, TrackerState
+from solver._kernels.layout import INFO_F_SIZE, INFO_I_SIZE
 
 from conftest import coarse_map
 
@@ -239,3 +240,22 @@ def test_a_copied_or_pickled_tracker_steps_on_its_own_arrays(model, coarse_map1)
     assert np.array_equal(canonical[0], canonical[1], equal_nan=True)
     assert np.array_equal(canonical[0], canonical[2], equal_nan=True)
     assert not np.array_equal(before, np.asarray(tr.snapshot()))
+
+
+def test_the_stream_table_refuses_result_arrays_shorter_than_the_stream(model, coarse_map1):
+    """The stream loop reads every row count from the joints' array: a result array of another length
+    (or width) would be written past its end, so the table refuses it, naming it."""
+    from solver._kernels.c_entry import stream_table
+    tr = Tracker(model, coarse_map1)
+    n = 5
+    arrays = dict(qs=np.zeros((n, 3)), X=np.zeros((n, 3)), X_pred=np.zeros((n, 3)), bound=np.zeros((n, 3)),
+                  info_f=np.zeros((n, INFO_F_SIZE)), info_i=np.zeros((n, INFO_I_SIZE), dtype=np.int64),
+                  since=np.zeros(n, dtype=np.int64), cut=np.zeros(n, dtype=np.bool_), cycles=np.zeros(n, dtype=np.int64))
+    table = stream_table(tr._table, arrays)
+    assert table[0] == tr._table[0] and table is not tr._table
+    with pytest.raises(ValueError, match=r"'X_pred': expected shape \(5, 3\)"):
+        stream_table(tr._table, dict(arrays, X_pred=np.zeros((n - 1, 3))))
+    with pytest.raises(ValueError, match=r"'info_i': expected shape \(5, 12\)"):
+        stream_table(tr._table, dict(arrays, info_i=np.zeros((n, 3), dtype=np.int64)))
+    with pytest.raises(ValueError, match="'cut': expected a 1-D bool array"):
+        stream_table(tr._table, dict(arrays, cut=np.zeros(n)))
