@@ -52,12 +52,12 @@ R_FAILED, R_DONE, R_PENDING = 0, 1, 2
 
 @njit(cache=False)
 def reacquire_target(chosen, certified, keep, poses, real, params, state, qu, model_pack, Xc, region):
-    """The solution to re-acquire: the one the certificates kept (``certified``, ``keep`` (6,)) or else
-    ``chosen``; when that one is outside the region or in another posture (the choice went onto
-    another branch, or the joints and the region disagree), the one real solution (``poses`` (6, 3)
-    complex, ``real`` (6,)) inside the region in the tracker's posture, if there is exactly one.  Its
-    pose into ``Xc`` (3,) and the region (6,) that holds the robot into ``region``.  Returns its
-    index, or -1 (the region is empty, or no solution qualifies)."""
+    """The solution to re-acquire: the one real solution (``poses`` (6, 3) complex, ``real`` (6,); or the
+    one the certificates kept, ``certified``, ``keep`` (6,), else ``chosen``) inside the region that
+    holds the robot in the tracker's posture, if there is exactly one.  Its pose into ``Xc`` (3,) and
+    the region (6,) into ``region``.  Returns its index, or -1: the region is empty, no solution
+    qualifies, or two do (near a fold, where two assembly modes of the posture meet: no proof can
+    single one out there, and the search that would fail is not begun)."""
     reacquire_region(params, state, region)
     target = chosen
     if certified:                                  # the branch along the measured joints
@@ -68,24 +68,20 @@ def reacquire_target(chosen, certified, keep, poses, real, params, state, qu, mo
         return -1
     M, l1, l2sq, b = geometry(model_pack)
     posture = int(params[PARAM_POSTURE_BITS])
-    for i in range(3):
-        Xc[i] = poses[target, i].real
-    if elbow_bits(Xc, qu, M, l1, b) == posture and in_region(Xc, region):
-        return target
-    target = -1                                    # the one solution the region leaves, if one
-    for k in range(6):
-        if not real[k]:
-            continue
+    found = -1                                     # the one solution the region leaves in the posture, if one:
+    for k in range(6):                             # with two, no proof can single one out (each would have to
+        if not (real[k] or k == target):           # be alone in its tube or in the eliminant's phi range), so
+            continue                               # the re-acquisition that would fail is not begun
         for i in range(3):
             Xc[i] = poses[k, i].real
         if elbow_bits(Xc, qu, M, l1, b) == posture and in_region(Xc, region):
-            if target >= 0:
+            if found >= 0:
                 return -1
-            target = k
-    if target >= 0:
+            found = k
+    if found >= 0:
         for i in range(3):
-            Xc[i] = poses[target, i].real
-    return target
+            Xc[i] = poses[found, i].real
+    return found
 
 
 @njit(cache=False)
