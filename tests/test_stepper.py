@@ -259,3 +259,5 @@ def test_the_stream_table_refuses_result_arrays_shorter_than_the_stream(model, c
         stream_table(tr._table, dict(arrays, info_i=np.zeros((n, 3), dtype=np.int64)))
     with pytest.raises(ValueError, match="'cut': expected a 1-D bool array"):
         stream_table(tr._table, dict(arrays, cut=np.zeros(n)))
+    with pytest.raises(ValueError, match=r"missing \['bound'\]"):
+        stream_table(tr._table, {k: v for k, v in arrays.items() if k != "bound"})

@@ -46,8 +46,8 @@ from .layout import (F_COND, I_AMBIGUOUS, I_CERTAIN, I_LABEL, I_N_REAL, I_NEAR_B
                      INFO_I_SIZE, OUT_BOUND, OUT_INFO, OUT_X)
 from .stepper import copy_state, record, tracker_advance
 
-__all__ = ["entry", "make_table", "stream_table", "CMD_ADVANCE", "CMD_PACKED", "CMD_PUBLISH", "CMD_TRACK", "FALL_BACK", "PUBLISHED", "IO_SIZE", "SLOTS",
-           "N_ARRAYS"]
+__all__ = ["entry", "make_table", "stream_table", "CMD_ADVANCE", "CMD_PACKED", "CMD_PUBLISH", "CMD_TRACK", "FALL_BACK",
+           "PUBLISHED", "IO_SIZE", "SLOTS", "N_ARRAYS"]
 
 CMD_ADVANCE, CMD_PACKED, CMD_PUBLISH, CMD_TRACK = 0, 1, 2, 3
 #: What a :data:`CMD_PUBLISH` step returns when it undid itself (the caller takes the step its own way),
@@ -233,12 +233,16 @@ _ROWS = {"a": T_A, "pk": T_PK, "model": T_MODEL, "s2s": T_S2S, "labels": T_LABEL
 _DTYPES = {"labels": np.int8, "stencil": np.int64, "out_int": np.int64, "integer": np.int32, "boolean": np.int32,
            "slots": np.int64, "info_i": np.int64, "since": np.int64, "cut": np.bool_, "cycles": np.int64}
 _NDIM = {"s2s": 3, "labels": 3, "stencil": 2, "qs": 2, "X": 2, "X_pred": 2, "info_f": 2, "info_i": 2, "bound": 2}
+_STREAM_ROWS = ("qs", "X", "X_pred", "info_f", "info_i", "bound", "since", "cut", "cycles")
 
 
 def stream_table(table: np.ndarray, arrays: dict) -> np.ndarray:
     """A copy of ``table`` whose stream rows (:data:`CMD_TRACK`) point at ``arrays``: ``qs``, ``X``, ``X_pred``,
     ``bound`` (n, 3), ``info_f`` (n, INFO_F_SIZE), ``info_i`` (n, INFO_I_SIZE) int64, ``since`` and ``cycles``
     (n,) int64, ``cut`` (n,) bool; the row counts are checked against ``qs``'s, which the loop reads."""
+    missing = [name for name in _STREAM_ROWS if name not in arrays]
+    if missing:
+        raise ValueError(f"stream table: expected the arrays {list(_STREAM_ROWS)}, missing {missing}")
     n = arrays["qs"].shape[0]
     for name, array in arrays.items():
         cols = {"info_f": INFO_F_SIZE, "info_i": INFO_I_SIZE}.get(name, 3)
