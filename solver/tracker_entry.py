@@ -61,7 +61,10 @@ class CEntry:
     def _stream(self, qs, k0, budget, arrays: dict) -> None:
         """Steps to the joints ``qs[k0:]`` ((n, 3) rad, C-contiguous) in one call of the entry point, each with
         a budget of ``budget`` cycles (0.0: none), into the rows ``k0``.. of the stream's result ``arrays``
-        (:func:`solver._kernels.c_entry.stream_table`)."""
+        (:func:`solver._kernels.c_entry.stream_table`).  The call releases the GIL: another thread may run
+        meanwhile, but not on this tracker (a tracker is one thread's)."""
+        if not qs.flags.writeable:              # (the loop only reads it; the table takes writable rows)
+            qs = qs.copy()
         table = stream_table(self._table, dict(qs=qs, **arrays))
         io = self._io
         io[IO_K0], io[IO_BUDGET] = k0, budget

@@ -349,7 +349,8 @@ class _TrackerBase:
         out["seconds"][rows] = cyc[rows] / cycles_per_second()
 
     def _loop(self, qs, k0, a, X, Xp, info_f, info_i, bound, since, cut, cyc) -> None:  # pragma: no cover
-        """The compiled loop of :meth:`_track_compiled` (:mod:`._kernels.stepper`)."""
+        """The compiled loop of :meth:`_track_compiled` (the tracker's: one call of its C entry point,
+        :mod:`solver.tracker_entry`; the baselines': :func:`._kernels.stepper.baseline_track`)."""
         raise NotImplementedError
 
 

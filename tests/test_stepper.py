@@ -261,3 +261,15 @@ def test_the_stream_table_refuses_result_arrays_shorter_than_the_stream(model, c
         stream_table(tr._table, dict(arrays, cut=np.zeros(n)))
     with pytest.raises(ValueError, match=r"missing \['bound'\]"):
         stream_table(tr._table, {k: v for k, v in arrays.items() if k != "bound"})
+
+
+def test_track_takes_a_read_only_stream(model, coarse_map1):
+    """A stream the caller cannot write (a memory-mapped file, np.frombuffer) is tracked as a writable copy
+    would be: the compiled loop only reads it."""
+    X = circle_path(60)
+    q = ik(model, X, 1)
+    frozen = q.copy()
+    frozen.setflags(write=False)
+    a = Tracker(model, coarse_map1, start_tolerance=EXACT).track(frozen, X[0])
+    b = Tracker(model, coarse_map1, start_tolerance=EXACT).track(q, X[0])
+    assert np.array_equal(a.X, b.X) and np.array_equal(a.certain, b.certain) and a.certain.all()
