@@ -43,6 +43,7 @@ import sys
 import sysconfig
 import tempfile
 import warnings
+from functools import lru_cache
 from pathlib import Path
 from typing import Mapping
 
@@ -89,20 +90,27 @@ def compiler() -> str | None:
 
 def compile_loader(cc: str | None = None, files=LOADER_FILES) -> bytes:
     """The loader library, compiled from ``files`` (:data:`LOADER_FILES`: FMI 2.0, :data:`LOADER3_FILES`:
-    FMI 3.0); raises RuntimeError with the compiler's message on failure."""
+    FMI 3.0); raises RuntimeError with the compiler's message on failure.  Compiled once per process,
+    compiler and sources' bytes (the builds of a process share it: the same bytes every build)."""
     cc = cc or compiler()
     if cc is None:
         raise RuntimeError("no C compiler found (set $CC or install gcc)")
+    return _compiled(cc, tuple((Path(source).name, Path(source).read_bytes()) for source in files))
+
+
+@lru_cache(maxsize=16)
+def _compiled(cc: str, sources: tuple) -> bytes:
+    """:func:`compile_loader` of ``sources`` ((name, bytes), ...) with the compiler ``cc``."""
     with tempfile.TemporaryDirectory(prefix="fmu_src_native_") as tmp:
         work = Path(tmp) / "loader"                   # fixed relative names: the same bytes every build
         work.mkdir()
-        for source in files:
-            shutil.copyfile(source, work / source.name)
-        sources = [p.name for p in files if p.suffix == ".c"]
-        proc = subprocess.run([cc, *_FLAGS, "-o", "loader.so", *sources, *_LIBS], cwd=work,
+        for name, data in sources:
+            (work / name).write_bytes(data)
+        c_files = [name for name, _ in sources if name.endswith(".c")]
+        proc = subprocess.run([cc, *_FLAGS, "-o", "loader.so", *c_files, *_LIBS], cwd=work,
                               capture_output=True, text=True)
         if proc.returncode != 0:
-            raise RuntimeError(f"{cc} failed on {', '.join(sources)}:\n{proc.stderr.strip()}")
+            raise RuntimeError(f"{cc} failed on {', '.join(c_files)}:\n{proc.stderr.strip()}")
         return (work / "loader.so").read_bytes()
 
 

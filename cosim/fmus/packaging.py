@@ -26,8 +26,8 @@
 """
 from __future__ import annotations
 
-import ast
 import contextlib
+import functools
 import hashlib
 import importlib.machinery
 import importlib.util
@@ -45,6 +45,7 @@ from typing import Callable, Mapping, Sequence
 
 from fmu_src import requirements
 from .checks import validate
+from .imports import bundled_files, run_time_modules, third_party_modules
 from .native import loader_entries
 from .model_description import UNIT_DEFINITIONS, ModelDescriptionError, cross_check, model_description_xml
 from fmu_src.table_slave import TableSlave
@@ -61,95 +62,6 @@ _GUID_NAMESPACE = uuid.UUID("6f1c54d2-5b8e-4d67-9a4c-0d1f3e2a7b90")
 
 class BuildError(RuntimeError):
     """The slave or its FMU breaks a rule; the message says which."""
-
-
-def _module_file(name: str, packages: Mapping[str, Path]) -> Path | None:
-    """The source file of module ``name`` (``pkg.sub.mod``) if it belongs to one of ``packages``."""
-    top, *rest = name.split(".")
-    if top not in packages:
-        return None
-    base = packages[top].joinpath(*rest)
-    for path in (base / "__init__.py", base.with_suffix(".py")):
-        if path.is_file():
-            return path
-    return None
-
-
-def _imported_names(path: Path, module: str | None, is_package: bool) -> set[str]:
-    """Absolute names of every module an ``import`` statement of ``path`` may load (also in functions)."""
-    names = set()
-    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
-        if isinstance(node, ast.Import):
-            names.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                if module is None:
-                    continue                          # a relative import in a script: not ours to follow
-                parts = module.split(".") if is_package else module.split(".")[:-1]
-                parts = parts[:len(parts) - node.level + 1]
-                base = ".".join(parts + ([node.module] if node.module else []))
-            else:
-                base = node.module
-            names.add(base)
-            names.update(f"{base}.{alias.name}" for alias in node.names)    # ``from pkg import submodule``
-    return names
-
-
-def bundled_files(script: Path, packages: Mapping[str, Path]) -> dict[str, Path]:
-    """The modules of ``packages`` ({name: folder}) that ``script`` imports, directly or through them:
-    ``{path relative to resources: source file}``, every enclosing ``__init__.py`` included."""
-    out: dict[str, Path] = {}
-    todo = [(Path(script), None, False)]
-    while todo:
-        path, module, is_package = todo.pop()
-        for name in sorted(_imported_names(path, module, is_package)):
-            parts = name.split(".")
-            for n in range(1, len(parts) + 1):               # the package, its subpackages, the module
-                prefix = ".".join(parts[:n])
-                found = _module_file(prefix, packages)
-                if found is None:
-                    break
-                rel = found.relative_to(packages[parts[0]].parent).as_posix()
-                if rel not in out:
-                    out[rel] = found
-                    todo.append((found, prefix, found.name == "__init__.py"))
-    return dict(sorted(out.items()))
-
-
-#: numpy functions whose compiled (numba) form calls BLAS or LAPACK, which numba takes from scipy
-#: (``scipy.linalg.cython_blas``/``cython_lapack``) when the code runs, not when it is imported
-_BLAS_CALLS = frozenset({"dot", "vdot", "inner", "matmul", "linalg"})
-
-
-def _loads_blas(tree: ast.AST) -> bool:
-    """Whether a module's code uses the matrix product ``@`` or a numpy BLAS/LAPACK function."""
-    return any((isinstance(node, ast.BinOp) and isinstance(node.op, ast.MatMult))
-               or (isinstance(node, ast.Attribute) and node.attr in _BLAS_CALLS) for node in ast.walk(tree))
-
-
-def run_time_modules(path: Path) -> set[str]:
-    """The modules ``path`` needs at run time without importing them: scipy for a module that imports
-    numba and uses ``@``, ``np.dot`` or ``np.linalg`` (numba compiles them into calls of scipy's BLAS
-    and LAPACK: without scipy the first such call aborts the process with "Specified LAPACK function
-    could not be found")."""
-    names = _imported_names(Path(path), None, False)
-    if not any(n == "numba" or n.startswith("numba.") for n in names):
-        return set()
-    return {"scipy"} if _loads_blas(ast.parse(Path(path).read_text(), filename=str(path))) else set()
-
-
-def third_party_modules(files, local) -> dict[str, list[str]]:
-    """The top-level modules that ``files`` import, or load at run time (:func:`run_time_modules`), and
-    that are neither the standard library nor ``local`` (the bundled packages):
-    ``{module: [importing file names]}``."""
-    out: dict[str, set[str]] = {}
-    skip = set(sys.stdlib_module_names) | set(local) | {"__future__"}
-    for path in files:
-        for name in (*_imported_names(Path(path), None, False), *run_time_modules(Path(path))):
-            top = name.split(".")[0] if name else ""
-            if top and top not in skip:
-                out.setdefault(top, set()).add(Path(path).name)
-    return {k: sorted(v) for k, v in sorted(out.items())}
 
 
 def _normalized(dist: str) -> str:
@@ -177,6 +89,15 @@ def project_dependencies() -> dict[str, requirements.Requirement]:
     return {_normalized(r.dist): r for r in reqs}
 
 
+@functools.lru_cache(maxsize=1)
+def _providers() -> Mapping[str, list[str]]:
+    """``importlib.metadata.packages_distributions()``, read once per process (a few hundred ms: every
+    installed distribution's file list)."""
+    import importlib.metadata
+
+    return importlib.metadata.packages_distributions()
+
+
 def declared_requirements(modules: Mapping[str, list[str]]) -> list[requirements.Requirement]:
     """The requirement of each third-party module (``{module: importing files}``, see
     :func:`third_party_modules`): the project dependency that provides it, with its version range.
@@ -184,10 +105,8 @@ def declared_requirements(modules: Mapping[str, list[str]]) -> list[requirements
     Raises :class:`BuildError` for a module no project dependency provides (declare it in
     ``pyproject.toml``: the FMU's host must be told to install it).
     """
-    import importlib.metadata
-
     deps = project_dependencies()
-    providers = importlib.metadata.packages_distributions()
+    providers = _providers()
     out, unknown = [], []
     for module, files in modules.items():
         dists = [_normalized(d) for d in providers.get(module, [module])]
