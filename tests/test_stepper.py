@@ -250,7 +250,8 @@ def test_the_stream_table_refuses_result_arrays_shorter_than_the_stream(model, c
     n = 5
     arrays = dict(qs=np.zeros((n, 3)), X=np.zeros((n, 3)), X_pred=np.zeros((n, 3)), bound=np.zeros((n, 3)),
                   info_f=np.zeros((n, INFO_F_SIZE)), info_i=np.zeros((n, INFO_I_SIZE), dtype=np.int64),
-                  since=np.zeros(n, dtype=np.int64), cut=np.zeros(n, dtype=np.bool_), cycles=np.zeros(n, dtype=np.int64))
+                  since=np.zeros(n, dtype=np.int64), cut=np.zeros(n, dtype=np.bool_),
+                  cycles=np.zeros(n, dtype=np.int64))
     table = stream_table(tr._table, arrays)
     assert table[0] == tr._table[0] and table is not tr._table
     with pytest.raises(ValueError, match=r"'X_pred': expected shape \(5, 3\)"):
