@@ -17,7 +17,6 @@ project's environment (fmpy, a child process) to 1e-12.
 from __future__ import annotations
 
 import hashlib
-import os
 import shutil
 import subprocess
 import sys
@@ -52,10 +51,10 @@ def fmus(tmp_path_factory):
     return built
 
 
-def _listed_python(text: str) -> Path:
-    """A virtual environment with fmpy and the requirements ``text`` only (made once per list of
-    requirements: FMUs whose lists differ only in their comments share one)."""
-    text = "".join(line.split("#")[0].strip() + "\n" for line in text.splitlines() if line.split("#")[0].strip())
+def _listed_python(requirements: list) -> Path:
+    """A virtual environment with fmpy and ``requirements`` (:class:`fmu_src.requirements.Requirement`) only,
+    made once per set of them: FMUs whose lists differ only in their comments share one."""
+    text = "".join(f"{r.spec}\n" for r in requirements)
     digest = hashlib.sha256((text + FMPY).encode()).hexdigest()[:12]
     venv = REPO / "build" / f"listed-host-{digest}"
     python = venv / "bin" / "python"
@@ -84,9 +83,10 @@ def host(tmp_path_factory) -> Path:
 def test_a_host_with_exactly_the_listed_packages_runs_the_fmu(fmus, host, tmp_path, name):
     with zipfile.ZipFile(fmus[name]) as z:
         text = z.read(f"resources/{req.FILE}").decode()
-    listed = {r.module for r in req.parse_requirements(text)}
+    requirements = req.parse_requirements(text)
+    listed = {r.module for r in requirements}
     assert "scipy" in listed, f"{name}: numba's BLAS and LAPACK need scipy at run time, the FMU does not list it"
-    python = _listed_python(text)
+    python = _listed_python(requirements)
     absent = run_python("import importlib.util as u; print(u.find_spec('solver'), u.find_spec('rrr_dk'))",
                         python=python, cwd=tmp_path)
     assert absent.stdout.split() == ["None", "None"], "the listed host must not see the project"

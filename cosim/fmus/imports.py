@@ -102,10 +102,14 @@ def run_time_modules(path: Path) -> set[str]:
     numba and uses ``@``, ``np.dot`` or ``np.linalg`` (numba compiles them into calls of scipy's BLAS
     and LAPACK: without scipy the first such call aborts the process with "Specified LAPACK function
     could not be found")."""
-    names = _imported_names(Path(path), None, False)
+    return _run_time(Path(path), _imported_names(Path(path), None, False))
+
+
+def _run_time(path: Path, names: set[str]) -> set[str]:
+    """:func:`run_time_modules` of ``path``, whose imported ``names`` the caller has."""
     if not any(n == "numba" or n.startswith("numba.") for n in names):
         return set()
-    return {"scipy"} if _parsed(Path(path))[1] else set()
+    return {"scipy"} if _parsed(path)[1] else set()
 
 
 def third_party_modules(files, local) -> dict[str, list[str]]:
@@ -114,9 +118,10 @@ def third_party_modules(files, local) -> dict[str, list[str]]:
     ``{module: [importing file names]}``."""
     out: dict[str, set[str]] = {}
     skip = set(sys.stdlib_module_names) | set(local) | {"__future__"}
-    for path in files:
-        for name in (*_imported_names(Path(path), None, False), *run_time_modules(Path(path))):
+    for path in map(Path, files):
+        names = _imported_names(path, None, False)
+        for name in (*names, *_run_time(path, names)):
             top = name.split(".")[0] if name else ""
             if top and top not in skip:
-                out.setdefault(top, set()).add(Path(path).name)
+                out.setdefault(top, set()).add(path.name)
     return {k: sorted(v) for k, v in sorted(out.items())}
