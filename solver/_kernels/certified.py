@@ -93,9 +93,9 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
         anytime[ANY_R_ON] = 0.0
     if deadline > 0.0:
         sol, n_tubes, n_new, cert, intact, linked = budgeted(untrusted, state, work, poses, real, params, model_pack,
-                                                             new_cands, keep, tubes, anytime)
+                                                             new_cands, keep, tubes, anytime, bound)
     elif state[STATE_N_TUBES] > 0.0 and not untrusted:
-        sol, n_tubes = tube_step(state, work, poses, real, tol, model_pack, tubes)
+        sol, n_tubes = tube_step(state, work, poses, real, tol, model_pack, tubes, bound)
     if sol >= 0:
         n_new, cert, intact, linked = 1, CERT_TUBE, True, True
         for k in range(6):
@@ -156,8 +156,8 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
         zero = np.zeros(3)
         certain = tube_test(Xc, qu, zero, zero, M, l1, l2sq, b, tubes[0])
         n_tubes = 1
-    if certain and not boxed:
-        certain = pose_bound(tubes, n_tubes, qu, tol, Xc, bound)
+    if certain and not boxed and not (cert == CERT_TUBE and chosen == sol):     # (the tube chain's own: its
+        certain = pose_bound(tubes, n_tubes, qu, tol, Xc, bound)                 # bound is written already)
     if not certain:                            # (also an eliminant's bound about a solution not taken)
         for r in range(3):
             bound[r] = np.inf
@@ -181,21 +181,21 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
 
 
 @njit(cache=False)
-def budgeted(untrusted, state, work, poses, real, params, model_pack, new_cands, keep, tubes, anytime):
+def budgeted(untrusted, state, work, poses, real, params, model_pack, new_cands, keep, tubes, anytime, bound):
     """The tube chain and the chains of boxes of a step with a budget (the anytime pack's deadline).
 
     A walk from the last certain step's cover first (within :data:`WALK_SHARE` of the time left: it
     usually ends in a few tests); when it does not end, the chains of boxes (:func:`chains`, the
     choice; within :data:`CHAIN_SHARE` of the time left), then the walk on (a walk the last steps
     left goes on after the chains).  Returns (the tube chain's solution or -1, its tubes, then as
-    :func:`chains`; their candidates in ``new_cands``, ``keep``)."""
+    :func:`chains`; their candidates in ``new_cands``, ``keep``; the solution's pose bound in ``bound``)."""
     deadline = anytime[ANY_DEADLINE]
     sol, n_tubes = -1, 0
     n_new, cert, intact, linked = 0, CERT_NONE, False, False
     fresh = anytime[ANY_N] <= 0.0
     if fresh and not untrusted:
         sol, n_tubes = walk_step(state, work, poses, real, tol_of(params), model_pack, tubes, anytime, True,
-                                 share(deadline, WALK_SHARE))
+                                 share(deadline, WALK_SHARE), bound)
         if sol >= 0:
             return sol, n_tubes, n_new, cert, intact, linked
     measured = is_measured(params, model_pack)
@@ -204,7 +204,7 @@ def budgeted(untrusted, state, work, poses, real, params, model_pack, new_cands,
                                                  keep, anytime, True, share(deadline, chain_share))
     if not untrusted and (anytime[ANY_N] > 0.0 or not fresh):
         sol, n_tubes = walk_step(state, work, poses, real, tol_of(params), model_pack, tubes, anytime, not fresh,
-                                 share(deadline, 1.0 - REGION_SHARE) if measured else deadline)
+                                 share(deadline, 1.0 - REGION_SHARE) if measured else deadline, bound)
     if sol < 0 and anytime[ANY_K_ON] > 0.0 and not expired(deadline):     # the continuation on, with the rest
         n_new, cert, intact, linked = anytime_chains(untrusted, state, work, poses, real, params, model_pack,
                                                      new_cands, keep, anytime, False, deadline)
@@ -269,11 +269,12 @@ def is_measured(params, model_pack):
 
 
 @njit(cache=False)
-def tube_step(state, work, poses, real, tol, model_pack, tubes):
+def tube_step(state, work, poses, real, tol, model_pack, tubes, bound):
     """The tube chain (:func:`.tube_chain.tube_chain`) over this step's joints from the last step's cover
     (state pack), into ``tubes`` (MAX_COVER, TUBE_SIZE).  Returns (the index of the real DK solution
     that is the cover's solution at the measured joints, or -1 when the chain did not close; the
-    number of tubes of the new cover)."""
+    number of tubes of the new cover); that solution's pose bound (:func:`.tube_chain.pose_bound`) into
+    ``bound`` (3,)."""
     M, l1, l2sq, b = geometry(model_pack)
     n_old = int(state[STATE_N_TUBES])
     old = state[STATE_TUBE:STATE_TUBE + MAX_COVER * TUBE_SIZE].reshape((MAX_COVER, TUBE_SIZE))
@@ -281,11 +282,11 @@ def tube_step(state, work, poses, real, tol, model_pack, tubes):
                           M, l1, l2sq, b, tubes)
     if tests <= 0:
         return -1, 0
-    return cover_solution(tubes, n, work[STEP_QU:STEP_QU + 3], tol, poses, real), n
+    return cover_solution(tubes, n, work[STEP_QU:STEP_QU + 3], tol, poses, real, bound), n
 
 
 @njit(cache=False)
-def walk_step(state, work, poses, real, tol, model_pack, tubes, anytime, append, deadline):
+def walk_step(state, work, poses, real, tol, model_pack, tubes, anytime, append, deadline, bound):
     """The tube chain as a walk (a step budget, :mod:`.anytime`): the walk the last steps left, or a new
     one from the last step's cover (state pack), with this step's reading appended (``append``),
     walked on until the ``deadline``.  Returns as :func:`tube_step` (-1 also while the walk is
@@ -304,7 +305,7 @@ def walk_step(state, work, poses, real, tol, model_pack, tubes, anytime, append,
     status, n = walk_on(anytime, tol, TUBE_TESTS, deadline, M, l1, l2sq, b, tubes)
     if status != WALK_CLOSED:
         return -1, 0
-    return cover_solution(tubes, n, qu, tol, poses, real), n
+    return cover_solution(tubes, n, qu, tol, poses, real, bound), n
 
 
 @njit(cache=False)

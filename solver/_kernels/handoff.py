@@ -14,7 +14,7 @@ from numba import njit
 from .clock import expired
 from .krawczyk import PAD
 from .linalg import wrap
-from .tube import SLACK, TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_V, TUBE_W, TUBE_X, lin_bound, slab_test
+from .tube import SLACK, TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_T, TUBE_V, TUBE_W, TUBE_X, lin_bound, slab_test
 
 
 @njit(cache=True)
@@ -95,12 +95,36 @@ def takes_over(pieces, n, new, need, deadline=0.0):
 
 
 @njit(cache=True)
+def point_prior(pieces, n, xg, qc, need):
+    """The half-widths (3,) a tube of the single joint vector ``qc`` (3,) needs to take over from the
+    tubes ``pieces[:n]`` whose joint boxes hold ``qc``, raised in ``need`` (3,) to 1.25 times that.
+
+    Each such tube ``j`` holds one solution within ``kappa_j`` of its predictor at ``qc``, and the new
+    tube's centre ``x~`` is that solution (Newton from ``xg``, the predictor), so :func:`handoff` asks
+    for ``|x_j(qc) - x~| + kappa_j <= 2 kappa_j`` (with its rounding pads).  A tube test that starts
+    this wide passes the hand-off on its first run; from its own ``2 a`` it would fail it whenever
+    ``kappa_j`` is the wider (every step of the paper circle with exact joints: the reading's
+    tube then ran twice)."""
+    for j in range(n):
+        holds = True
+        for m in range(3):
+            holds = holds and abs(wrap(qc[m] - pieces[j, TUBE_Q + m])) <= pieces[j, TUBE_T + m] + PAD
+        if holds:
+            for r in range(3):
+                want = (2.0 * pieces[j, TUBE_K + r] * (1.0 + SLACK) + PAD * (1.0 + abs(xg[r])) + 1e-15) * 1.25
+                need[r] = max(need[r], want)
+
+
+@njit(cache=True)
 def tested_takeover(pieces, n, xg, qc, V, tw, tq, M, l1, l2sq, b, new, deadline=0.0):
     """A tube test of the joints ``qc + V w``, ``|w| <= tw``, within ``tq`` of ``qc`` (:func:`slab_test`, from the
     guess ``xg``) that also takes over from the tubes ``pieces[:n]`` (:func:`takes_over`): when the
     test passes but its tube is too narrow for a hand-off, it is tried once more with the
-    half-widths the hand-offs need (until the ``deadline``)."""
+    half-widths the hand-offs need (until the ``deadline``).  A single joint vector (``tq`` zero: the
+    exact reading of a tracker step) starts from :func:`point_prior`, so that its test runs once."""
     need = np.zeros(3)
+    if tq[0] == 0.0 and tq[1] == 0.0 and tq[2] == 0.0:
+        point_prior(pieces, n, xg, qc, need)
     if not slab_test(xg, qc, V, tw, tq, need, M, l1, l2sq, b, new):
         return False
     if takes_over(pieces, n, new, need, deadline):

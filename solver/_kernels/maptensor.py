@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit
 
 from .linalg import wrap
@@ -15,29 +16,54 @@ from .linalg import wrap
 
 @njit(cache=True)
 def near_mask_one(labels, origin, step, periodic, X, r2, w, stencil, out):
-    """Set ``out[l]`` (7,) true for every label l of a node within weighted distance^2 ``r2`` of X."""
+    """Set ``out[l]`` (7,) true for every label l of a node within weighted distance^2 ``r2`` of X.
+
+    ``stencil`` (S, 3) int: the node offsets tried from the cell of ``X``.  Each axis's weighted
+    squared distance (and the phi index, wrapped on a periodic map) is computed once per offset
+    value, not once per node (the stencil is a cube: 6 values an axis for 216 nodes); a node off
+    the grid gets NaN there, which no sum passes.  The same sums, in the same order, as node by node.
+    """
     for l in range(7):
         out[l] = False
     nx, ny, nphi = labels.shape
+    n = stencil.shape[0]
+    if n == 0:
+        return
     b0 = math.floor((X[0] - origin[0]) / step[0])
     b1 = math.floor((X[1] - origin[1]) / step[1])
     b2 = math.floor((X[2] - origin[2]) / step[2])
-    for s in range(stencil.shape[0]):
-        i = b0 + stencil[s, 0]
-        j = b1 + stencil[s, 1]
-        k = b2 + stencil[s, 2]
-        if i < 0 or i >= nx or j < 0 or j >= ny:
-            continue
+    lo0, hi0, lo1, hi1, lo2, hi2 = stencil[0, 0], stencil[0, 0], stencil[0, 1], stencil[0, 1], stencil[0, 2], stencil[0, 2]
+    for s in range(1, n):
+        lo0, hi0 = min(lo0, stencil[s, 0]), max(hi0, stencil[s, 0])
+        lo1, hi1 = min(lo1, stencil[s, 1]), max(hi1, stencil[s, 1])
+        lo2, hi2 = min(lo2, stencil[s, 2]), max(hi2, stencil[s, 2])
+    e0 = np.empty(hi0 - lo0 + 1)
+    e1 = np.empty(hi1 - lo1 + 1)
+    e2 = np.empty(hi2 - lo2 + 1)
+    kk = np.empty(hi2 - lo2 + 1, dtype=np.int64)
+    for o in range(lo0, hi0 + 1):
+        i = b0 + o
         dx = origin[0] + i * step[0] - X[0]
+        e0[o - lo0] = w[0] * dx * dx if 0 <= i < nx else np.nan
+    for o in range(lo1, hi1 + 1):
+        j = b1 + o
         dy = origin[1] + j * step[1] - X[1]
+        e1[o - lo1] = w[1] * dy * dy if 0 <= j < ny else np.nan
+    for o in range(lo2, hi2 + 1):
+        k = b2 + o
         dp = origin[2] + k * step[2] - X[2]
         if periodic:
             dp = wrap(dp)
             k = k % nphi
         elif k < 0 or k >= nphi:
-            continue
-        if w[0] * dx * dx + w[1] * dy * dy + w[2] * dp * dp <= r2:
-            out[labels[i, j, k]] = True
+            dp = np.nan
+            k = 0
+        e2[o - lo2] = w[2] * dp * dp
+        kk[o - lo2] = k
+    for s in range(n):
+        a, c, d = stencil[s, 0] - lo0, stencil[s, 1] - lo1, stencil[s, 2] - lo2
+        if e0[a] + e1[c] + e2[d] <= r2:
+            out[labels[b0 + stencil[s, 0], b1 + stencil[s, 1], kk[d]]] = True
 
 
 @njit(cache=True)

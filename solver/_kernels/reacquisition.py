@@ -38,7 +38,7 @@ from .krawczyk import PAD, TWO_PI
 from .layout import PARAM_JOINT_TOL, PARAM_POSTURE_BITS, PARAM_REACQUIRE
 from .linalg import turns_to, wrap
 from .tracker_packs import STEP_QU
-from .tube import TUBE_K, TUBE_Q, TUBE_SIZE, TUBE_T, TUBE_X, spread, tube_test
+from .tube import TUBE_K, TUBE_Q, TUBE_SIZE, TUBE_T, TUBE_X, predictor, spread, tube_test
 from .tube_chain import MAX_COVER, pose_bound
 
 #: Re-acquisition by tubes tries the first covers of :data:`.exclusion.EXCLUSION_COVERS`: the reading's
@@ -258,16 +258,29 @@ def reacquired_anytime(chosen, certified, state, work, poses, real, params, mode
 
 
 @njit(cache=False)
-def cover_solution(tubes, n, qu, tol, poses, real):
+def cover_solution(tubes, n, qu, tol, poses, real, bound=None):
     """The index of the real DK solution (``poses`` (6, 3) complex, ``real`` (6,)) that is the solution
-    of the cover ``tubes[:n]`` at the reading ``qu`` (3,), or -1."""
-    Xr, h = np.empty(3), np.empty(3)
+    of the cover ``tubes[:n]`` at the reading ``qu`` (3,), or -1; its :func:`.tube_chain.pose_bound`
+    into ``bound`` (3,) when given (untouched when -1).
+
+    The solutions are tried nearest first to the first tube's predictor at ``qu`` (the cover holds one
+    solution, so the order changes no answer; it saves the other solutions' bounds, each as dear as
+    the one kept)."""
+    Xr, h, p = np.empty(3), np.empty(3), np.empty(3)
+    predictor(tubes[0], qu, p)
+    dist = np.full(6, np.inf)
     for k in range(6):
         if real[k]:
-            for i in range(3):
-                Xr[i] = poses[k, i].real
-            if pose_bound(tubes, n, qu, tol, Xr, h):
-                return k
+            dist[k] = abs(poses[k, 0].real - p[0]) + abs(poses[k, 1].real - p[1]) + abs(wrap(poses[k, 2].real - p[2]))
+    for k in np.argsort(dist):
+        if not real[k]:
+            break
+        for i in range(3):
+            Xr[i] = poses[k, i].real
+        if pose_bound(tubes, n, qu, tol, Xr, h):
+            if bound is not None:
+                bound[:] = h
+            return k
     return -1
 
 

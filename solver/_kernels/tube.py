@@ -69,6 +69,14 @@ SLACK = 1e-9
 
 
 @njit(cache=False)
+def norm_up(x, y):
+    """An upper bound of ``sqrt(x^2 + y^2)``: the rounded formula (within 4.5e-16 relative of it) raised
+    by 1e-15 relative.  ``math.hypot`` is 3.5x as slow here (35 against 9.5 ns a call, measured), and a
+    tube test makes about 18 of them."""
+    return math.sqrt(x * x + y * y) * (1.0 + 1e-15)
+
+
+@njit(cache=False)
 def lin_bound(l0, l1_, l2, V, tw):
     """``max |l . V w|`` over ``|w| <= tw`` (3,): ``sum_n |l . V[:, n]| tw_n``, padded for rounding."""
     out = 0.0
@@ -144,8 +152,8 @@ def slab_test(xg, qc, V, tw, tq, rho_min, M, l1, l2sq, b, tube):
         k[i] = -2.0 * l1[i] * (e[i, 0] * eu[i, 0] + e[i, 1] * eu[i, 1])
         if l2sq[i] < 0.0:
             k[i] -= 2.0 * qc[i]
-        cn[i] = math.hypot(b[i, 0], b[i, 1])
-        en[i] = math.hypot(e[i, 0], e[i, 1])
+        cn[i] = norm_up(b[i, 0], b[i, 1])
+        en[i] = norm_up(e[i, 0], e[i, 1])
     C = np.empty((3, 3))
     if not inverse3(J, C):
         return False
@@ -235,7 +243,7 @@ def slab_test(xg, qc, V, tw, tq, rho_min, M, l1, l2sq, b, tube):
         for r in range(2):
             gt[i, r] = lin_bound2(G[i, r, 0], G[i, r, 1], G[i, r, 2], V, tw, t)
         r0 = cn[i] * phi0 * phi0 / 2.0 + l1[i] * t[i] * t[i] / 2.0 + PAD * phi0
-        beta[i] = 2.0 * en[i] * r0 + (math.hypot(gt[i, 0], gt[i, 1]) + r0) ** 2 + PAD * fscale[i]
+        beta[i] = 2.0 * en[i] * r0 + (norm_up(gt[i, 0], gt[i, 1]) + r0) ** 2 + PAD * fscale[i]
         if l2sq[i] < 0.0:
             beta[i] += t[i] * t[i]
         beta[i] += leg_slack(l2sq, i)          # the robot as built: F_i within sigma_i of 0 at its pose
@@ -258,7 +266,7 @@ def slab_test(xg, qc, V, tw, tq, rho_min, M, l1, l2sq, b, tube):
             ri = cn[i] * phi * phi / 2.0 + l1[i] * t[i] * t[i] / 2.0 + PAD * phi
             hx = rho[0] + abs(wv[i, 0]) * rho[2]
             hy = rho[1] + abs(wv[i, 1]) * rho[2]
-            d = math.hypot(gt[i, 0] + hx, gt[i, 1] + hy) + ri
+            d = norm_up(gt[i, 0] + hx, gt[i, 1] + hy) + ri
             rem[i, 0] = 2.0 * ri
             rem[i, 1] = 2.0 * ri
             rem[i, 2] = 2.0 * (ri * cn[i] + d * cn[i] * phi + en[i] * cn[i] * phi * phi / 2.0)

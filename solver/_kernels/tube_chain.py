@@ -29,6 +29,9 @@ from .tube import (MATCH_PAD, SLACK, TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_SIZE, 
 
 #: Tubes of the reading's own box, each taking over from the last, that tighten its bound.
 REFINE = 6
+#: A single joint vector's tube with kappa within this many rounding pads (:data:`.krawczyk.PAD`) of its
+#: coordinates is not refined (:func:`at_rounding`).
+ROUNDING_KAPPA = 64.0
 #: Most tubes one step's chain may hold (the pieces of the joint step and the reading's own box).
 MAX_PIECES = 200
 #: A joint box one tube cannot hold is split in 2**3, then 3**3 parts (a *cover*), each with its tube.
@@ -242,13 +245,27 @@ def tube_chain(old, n_old, qp, dq, tol, max_tests, M, l1, l2sq, b, out):
 
 
 @njit(cache=True)
+def at_rounding(tube, t):
+    """Whether the tube of a single joint vector (``t`` (3,) zero) is as tight as its rounding allows:
+    every kappa within :data:`ROUNDING_KAPPA` pads of its coordinate.  Another tube of the same point
+    would take over with ``rho`` about ``2 kappa`` and end at the same rounding level (measured on the
+    paper circle: 2.22e-14 -> 2.22e-14 m), so :func:`refine` does not run it."""
+    if not (t[0] == 0.0 and t[1] == 0.0 and t[2] == 0.0):
+        return False
+    for r in range(3):
+        if not tube[TUBE_K + r] <= ROUNDING_KAPPA * PAD * (1.0 + abs(tube[TUBE_X + r])):
+            return False
+    return True
+
+
+@njit(cache=True)
 def refine(out, pieces, n, qc, t, M, l1, l2sq, b):
     """Tighten the single tube ``out[0]`` of the reading's box ``qc +- t``: tubes of the same box, each
     taking over from the last (kappa shrinks with rho^2), while kappa shrinks.  Returns the tests."""
     tests = 0
     xg = np.empty(3)
     new = np.empty(TUBE_SIZE)
-    if n >= pieces.shape[0]:
+    if n >= pieces.shape[0] or at_rounding(out[0], t):
         return 0
     for _ in range(REFINE):
         if t[0] == 0.0 and t[1] == 0.0 and t[2] == 0.0 and out[0, TUBE_T] == 0.0 and out[0, TUBE_T + 1] == 0.0 \
