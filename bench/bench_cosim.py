@@ -9,7 +9,9 @@ present; ``--rebuild`` forces it).  Then, in one process (FMUs extracted and ins
    the master itself (:meth:`cosim.ClosedLoop.run`, timed as ``python -m cosim``
    times it: the step loop and the result's columns, FMUs initialized), with the DK's flags
    (status, region... as ``python -m cosim`` records them) and without
-   (``flags=False``: one set, doStep and get per FMU and step) and with the loader's fast lanes off
+   (``flags=False``: one set, doStep and get per FMU and step), with fmpy's methods for every call
+   (``calls="fmpy"``, the master's path before :mod:`cosim.loop.calls`: the same calls and values)
+   and with the loader's fast lanes off
    (``RRR_DK_FAST_LANE=0``: every FMI call through the slaves' Python); each run alternates with an
    in-process pass of ``solver.Tracker.step(q, dt=h)`` over the joints of the same run (the
    closed loop's own DK path, same embedded map).  Prints the wall time per step of each
@@ -66,6 +68,9 @@ CALLS = (("DK setReal q", "RRRDirectKinematics", "set_real"),
          ("plant doStep", "RRRPlant", "do_step"),
          ("plant getReal q, dq, X", "RRRPlant", "get_real"))
 _KIND = {"Real": "get_real", "Integer": "get_integer", "Boolean": "get_boolean"}
+#: the timed runs of part 1: the master's direct calls with the DK's flags, without them, by fmpy's methods, and
+#: with the loader's fast lanes off
+LOOP_RUNS = ("flags", "no flags", "fmpy calls", "no lanes")
 
 
 def _bundled_runtime(dk_fmu: Path) -> str:
@@ -217,15 +222,19 @@ def _timed_runs(loop, sc, repeat: int):
     tracker = Tracker(Manipulator.paper(), MapTensor.load(Path(dk_dir) / "resources" / "maps" / "posture1.npz"))
     print(f"\n1. the master's loop (ClosedLoop.run, as `python -m cosim`), {repeat} runs each, "
           f"alternating with the in-process tracker on each run's joints:")
-    per = {(key, clock): [] for key in ("flags", "no flags", "no lanes", "tracker") for clock in ("wall", "cpu")}
+    per = {(key, clock): [] for key in (*LOOP_RUNS, "tracker") for clock in ("wall", "cpu")}
     for r in range(repeat):
-        for key, kw in (("flags", {}), ("no flags", {"flags": False}), ("no lanes", {})):
+        for key, kw in (("flags", {}), ("no flags", {"flags": False}), ("fmpy calls", {}), ("no lanes", {})):
             if key == "no lanes":                         # every FMI call through the slaves' Python
                 os.environ["RRR_DK_FAST_LANE"] = "0"
+            for port in loop.ports.values():             # (a port binds its calls at each run)
+                port.calls = "fmpy" if key == "fmpy calls" else "direct"
             try:
                 res = loop.run(sc, **kw)
             finally:
                 os.environ.pop("RRR_DK_FAST_LANE", None)
+                for port in loop.ports.values():
+                    port.calls = "direct"
             per[key, "wall"].append(res.wall_seconds / sc.n_steps)
             per[key, "cpu"].append(res.cpu_seconds / sc.n_steps)
             wall, cpu = tracker_pass(tracker, res, sc.h)
@@ -233,8 +242,8 @@ def _timed_runs(loop, sc, repeat: int):
             per["tracker", "cpu"].append(cpu)
         m = res.metrics()
         print(f"   run {r + 1}: wall per step {1e6 * per['flags', 'wall'][-1]:.1f} us with flags, "
-              f"{1e6 * per['no flags', 'wall'][-1]:.1f} without, {1e6 * per['no lanes', 'wall'][-1]:.1f} without "
-              f"the fast lanes, tracker {1e6 * per['tracker', 'wall'][-1]:.1f} us"
+              f"{1e6 * per['no flags', 'wall'][-1]:.1f} without, {1e6 * per['fmpy calls', 'wall'][-1]:.1f} by fmpy's "
+              f"methods, {1e6 * per['no lanes', 'wall'][-1]:.1f} without the fast lanes, tracker {1e6 * per['tracker', 'wall'][-1]:.1f} us"
               f"  (RMS joint error after 0.5 s {m['rms_joint_error_after_0.5s']:.3e} rad, "
               f"max |DK - true| {m['max_dk_vs_true']:.1e})")
     med = {k: float(np.median(v)) for k, v in per.items()}
@@ -242,10 +251,10 @@ def _timed_runs(loop, sc, repeat: int):
         trk = med["tracker", clock_name]
         print(f"   {clock_name} time (median of the runs' mean per step), one in-process tracker step "
               f"{1e6 * trk:.1f} us:")
-        for key in ("flags", "no flags", "no lanes"):
+        for key in LOOP_RUNS:
             v = med[key, clock_name]
             ratio = v / trk
-            print(f"     {key:8s}: {1e6 * v:6.1f} us per step = {sc.h / v:5.2f}x real time, {ratio:.2f}x the "
+            print(f"     {key:10s}: {1e6 * v:6.1f} us per step = {sc.h / v:5.2f}x real time, {ratio:.2f}x the "
                   f"tracker step  [target >= 30x real time: {'meets' if sc.h / v >= 30 else 'MISSES'}]")
     print("   (CPU time leaves out what other processes took; on an idle machine the two agree)")
     return med, m
@@ -317,6 +326,8 @@ def _report(sc, med, metrics, parts, total, args, ref):
     loop = []
     for key, label in (("flags", "with the DK's Integer/Boolean outputs (11 FMI calls)"),
                        ("no flags", "without them (9 FMI calls, `flags=False`)"),
+                       ("fmpy calls", "with the flags, every call by fmpy's methods (`calls=\"fmpy\"`, the path "
+                                      "before the master's direct calls)"),
                        ("no lanes", "with the flags, the loader's fast lanes off (`RRR_DK_FAST_LANE=0`)")):
         for clock in ("wall", "cpu"):
             v, trk = med[key, clock], med["tracker", clock]

@@ -231,6 +231,59 @@ def test_runs_without_flags_give_the_same_columns(loop):
         assert b.metrics()["dk_status_nonzero"] is None and a.metrics()["dk_status_nonzero"] == 0
 
 
+
+# ---------------------------------------------------------------------- the master's direct FMI calls
+def test_each_order_makes_its_calls_in_sequence_and_stops_at_a_failed_one():
+    from fmpy.fmi1 import FMICallException
+
+    from cosim.loop.calls import ORDERS, step_sequence
+
+    made, fail_at = [], [None]
+
+    def fake(inst, what):
+        def call(*args):
+            made.append((inst, what, args))
+            return 3 if (inst, what) == fail_at[0] else (1 if what == "get" else 0)   # fmi2Warning passes
+        return call
+    calls = {(i, w): fake(i, w) for i in ("dk", "controller", "plant") for w in ("set", "step", "get")}
+    for order, expected in ORDERS.items():
+        made.clear()
+        fail_at[0] = None
+        step_sequence(calls, order)(0.25, 1e-3)
+        assert [(i, w) for i, w, _ in made] == list(expected), order
+        assert all(args == ((0.25, 1e-3, 1) if w == "step" else ()) for _, w, args in made)
+        made.clear()
+        fail_at[0] = ("controller", "step")
+        with pytest.raises(FMICallException, match="controller: fmi2DoStep"):
+            step_sequence(calls, order)(0.25, 1e-3)
+        assert made[-1][:2] == ("controller", "step")                  # nothing called after it
+    with pytest.raises(ValueError, match="order: expected one of .* got 'seidel'"):
+        step_sequence(calls, "seidel")
+
+
+def test_direct_calls_give_the_runs_of_fmpy_calls(fmus, loop):
+    from cosim import ClosedLoop
+    from cosim.loop.calls import hot_call
+
+    sc = Scenario(t_end=0.3)
+    a = loop.run(sc)
+    assert loop.ports["dk"].calls == "direct"
+    with ClosedLoop(fmus, calls="fmpy") as other:
+        b = other.run(sc)
+        fmu = other.ports["dk"].unit.fmu
+        assert hot_call(fmu, "fmi2DoStep", fmu.component).func is not fmu._functions["fmi2DoStep"]
+        fmu.fmiCallLogger = lambda message: None                    # a logger: fmpy's method, which logs
+        try:
+            assert hot_call(fmu, "fmi2DoStep", fmu.component).func == fmu.fmi2DoStep
+        finally:
+            fmu.fmiCallLogger = None
+    assert tuple(a.columns) == tuple(b.columns)
+    for key in a.columns:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    with pytest.raises(ValueError, match="calls: expected one of .* got 'ctypes'"):
+        ClosedLoop(fmus, calls="ctypes")
+
+
 # ---------------------------------------------------------------------- kernels of FMU bundles
 KERNEL = textwrap.dedent("""
     from numba import njit

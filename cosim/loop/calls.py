@@ -1,0 +1,149 @@
+"""The master's hot FMI calls: the FMU's C functions as fmpy loaded them, without fmpy's Python layer.
+
+``FMU2Slave.fmi2GetReal(c, vr, n, value)`` is fmpy's ``_call``: a method call, a dict look-up, the
+ctypes call (which converts and type-checks each argument), the call logger's check, and the status
+check that raises :class:`fmpy.fmi1.FMICallException` above ``fmi2Warning``.  A closed loop makes 9 to
+11 such calls a step.  Measured on the plant FMU's ``fmi2GetReal`` of its outputs (one process, medians
+of 5 x 100,000 calls): fmpy's method 1.52 us, fmpy's ctypes function 1.00 us, the same C function
+through a prototype whose arguments are bound once as plain addresses 0.50 us.
+
+:func:`hot_call` binds the leading arguments of one FMI function once (the instance, value-reference
+and value arrays by address) and returns ``call(*rest) -> status``; :func:`check` is fmpy's status
+check, raising the same exception.  The arrays bound must outlive the call (the call keeps them).
+With an FMI call logger (``fmiCallLogger``) set, :func:`hot_call` binds fmpy's method instead, so every
+call is still logged and checked.
+"""
+from __future__ import annotations
+
+import ctypes
+import functools
+
+#: fmpy raises above this status (fmi2Warning): fmi2Discard, fmi2Error, fmi2Fatal, fmi2Pending.
+WORST_ACCEPTED = 1
+
+__all__ = ["FMI_NAME", "ORDERS", "WORST_ACCEPTED", "check", "hot_call", "step_sequence"]
+
+#: One step's FMI calls in each master's order (:meth:`ClosedLoop.step_function`): (instance, what),
+#: what "set" (its connected inputs), "step" (fmi2DoStep from t over h) or "get" (its Real outputs).
+_ALL_STEP = (("dk", "step"), ("controller", "step"), ("plant", "step"), ("dk", "get"), ("controller", "get"),
+             ("plant", "get"))
+ORDERS = {
+    "gauss-seidel": (("dk", "set"), ("dk", "step"), ("dk", "get"), ("controller", "set"), ("controller", "step"),
+                     ("controller", "get"), ("plant", "set"), ("plant", "step"), ("plant", "get")),
+    "jacobi": (("dk", "set"), ("controller", "set"), ("plant", "set")) + _ALL_STEP,
+    "omsimulator": (("dk", "set"), ("dk", "get"), ("controller", "set"), ("controller", "get"), ("plant", "set"))
+    + _ALL_STEP,
+}
+FMI_NAME = {"set": "fmi2SetReal", "step": "fmi2DoStep", "get": "fmi2GetReal"}
+
+
+def hot_call(fmu, name: str, *fixed):
+    """``call(*rest) -> status``: the FMI function ``name`` (e.g. ``"fmi2GetReal"``) of fmpy's slave
+    ``fmu``, its leading arguments ``fixed`` bound once.
+
+    Parameters
+    ----------
+    fmu : fmpy.fmi2.FMU2Slave
+        An instantiated slave.
+    name : str
+        An FMI function fmpy loaded for it.
+    *fixed
+        Its first arguments: the instance (an address, int) and ctypes arrays (passed by address;
+        kept alive by the call) or numbers.
+
+    Returns
+    -------
+    callable
+        ``call(*rest)``: the C function with ``fixed`` then ``rest``; its FMI status (int), unchecked
+        (:func:`check`).  With an FMI call logger set: fmpy's method (logs, checks, raises).
+    """
+    method = getattr(fmu, name)
+    functions = getattr(fmu, "_functions", None)
+    if getattr(fmu, "fmiCallLogger", None) is not None or not isinstance(functions, dict) or name not in functions:
+        return functools.partial(method, *fixed)
+    raw = functions[name]
+    if raw.argtypes is None or getattr(raw, "_flags_", 0) != ctypes.CFUNCTYPE(None)._flags_:
+        return functools.partial(raw, *fixed)   # not a plain C call as fmpy declared it: its own function
+    pointer = tuple(_is_pointer(t) for t in raw.argtypes)
+    proto = ctypes.CFUNCTYPE(raw.restype, *(ctypes.c_void_p if p else t for p, t in zip(pointer, raw.argtypes)))
+    call = proto(ctypes.cast(raw, ctypes.c_void_p).value)
+    bound = []
+    for arg, p in zip(fixed, pointer):
+        if isinstance(arg, ctypes.Array):
+            bound.append(ctypes.c_void_p(ctypes.addressof(arg)))
+        elif p:
+            bound.append(ctypes.c_void_p(arg))
+        else:
+            bound.append(arg)
+    out = functools.partial(call, *bound)
+    out.keep = (fixed, raw)                     # the arrays bound by address, and the library's function
+    return out
+
+
+def _is_pointer(t) -> bool:
+    """Whether the ctypes type ``t`` is passed as an address (a pointer, or ``c_void_p``)."""
+    return t is ctypes.c_void_p or t is ctypes.c_char_p or (isinstance(t, type) and issubclass(t, ctypes._Pointer))
+
+
+def check(status: int, instance: str, function: str) -> None:
+    """fmpy's status check of one call's ``status``: raise :class:`fmpy.fmi1.FMICallException` (naming
+    ``instance`` and ``function``) when it is worse than fmi2Warning."""
+    if status > WORST_ACCEPTED:
+        from fmpy.fmi1 import FMICallException
+        raise FMICallException(function=f"{instance}: {function}", status=status)
+
+
+def step_sequence(calls: dict, order: str):
+    """``advance(t, h)``: one step's FMI calls in the master's ``order`` (:data:`ORDERS`), each status checked.
+
+    ``calls``: {(instance, what): call} for every instance and what of :data:`ORDERS`, each returning
+    its FMI status: "set" and "get" take no argument, "step" takes ``(t, h, noSetFMUStatePriorToCurrentPoint)``.
+    A status worse than fmi2Warning raises (:func:`check`) before the next call is made.  Each order is
+    written out call by call (a loop over :data:`ORDERS`' entries costs 1.5 us more a step, measured).
+
+    Raises
+    ------
+    ValueError
+        ``order`` is not one of :data:`ORDERS`.
+    """
+    if order not in ORDERS:
+        raise ValueError(f"order: expected one of {tuple(ORDERS)}, got {order!r}")
+    W, SET, STEP, GET = WORST_ACCEPTED, FMI_NAME["set"], FMI_NAME["step"], FMI_NAME["get"]
+    dk_set, dk_step, dk_get = calls["dk", "set"], calls["dk", "step"], calls["dk", "get"]
+    ct_set, ct_step, ct_get = calls["controller", "set"], calls["controller", "step"], calls["controller", "get"]
+    pl_set, pl_step, pl_get = calls["plant", "set"], calls["plant", "step"], calls["plant", "get"]
+
+    def gauss_seidel(t, h):
+        if (s := dk_set()) > W: check(s, "dk", SET)                          # noqa: E701
+        if (s := dk_step(t, h, 1)) > W: check(s, "dk", STEP)                 # noqa: E701
+        if (s := dk_get()) > W: check(s, "dk", GET)                          # noqa: E701
+        if (s := ct_set()) > W: check(s, "controller", SET)                  # noqa: E701
+        if (s := ct_step(t, h, 1)) > W: check(s, "controller", STEP)         # noqa: E701
+        if (s := ct_get()) > W: check(s, "controller", GET)                  # noqa: E701
+        if (s := pl_set()) > W: check(s, "plant", SET)                       # noqa: E701
+        if (s := pl_step(t, h, 1)) > W: check(s, "plant", STEP)              # noqa: E701
+        if (s := pl_get()) > W: check(s, "plant", GET)                       # noqa: E701
+
+    def step_all(t, h):                         # every FMU steps from t, then every output is read
+        if (s := dk_step(t, h, 1)) > W: check(s, "dk", STEP)                 # noqa: E701
+        if (s := ct_step(t, h, 1)) > W: check(s, "controller", STEP)         # noqa: E701
+        if (s := pl_step(t, h, 1)) > W: check(s, "plant", STEP)              # noqa: E701
+        if (s := dk_get()) > W: check(s, "dk", GET)                          # noqa: E701
+        if (s := ct_get()) > W: check(s, "controller", GET)                  # noqa: E701
+        if (s := pl_get()) > W: check(s, "plant", GET)                       # noqa: E701
+
+    def jacobi(t, h):
+        if (s := dk_set()) > W: check(s, "dk", SET)                          # noqa: E701
+        if (s := ct_set()) > W: check(s, "controller", SET)                  # noqa: E701
+        if (s := pl_set()) > W: check(s, "plant", SET)                       # noqa: E701
+        step_all(t, h)
+
+    def omsimulator(t, h):
+        if (s := dk_set()) > W: check(s, "dk", SET)                          # noqa: E701
+        if (s := dk_get()) > W: check(s, "dk", GET)                          # noqa: E701
+        if (s := ct_set()) > W: check(s, "controller", SET)                  # noqa: E701
+        if (s := ct_get()) > W: check(s, "controller", GET)                  # noqa: E701
+        if (s := pl_set()) > W: check(s, "plant", SET)                       # noqa: E701
+        step_all(t, h)
+
+    return {"gauss-seidel": gauss_seidel, "jacobi": jacobi, "omsimulator": omsimulator}[order]
