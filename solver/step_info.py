@@ -105,12 +105,16 @@ class StepInfo(NamedTuple):
         """``(X, info)`` of a step from its result pack: the pose (3,) and :meth:`from_result`, the pose and
         ``X_pred`` views of one copy (the step's hot path)."""
         i, f = out_int.tolist(), out_real[OUT_INFO:OUT_INFO + INFO_F_SIZE].tolist()   # Python numbers: quicker to read
-        xx = out_real[OUT_X:OUT_X + 6].copy()               # OUT_X_PRED follows OUT_X
         certain = i[I_CERTAIN] != 0
+        if certain:                                         # one copy for the pose, X_pred and the bound
+            xx = out_real[OUT_X:OUT_BOUND + 3].copy()
+            bound = xx[OUT_BOUND - OUT_X:]
+        else:
+            xx, bound = out_real[OUT_X:OUT_X + 6].copy(), NO_BOUND
         return xx[:3], tuple.__new__(cls, (
-            i[I_LABEL], i[I_NEAR_BORDER] != 0, xx[3:], i[I_N_REAL], f[F_COND], i[I_AMBIGUOUS] != 0, i[I_STATUS],
+            i[I_LABEL], i[I_NEAR_BORDER] != 0, xx[3:6], i[I_N_REAL], f[F_COND], i[I_AMBIGUOUS] != 0, i[I_STATUS],
             i[I_JUMP] != 0, f[F_D_BEST], f[F_D_SECOND], certain, i[I_CERTIFICATE], i[I_N_CAND], uncertain_since,
-            out_real[OUT_BOUND:OUT_BOUND + 3].copy() if certain else NO_BOUND, i[I_TRUST], False))
+            bound, i[I_TRUST], False))
 
     @property
     def status_name(self) -> str:

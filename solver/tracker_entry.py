@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from ._kernels.anytime import ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON
-from ._kernels.c_entry import (CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_BUDGET, IO_DEADLINE, IO_DONE, IO_DT, IO_K0,
-                               IO_SIZE, entry, make_table, set_rows, stream_table)
+from ._kernels.c_entry import (ADVANCE_OFFSET, CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_BUDGET, IO_DEADLINE, IO_DONE,
+                               IO_K0, IO_SIZE, entry, make_table, set_rows, stream_table)
 from .tracker_state import TrackerError
 from ._kernels.state_layout import STATE_FLOATS
 
@@ -49,14 +49,11 @@ class CEntry:
             self._failed()
 
     def _advance(self, q, dt, deadline, a):
-        io = self._io
-        io[:3] = q
-        io[IO_DT] = dt
-        io[IO_DEADLINE] = deadline
-        since = (self._call or self._entry())(self._table_address, CMD_ADVANCE, 0.0, 0.0)
-        if io[IO_DONE] != 1.0:
+        self._io[:3] = q
+        r = (self._call or self._entry())(self._table_address, CMD_ADVANCE, dt, deadline)
+        if r <= 0:                              # 0: a kernel raised (the cfunc's answer then)
             self._failed()
-        return since
+        return r - ADVANCE_OFFSET
 
     def _stream(self, qs, k0, budget, arrays: dict) -> None:
         """Steps to the joints ``qs[k0:]`` ((n, 3) rad, C-contiguous) in one call of the entry point, each with

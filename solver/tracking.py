@@ -198,7 +198,7 @@ class _TrackerBase:
         if self._watch or self.stuck_after or self._objects:  # the encoder-grid watch, the stuck-joint detector
             return self._step_objects(q, dt)
         deadline = deadline_after(self.step_budget) if self.step_budget is not None else 0.0
-        if type(q) is not np.ndarray or q.shape != (3,) or q.dtype != np.float64 or self._limits is not None:
+        if type(q) is not np.ndarray or q.dtype is not _F64 or q.shape != (3,) or self._limits is not None:
             q = self._check_joints(q)                        # (a float array (3,) is checked finite compiled)
         a = self._flat if self._live else self._flat_state()
         if dt is None:
@@ -362,5 +362,7 @@ _INFO_COLUMNS = (("label", I_LABEL), ("near_border", I_NEAR_BORDER), ("n_real", 
 #: The compiled loop of track times its steps with the CPU's cycle counter (x86-64); elsewhere track steps
 #: in Python.
 _CYCLES = platform.machine().lower() in ("x86_64", "amd64")
+#: float64 in native byte order: a step's joints of this dtype (``is``, numpy's one instance) skip the conversion
+_F64 = np.dtype(np.float64)
 
 

@@ -178,6 +178,28 @@ def scan_solutions(model, q, n=20001):
     return out[keep]
 
 
+
+def test_the_sextic_roots_match_the_companion_matrix(rng):
+    """``roots6`` (Aberth-Ehrlich in real arithmetic) against numpy's companion-matrix eigenvalues on
+    random real sextics: separated roots to 1e-9 of their modulus; a close pair (1e-6 apart) to
+    within the pair's conditioning (about sqrt(eps) of the scale)."""
+    from solver._kernels.direct_kinematics import roots6
+    for trial in range(300):
+        half = rng.normal(size=3) + 1j * rng.normal(size=3)
+        if trial % 3 == 0:
+            half[1] = half[0] + 1e-6
+        want = np.concatenate([half, half.conj()])
+        coef = np.real(np.poly(want)) * rng.uniform(0.1, 10.0)
+        got = roots6(coef)
+        ref = np.roots(coef)
+        assert np.all(np.isfinite(got))
+        gap = np.abs(got[:, None] - ref[None, :]).min(axis=1)
+        tol = 1e-9 * (1 + np.abs(ref).max()) if trial % 3 else 1e-5 * (1 + np.abs(ref).max())
+        assert gap.max() <= tol, (trial, gap.max())
+        # each root once: the nearest pairs match one to one
+        assert len(set(np.abs(got[:, None] - ref[None, :]).argmin(axis=1))) == 6 or trial % 3 == 0
+
+
 def test_dense_scan_cross_check_on_1000_joint_vectors(model):
     rng = np.random.default_rng(11)
     q = ik(model, random_poses(rng, 3000), rng.integers(1, 9, 3000))

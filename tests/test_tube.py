@@ -94,6 +94,58 @@ def test_a_chain_of_tubes_follows_the_branch_along_a_path(model, geo):
         assert np.all(pose_distance(cover[0, TUBE_X:TUBE_X + 3], X[k]) <= h.max()) and h.max() < 1e-11
 
 
+
+def test_exact_joints_take_two_tube_tests_a_step_and_a_tube_at_rounding_is_not_refined(model, geo):
+    """The reading's tube (a single joint vector) starts wide enough to take over from the step's piece
+    (:func:`point_prior`), so it runs once; it then ends at rounding level and :func:`refine` leaves it:
+    the piece and the reading, two tests a step.  A point tube whose kappa is far above rounding is refined."""
+    from solver._kernels.tube_chain import PAD, ROUNDING_KAPPA, refine
+    X = circle_path(200)
+    q = ik(model, X, 1)
+    cover_, out = np.empty((MAX_COVER, TUBE_SIZE)), np.empty((MAX_COVER, TUBE_SIZE))
+    assert tube_test(X[0].copy(), q[0], np.zeros(3), np.zeros(3), *geo, cover_[0])
+    n = 1
+    for k in range(1, len(q)):
+        tests, n = tube_chain(cover_, n, q[k - 1].copy(), wrap_angle(q[k] - q[k - 1]), 0.0, 256, *geo, out)
+        assert (tests, n) == (2, 1), k
+        assert np.all(out[0, TUBE_K:TUBE_K + 3] <= ROUNDING_KAPPA * PAD * (1 + np.abs(out[0, TUBE_X:TUBE_X + 3])))
+        cover_[:n] = out[:n]
+    wide = np.empty((1, TUBE_SIZE))
+    assert tube_test(X[5].copy(), q[5], np.zeros(3), np.full(3, 1e-3), *geo, wide[0])       # rho 1 mm
+    wide[0, TUBE_K:TUBE_K + 3] = 1e-7           # a looser kappa (still a bound): not at rounding, refined
+    kappa = wide[0, TUBE_K:TUBE_K + 3].copy()
+    pieces = np.empty((4, TUBE_SIZE))
+    pieces[0] = wide[0]
+    assert refine(wide, pieces, 1, q[5].copy(), np.zeros(3), *geo) >= 1
+    assert np.all(wide[0, TUBE_K:TUBE_K + 3] < 1e-3 * kappa)
+    again = wide.copy()
+    assert refine(again, pieces, 1, q[5].copy(), np.zeros(3), *geo) == 0 and np.array_equal(again, wide)
+
+
+def test_the_cover_solution_is_found_whatever_the_numbering(model, geo, rng):
+    """:func:`cover_solution` tries the solutions nearest the cover's predictor first: the same solution
+    under every order of the six, with the bound :func:`pose_bound` gives it."""
+    from solver._kernels.reacquisition import cover_solution
+    X0 = np.array([0.45, 0.30, -np.pi / 4])
+    q0 = ik(model, X0, 1)
+    tube = np.empty((1, TUBE_SIZE))
+    assert tube_test(X0.copy(), q0, np.full(3, 1e-4), np.zeros(3), *geo, tube[0])
+    poses, real = dk_all(model, q0)
+    k_true = int(np.argmin([np.inf if not r else np.abs(pose_distance(p.real, X0)).max() for p, r in zip(poses, real)]))
+    want = np.empty(3)
+    assert pose_bound(tube, 1, q0, 0.0, poses[k_true].real.copy(), want)
+    for _ in range(6):
+        order = rng.permutation(6)
+        bound = np.full(3, np.inf)
+        k = cover_solution(tube, 1, q0, 0.0, np.ascontiguousarray(poses[order]), np.ascontiguousarray(real[order]), bound)
+        assert order[k] == k_true
+        np.testing.assert_array_equal(bound, want)
+    none = real.copy()
+    none[k_true] = False
+    bound = np.full(3, np.inf)
+    assert cover_solution(tube, 1, q0, 0.0, poses, none, bound) == -1 and np.all(np.isinf(bound))
+
+
 def test_a_cover_holds_a_joint_box_one_tube_cannot(model, geo):
     """An ill-conditioned joint box: the tube test fails on the whole box, the cover in parts proves it,
     and its pose bound holds the solutions of joints sampled in the box."""

@@ -5,9 +5,11 @@ double h)``.  ``table`` holds the addresses and shapes of the tracker's arrays (
 the rows ``T_*``), so the same machine code serves
 
 - :data:`CMD_ADVANCE`: :func:`.stepper.tracker_advance` on the flat state, joints ``io[IO_Q:IO_Q+3]``,
-  ``io[IO_DT]`` s after the last sample, deadline ``io[IO_DEADLINE]`` (cycles; 0: none); returns the
-  step's ``uncertain_since`` (or :data:`.stepper.NOT_FINITE`).  What :meth:`solver.Tracker.step` calls
-  (through ctypes: one call of three scalars instead of a 17-argument numba dispatch);
+  ``t`` s after the last sample (NaN: unknown), deadline ``h`` (cycles; 0: none), both also left in
+  ``io[IO_DT]``, ``io[IO_DEADLINE]``; returns the step's ``uncertain_since`` (or
+  :data:`.stepper.NOT_FINITE`) plus :data:`ADVANCE_OFFSET`, so that a kernel that raised (0) needs no
+  read of ``io[IO_DONE]``.  What :meth:`solver.Tracker.step` calls (through ctypes: one call of
+  three scalars instead of a 17-argument numba dispatch);
 - :data:`CMD_PACKED`: the step of a caller that wrote the state and anytime packs itself (the
   TrackerState path, :meth:`solver.TrackerState.pack`);
 - :data:`CMD_TRACK`: a whole stream (what :meth:`solver.Tracker.track` calls once): the steps to the joints
@@ -53,6 +55,8 @@ CMD_ADVANCE, CMD_PACKED, CMD_PUBLISH, CMD_TRACK = 0, 1, 2, 3
 #: What a :data:`CMD_PUBLISH` step returns when it undid itself (the caller takes the step its own way),
 #: and when it published (anything else, 0 from a cfunc whose kernel raised included, is not published).
 FALL_BACK, PUBLISHED = 1, 2
+#: :data:`CMD_ADVANCE` returns ``uncertain_since + ADVANCE_OFFSET`` (``uncertain_since`` >= NOT_FINITE = -2).
+ADVANCE_OFFSET = 3
 
 # the arrays of the table, 4 int64 each: address, then up to three dimensions
 (T_A, T_PK, T_MODEL, T_S2S, T_LABELS, T_MAP, T_STENCIL, T_PARAMS, T_OUT_REAL, T_OUT_INT, T_ANYTIME, T_IO, T_BACKUP,
@@ -188,8 +192,13 @@ def _step(table, cmd, t, h):
         r = _track(tb, a, pk, model, s2s, labels, mp, stencil, params, out_real, out_int, anytime, io,
                    cmd == CMD_PACKED)                    # a typed False, as the call below
     else:
+        if cmd == CMD_ADVANCE:          # the time step and the deadline come as the call's t and h
+            io[IO_DT] = t
+            io[IO_DEADLINE] = h
         r = tracker_advance(tb[T_MODE], tb[T_RULE], io[IO_Q:IO_Q + 3], io[IO_DT], io[IO_DEADLINE], a, pk, model, s2s,
                             labels, mp, stencil, params, out_real, out_int, anytime, cmd == CMD_PACKED)
+        if cmd == CMD_ADVANCE:
+            r += ADVANCE_OFFSET         # at least 1: the 0 of a kernel that raised is never a step's answer
     io[IO_DONE] = 1.0           # (a kernel that raised returns 0 from the cfunc, with this still 0.0)
     return r
 
