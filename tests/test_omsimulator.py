@@ -94,10 +94,10 @@ def test_master_omsimulator_order(fmus):
     calls = []
     with ClosedLoop(fmus) as loop:
         loop.initialize(SC, 0.0)
-        for inst, port in loop.ports.items():
-            port.set_inputs = lambda inst=inst: calls.append(f"{inst}.set")
-            port.step_call = lambda inst=inst: lambda t, h, flag: calls.append(f"{inst}.step")
-            port.read_calls = lambda flags=True, inst=inst: (("Real", lambda: calls.append(f"{inst}.get")),)
+        for inst, port in loop.ports.items():          # each call answers its FMI status: 0, fmi2OK
+            port.set_inputs = lambda inst=inst: calls.append(f"{inst}.set") or 0
+            port.step_call = lambda inst=inst: lambda t, h, flag: calls.append(f"{inst}.step") or 0
+            port.read_calls = lambda flags=True, inst=inst: (("Real", lambda: calls.append(f"{inst}.get") or 0),)
         loop.step_function("omsimulator")(0.0, SC.h)
     assert calls == ["dk.set", "dk.get", "controller.set", "controller.get", "plant.set",
                      "dk.step", "controller.step", "plant.step", "dk.get", "controller.get", "plant.get"]
