@@ -48,6 +48,7 @@ import numpy as np
 import dynamics  # noqa: F401  (before any FMU, as the master does)
 import reference_loop                          # bench/ is on sys.path when a script there runs
 from cosim import FMU_NAMES, INSTANCES, ClosedLoop, Scenario, build_fmus
+from cosim.loop.calls import WORST_ACCEPTED
 from cosim.fmus.packaging import bundled_files
 from fmu_src.table_slave import TableSlave
 from solver import Manipulator, MapTensor, Tracker
@@ -55,7 +56,7 @@ from solver import Manipulator, MapTensor, Tracker
 ROOT = Path(__file__).resolve().parents[1]
 
 SHORT = {"RRRDirectKinematics": "DK", "ComputedTorqueController": "controller", "RRRPlant": "plant"}
-#: the fmpy calls of one Gauss-Seidel step of ClosedLoop.run, in order: (label, FMU, kind)
+#: the FMI calls of one Gauss-Seidel step of ClosedLoop.run (through fmpy's loaded functions), in order: (label, FMU, kind)
 CALLS = (("DK setReal q", "RRRDirectKinematics", "set_real"),
          ("DK doStep", "RRRDirectKinematics", "do_step"),
          ("DK getReal pose", "RRRDirectKinematics", "get_real"),
@@ -142,27 +143,31 @@ def instrumented_run(loop: ClosedLoop, sc: Scenario, on_start=None):
             read()
     if on_start is not None:
         on_start()
+    worst = 0                                                # the calls' worst FMI status, checked at the end
     for k in range(n):
         c = calls[k]
         t = k * h
         s0 = clock()
-        a = clock(); dk_set()
-        b = clock(); dk_step(t, h, 1)
-        d = clock(); dk_real()
-        e = clock(); dk_int()
-        f = clock(); dk_bool()
+        a = clock(); s1 = dk_set()
+        b = clock(); s2 = dk_step(t, h, 1)
+        d = clock(); s3 = dk_real()
+        e = clock(); s4 = dk_int()
+        f = clock(); s5 = dk_bool()
         g = clock(); c[0], c[1], c[2], c[3], c[4] = b - a, d - b, e - d, f - e, g - f
-        a = clock(); ct_set()
-        b = clock(); ct_step(t, h, 1)
-        d = clock(); ct_real()
+        a = clock(); s6 = ct_set()
+        b = clock(); s7 = ct_step(t, h, 1)
+        d = clock(); s8 = ct_real()
         e = clock(); c[5], c[6], c[7] = b - a, d - b, e - d
-        a = clock(); pl_set()
-        b = clock(); pl_step(t, h, 1)
-        d = clock(); pl_real()
+        a = clock(); s9 = pl_set()
+        b = clock(); s10 = pl_step(t, h, 1)
+        d = clock(); s11 = pl_real()
         e = clock(); c[8], c[9], c[10] = b - a, d - b, e - d
         for buf, rows in zip(bufs, kept):
             rows.append(buf[:])
         step[k] = clock() - s0
+        worst = max(worst, s1, s2, s3, s4, s5, s6, s7, s8, s9, s10, s11)
+    if worst > WORST_ACCEPTED:
+        raise SystemExit(f"an FMI call of the instrumented run answered status {worst} (worse than fmi2Warning)")
     return calls, step
 
 

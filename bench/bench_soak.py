@@ -49,6 +49,7 @@ def peak_rss_mb() -> float:
 def soak(fmus: dict, steps: int, budget: float) -> dict:
     """Part 1 (module docstring); returns the figures."""
     from cosim import ClosedLoop, Scenario
+    from cosim.loop.calls import check
     from cosim.loop.master import INSTANCES
 
     loop = ClosedLoop(fmus)
@@ -57,7 +58,7 @@ def soak(fmus: dict, steps: int, budget: float) -> dict:
     ports = [loop.ports[inst] for inst in INSTANCES]
     by = {p.instance: p for p in ports}
     for p in ports:                                           # the outputs at initialization
-        p.read_calls(False)[0][1]()
+        check(p.read_calls(False)[0][1](), p.instance, "fmi2GetReal")
     advance = loop.step_function(sc.order)
     dk_buf, pl_buf = by["dk"].buffers["Real"], by["plant"].buffers["Real"]
     dk_idx = [by["dk"].where[f"dk.{n}"][1] for n in ("x", "y", "phi")]

@@ -1,9 +1,9 @@
 """The tracker's step through its compiled C entry point (:mod:`solver._kernels.c_entry`): the mixin
 :class:`CEntry` of :class:`solver.Tracker`.
 
-Every step of a tracker is one call of the same machine code: in process through ctypes (the joints,
-the time step and the deadline written into the tracker's scalars ``io``, one call of four scalars
-instead of a 17-argument numba dispatch), a whole stream of :meth:`solver.Tracker.track` in one call,
+Every step of a tracker is one call of the same machine code: in process through ctypes (the joints
+written into the tracker's scalars ``io``, the time step and the deadline passed as the call's two
+doubles: one call of four scalars instead of a 17-argument numba dispatch), a whole stream of :meth:`solver.Tracker.track` in one call,
 and from a C caller (the DK FMU's loader) directly, on the same flat state.  The table that the entry
 point reads holds the addresses of the tracker's arrays, which live as long as the tracker.
 """

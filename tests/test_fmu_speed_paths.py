@@ -231,7 +231,6 @@ def test_runs_without_flags_give_the_same_columns(loop):
         assert b.metrics()["dk_status_nonzero"] is None and a.metrics()["dk_status_nonzero"] == 0
 
 
-
 # ---------------------------------------------------------------------- the master's direct FMI calls
 def test_each_order_makes_its_calls_in_sequence_and_stops_at_a_failed_one():
     from fmpy.fmi1 import FMICallException

@@ -178,7 +178,6 @@ def scan_solutions(model, q, n=20001):
     return out[keep]
 
 
-
 def test_the_sextic_roots_match_the_companion_matrix(rng):
     """``roots6`` (Aberth-Ehrlich in real arithmetic) against numpy's companion-matrix eigenvalues on
     random real sextics: separated roots to 1e-9 of their modulus; a close pair (1e-6 apart) to

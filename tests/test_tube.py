@@ -94,11 +94,10 @@ def test_a_chain_of_tubes_follows_the_branch_along_a_path(model, geo):
         assert np.all(pose_distance(cover[0, TUBE_X:TUBE_X + 3], X[k]) <= h.max()) and h.max() < 1e-11
 
 
-
-def test_exact_joints_take_two_tube_tests_a_step_and_a_tube_at_rounding_is_not_refined(model, geo):
+def test_exact_joints_take_two_covers_a_step_and_a_tube_at_rounding_is_not_refined(model, geo):
     """The reading's tube (a single joint vector) starts wide enough to take over from the step's piece
     (:func:`point_prior`), so it runs once; it then ends at rounding level and :func:`refine` leaves it:
-    the piece and the reading, two tests a step.  A point tube whose kappa is far above rounding is refined."""
+    the piece and the reading, two covers a step.  A point tube whose kappa is far above rounding is refined."""
     from solver._kernels.tube_chain import PAD, ROUNDING_KAPPA, refine
     X = circle_path(200)
     q = ik(model, X, 1)
@@ -110,6 +109,19 @@ def test_exact_joints_take_two_tube_tests_a_step_and_a_tube_at_rounding_is_not_r
         assert (tests, n) == (2, 1), k
         assert np.all(out[0, TUBE_K:TUBE_K + 3] <= ROUNDING_KAPPA * PAD * (1 + np.abs(out[0, TUBE_X:TUBE_X + 3])))
         cover_[:n] = out[:n]
+    # why one test: the reading's point tube from its own width fails the hand-off from the step's piece,
+    # from point_prior's width it passes
+    from solver._kernels.handoff import point_prior, takes_over
+    k, eye, z = 50, np.eye(3), np.zeros(3)
+    pieces = np.empty((8, TUBE_SIZE))
+    assert tube_test(X[k - 1].copy(), q[k - 1], z, z, *geo, pieces[0])
+    dq = wrap_angle(q[k] - q[k - 1])
+    assert cover(pieces, 1, pieces[0], q[k - 1] + 0.5 * dq, 0.5 * np.abs(dq), *geo)[0] == 2
+    qk, xg, point, need = q[k - 1] + dq, np.empty(3), np.empty(TUBE_SIZE), np.zeros(3)
+    predictor(pieces[1], qk, xg)
+    assert slab_test(xg, qk, eye, z, z, need, *geo, point) and not takes_over(pieces, 2, point, np.empty(3))
+    assert point_prior(pieces, 2, xg, qk, need) and need.min() > 2 * pieces[1, TUBE_K:TUBE_K + 3].min()
+    assert slab_test(xg, qk, eye, z, z, need, *geo, point) and takes_over(pieces, 2, point, np.empty(3))
     wide = np.empty((1, TUBE_SIZE))
     assert tube_test(X[5].copy(), q[5], np.zeros(3), np.full(3, 1e-3), *geo, wide[0])       # rho 1 mm
     wide[0, TUBE_K:TUBE_K + 3] = 1e-7           # a looser kappa (still a bound): not at rounding, refined

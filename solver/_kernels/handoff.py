@@ -104,15 +104,18 @@ def point_prior(pieces, n, xg, qc, need):
     for ``|x_j(qc) - x~| + kappa_j <= 2 kappa_j`` (with its rounding pads).  A tube test that starts
     this wide passes the hand-off on its first run; from its own ``2 a`` it would fail it whenever
     ``kappa_j`` is the wider (every step of the paper circle with exact joints: the reading's
-    tube then ran twice)."""
+    tube then ran twice).  Returns whether any tube holds ``qc`` (``need`` raised)."""
+    found = False
     for j in range(n):
         holds = True
         for m in range(3):
             holds = holds and abs(wrap(qc[m] - pieces[j, TUBE_Q + m])) <= pieces[j, TUBE_T + m] + PAD
         if holds:
+            found = True
             for r in range(3):
                 want = (2.0 * pieces[j, TUBE_K + r] * (1.0 + SLACK) + PAD * (1.0 + abs(xg[r])) + 1e-15) * 1.25
                 need[r] = max(need[r], want)
+    return found
 
 
 @njit(cache=True)
@@ -121,12 +124,17 @@ def tested_takeover(pieces, n, xg, qc, V, tw, tq, M, l1, l2sq, b, new, deadline=
     guess ``xg``) that also takes over from the tubes ``pieces[:n]`` (:func:`takes_over`): when the
     test passes but its tube is too narrow for a hand-off, it is tried once more with the
     half-widths the hand-offs need (until the ``deadline``).  A single joint vector (``tq`` zero: the
-    exact reading of a tracker step) starts from :func:`point_prior`, so that its test runs once."""
+    exact reading of a tracker step) starts from :func:`point_prior`, so that its test runs once; when
+    the test fails that wide, it starts again from its own width, as any other."""
     need = np.zeros(3)
-    if tq[0] == 0.0 and tq[1] == 0.0 and tq[2] == 0.0:
-        point_prior(pieces, n, xg, qc, need)
+    prior = tq[0] == 0.0 and tq[1] == 0.0 and tq[2] == 0.0 and point_prior(pieces, n, xg, qc, need)
     if not slab_test(xg, qc, V, tw, tq, need, M, l1, l2sq, b, new):
-        return False
+        if not prior:
+            return False
+        for r in range(3):
+            need[r] = 0.0
+        if not slab_test(xg, qc, V, tw, tq, need, M, l1, l2sq, b, new):
+            return False
     if takes_over(pieces, n, new, need, deadline):
         return True
     if expired(deadline):
