@@ -56,7 +56,8 @@ from solver import Manipulator, MapTensor, Tracker
 ROOT = Path(__file__).resolve().parents[1]
 
 SHORT = {"RRRDirectKinematics": "DK", "ComputedTorqueController": "controller", "RRRPlant": "plant"}
-#: the FMI calls of one Gauss-Seidel step of ClosedLoop.run (through fmpy's loaded functions), in order: (label, FMU, kind)
+#: the FMI calls of one Gauss-Seidel step of ClosedLoop.run (through fmpy's loaded functions), in order:
+#: (label, FMU, kind)
 CALLS = (("DK setReal q", "RRRDirectKinematics", "set_real"),
          ("DK doStep", "RRRDirectKinematics", "do_step"),
          ("DK getReal pose", "RRRDirectKinematics", "get_real"),
@@ -248,7 +249,8 @@ def _timed_runs(loop, sc, repeat: int):
         m = res.metrics()
         print(f"   run {r + 1}: wall per step {1e6 * per['flags', 'wall'][-1]:.1f} us with flags, "
               f"{1e6 * per['no flags', 'wall'][-1]:.1f} without, {1e6 * per['fmpy calls', 'wall'][-1]:.1f} by fmpy's "
-              f"methods, {1e6 * per['no lanes', 'wall'][-1]:.1f} without the fast lanes, tracker {1e6 * per['tracker', 'wall'][-1]:.1f} us"
+              f"methods, {1e6 * per['no lanes', 'wall'][-1]:.1f} without the fast lanes, "
+              f"tracker {1e6 * per['tracker', 'wall'][-1]:.1f} us"
               f"  (RMS joint error after 0.5 s {m['rms_joint_error_after_0.5s']:.3e} rad, "
               f"max |DK - true| {m['max_dk_vs_true']:.1e})")
     med = {k: float(np.median(v)) for k, v in per.items()}

@@ -3,8 +3,9 @@
 
 Every step of a tracker is one call of the same machine code: in process through ctypes (the joints
 written into the tracker's scalars ``io``, the time step and the deadline passed as the call's two
-doubles: one call of four scalars instead of a 17-argument numba dispatch), a whole stream of :meth:`solver.Tracker.track` in one call,
-and from a C caller (the DK FMU's loader) directly, on the same flat state.  The table that the entry
+doubles: one call of four scalars instead of a 17-argument numba dispatch), a whole stream of
+:meth:`solver.Tracker.track` in one call, and from a C caller (the DK FMU's loader) directly, on the
+same flat state.  The table that the entry
 point reads holds the addresses of the tracker's arrays, which live as long as the tracker.
 """
 from __future__ import annotations

@@ -145,7 +145,8 @@ def test_the_cover_solution_is_found_whatever_the_numbering(model, geo, rng):
     for _ in range(6):
         order = rng.permutation(6)
         bound = np.full(3, np.inf)
-        k = cover_solution(tube, 1, q0, 0.0, np.ascontiguousarray(poses[order]), np.ascontiguousarray(real[order]), bound)
+        k = cover_solution(tube, 1, q0, 0.0, np.ascontiguousarray(poses[order]), np.ascontiguousarray(real[order]),
+                           bound)
         assert order[k] == k_true
         np.testing.assert_array_equal(bound, want)
     none = real.copy()

@@ -57,10 +57,9 @@ def hot_call(fmu, name: str, *fixed):
         ``call(*rest)``: the C function with ``fixed`` then ``rest``; its FMI status (int), unchecked
         (:func:`check`).  With an FMI call logger set: fmpy's method (logs, checks, raises).
     """
-    method = getattr(fmu, name)
     functions = getattr(fmu, "_functions", None)
     if getattr(fmu, "fmiCallLogger", None) is not None or not isinstance(functions, dict) or name not in functions:
-        return functools.partial(method, *fixed)
+        return functools.partial(getattr(fmu, name), *fixed)
     raw = functions[name]
     if raw.argtypes is None or getattr(raw, "_flags_", 0) != ctypes.CFUNCTYPE(None)._flags_:
         return functools.partial(raw, *fixed)   # not a plain C call as fmpy declared it: its own function

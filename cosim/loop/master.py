@@ -293,7 +293,7 @@ class ClosedLoop:
         tables = {}
         for key, (offset, array_type) in self._layout.items():
             width = ctypes.sizeof(array_type)
-            dtype = np.ctypeslib.as_array(array_type()).dtype
+            dtype = np.dtype(array_type._type_)
             tables[key] = raw[:, offset:offset + width].copy().view(dtype).astype(float)
         columns = {"time": t0 + np.arange(n) * h}                    # t0 + k h, as in the loop
         for name, source in COLUMN_SOURCES.items():

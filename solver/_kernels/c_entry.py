@@ -24,7 +24,8 @@ the rows ``T_*``), so the same machine code serves
 
 A kernel that raises (numba's error model: a division by zero, say) makes the cfunc print the error
 and return 0; ``io[IO_DONE]`` then stays 0.0, which every caller checks (:data:`CMD_ADVANCE`'s caller by
-that answer, 0, which no step gives): :meth:`solver.Tracker.step` raises, the loader's lane takes the step on the Python path from the committed state.
+that answer, 0, which no step gives): :meth:`solver.Tracker.step` raises, the loader's lane takes the
+step on the Python path from the committed state.
 
 The one entry point is also what keeps the step's machine code compiled, cached and shipped once:
 :func:`.stepper.tracker_advance` is compiled into this function only: a stream, an in-process step and an

@@ -32,7 +32,8 @@ def near_mask_one(labels, origin, step, periodic, X, r2, w, stencil, out):
     b0 = math.floor((X[0] - origin[0]) / step[0])
     b1 = math.floor((X[1] - origin[1]) / step[1])
     b2 = math.floor((X[2] - origin[2]) / step[2])
-    lo0, hi0, lo1, hi1, lo2, hi2 = stencil[0, 0], stencil[0, 0], stencil[0, 1], stencil[0, 1], stencil[0, 2], stencil[0, 2]
+    lo0, lo1, lo2 = stencil[0, 0], stencil[0, 1], stencil[0, 2]
+    hi0, hi1, hi2 = lo0, lo1, lo2
     for s in range(1, n):
         lo0, hi0 = min(lo0, stencil[s, 0]), max(hi0, stencil[s, 0])
         lo1, hi1 = min(lo1, stencil[s, 1]), max(hi1, stencil[s, 1])
