@@ -14,7 +14,7 @@ from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, I_AMBIGUOUS, I_CERTA
                               I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, I_TRUST, INFO_F_SIZE, OUT_BOUND, OUT_INFO,
                               OUT_X, TRUST, TRUST_LOST)
 
-__all__ = ["StepInfo", "TrackResult", "STATUS", "CERTIFICATES", "TRUST", "NO_BOUND", "STEP_FIELDS"]
+__all__ = ["StepInfo", "TrackResult", "result_views", "STATUS", "CERTIFICATES", "TRUST", "NO_BOUND", "STEP_FIELDS"]
 
 #: Status codes of a step by code (also the FMU's ``status`` output; 3, rejected, is the FMU's own).
 STATUS = _lay.STATUS
@@ -25,6 +25,16 @@ CERTIFICATES = {0: "none", 1: "continuation", 2: "elimination", 3: "posture", 4:
 #: The pose bound of a step that is not certain: no bound (inf, inf, inf), read-only.
 NO_BOUND = np.full(3, np.inf)
 NO_BOUND.flags.writeable = False
+
+
+#: The pose, X_pred and bound in the copy of :meth:`StepInfo.pose_and_info` (``head``: ``OUT_X`` to the bound)
+_BOUND = slice(OUT_BOUND - OUT_X, OUT_BOUND - OUT_X + 3)
+
+
+def result_views(out_real: np.ndarray, out_int: np.ndarray) -> tuple:
+    """The views of a result pack a step's :class:`StepInfo` is read from: ``out_real`` from the pose to the
+    pose bound (33,), its info floats (INFO_F_SIZE,), and ``out_int`` (INFO_I_SIZE,) int64."""
+    return out_real[OUT_X:OUT_BOUND + 3], out_real[OUT_INFO:OUT_INFO + INFO_F_SIZE], out_int
 
 
 class StepInfo(NamedTuple):
@@ -98,23 +108,21 @@ class StepInfo(NamedTuple):
     @classmethod
     def from_result(cls, out_real: np.ndarray, out_int: np.ndarray, uncertain_since: int) -> "StepInfo":
         """The step's information from its result pack (:mod:`solver._kernels.layout` ``OUT_*``, ``F_*``, ``I_*``)."""
-        return cls.pose_and_info(out_real, out_int, uncertain_since)[1]
+        return cls.pose_and_info(result_views(out_real, out_int), uncertain_since)[1]
 
     @classmethod
-    def pose_and_info(cls, out_real: np.ndarray, out_int: np.ndarray, uncertain_since: int):
-        """``(X, info)`` of a step from its result pack: the pose (3,) and :meth:`from_result`, the pose and
-        ``X_pred`` views of one copy (the step's hot path)."""
-        i, f = out_int.tolist(), out_real[OUT_INFO:OUT_INFO + INFO_F_SIZE].tolist()   # Python numbers: quicker to read
+    def pose_and_info(cls, views: tuple, uncertain_since: int):
+        """``(X, info)`` of a step from the :func:`result_views` of its result pack: the pose (3,) and the
+        :class:`StepInfo`, the pose, ``X_pred`` and bound views of one copy (the step's hot path: the views
+        are made once per tracker, a step pays one copy, two or three slices and two ``tolist``)."""
+        head, floats, ints = views
+        i, f = ints.tolist(), floats.tolist()               # Python numbers: quicker to read
+        xx = head.copy()                                    # one copy for the pose, X_pred and the bound
         certain = i[I_CERTAIN] != 0
-        if certain:                                         # one copy for the pose, X_pred and the bound
-            xx = out_real[OUT_X:OUT_BOUND + 3].copy()
-            bound = xx[OUT_BOUND - OUT_X:]
-        else:
-            xx, bound = out_real[OUT_X:OUT_X + 6].copy(), NO_BOUND
         return xx[:3], tuple.__new__(cls, (
             i[I_LABEL], i[I_NEAR_BORDER] != 0, xx[3:6], i[I_N_REAL], f[F_COND], i[I_AMBIGUOUS] != 0, i[I_STATUS],
             i[I_JUMP] != 0, f[F_D_BEST], f[F_D_SECOND], certain, i[I_CERTIFICATE], i[I_N_CAND], uncertain_since,
-            bound, i[I_TRUST], False))
+            xx[_BOUND] if certain else NO_BOUND, i[I_TRUST], False))
 
     @property
     def status_name(self) -> str:

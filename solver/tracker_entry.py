@@ -27,6 +27,7 @@ class CEntry:
     def _entry_table(self) -> None:
         """The entry point's table over the tracker's arrays (made once, at construction)."""
         self._io = np.zeros(IO_SIZE)
+        self._q_in = self._io[:3]               # the step's joints (``q_in[...] = q``: the quickest copy in)
         self._table = make_table(self._mode, self._rule, dict(
             a=self._flat, pk=self._state_pack, model=self._model_pack, s2s=self._sample_to_sextic, labels=self._labels,
             map=self._map_pack, stencil=self._stencil, params=self._params, out_real=self._out_real,
@@ -50,7 +51,7 @@ class CEntry:
             self._failed()
 
     def _advance(self, q, dt, deadline, a):
-        self._io[:3] = q
+        self._q_in[...] = q
         r = (self._call or self._entry())(self._table_address, CMD_ADVANCE, dt, deadline)
         if r <= 0:                              # 0: a kernel raised (the cfunc's answer then)
             self._failed()
@@ -79,13 +80,13 @@ class CEntry:
 
     def __getstate__(self):
         # the table holds this tracker's array addresses: a copy (pickle, deepcopy) makes its own
-        state = dict(self.__dict__)
-        for name in ("_table", "_table_address", "_call", "_backup"):
+        state = super().__getstate__()
+        for name in ("_table", "_table_address", "_call", "_backup", "_q_in"):
             state.pop(name, None)
         return state
 
     def __setstate__(self, state):
-        self.__dict__.update(state)
+        super().__setstate__(state)
         self._entry_table()
 
     def c_step(self, real, integer, boolean, slots):

@@ -26,6 +26,7 @@ from .direct_kinematics import kernel_constants
 from .kinematics import wrap_angle
 from .manipulators import MANIPULATOR_TYPES
 from .stuck import reading_fields, repeat_counts, stuck_refusal
+from .step_info import result_views
 from .tracker_state import STEP_FIELDS, StepInfo, TrackerError, TrackerState, TrackResult
 
 
@@ -71,8 +72,19 @@ class _TrackerBase:
         self._out_real[OUT_REGION:OUT_REGION + 6] = np.nan  # no set-membership region,
         self._out_real[OUT_N_PAVE] = 0.0                    # and no paving
         self._out_int = np.empty(INFO_I_SIZE, dtype=np.int64)
+        self._views = result_views(self._out_real, self._out_int)   # what a step's StepInfo is read from
         #: seconds one step may take (None: no budget); only the tracker has anytime proofs
         self.step_budget: float | None = None
+
+    def __getstate__(self):
+        # the result views look into this tracker's own result pack: a copy (pickle, deepcopy) makes its own
+        state = dict(self.__dict__)
+        state.pop("_views", None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._views = result_views(self._out_real, self._out_int)
 
     @property
     def state(self) -> TrackerState | None:
@@ -210,7 +222,7 @@ class _TrackerBase:
         if since == NOT_FINITE:
             self._check_joints(q)                            # raises, naming q; nothing changed
         self._st = None                                      # the flat state moved on
-        X, info = StepInfo.pose_and_info(self._out_real, self._out_int, since)
+        X, info = StepInfo.pose_and_info(self._views, since)
         if deadline and not info.certain and self._out_of_budget():
             info = info._replace(out_of_budget=True)
         return X, info

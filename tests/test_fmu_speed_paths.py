@@ -283,6 +283,29 @@ def test_direct_calls_give_the_runs_of_fmpy_calls(fmus, loop):
         ClosedLoop(fmus, calls="ctypes")
 
 
+def test_hot_calls_are_the_fmus_c_functions_by_their_declared_types(loop):
+    """A hot call is a cffi pointer of the C type fmpy declared (pointers as addresses); it reads what
+    fmpy's method reads and answers its status; a function of a type it does not know stays ctypes."""
+    import ctypes
+
+    from cosim.loop.calls import c_declaration, hot_call
+
+    loop.run(Scenario(t_end=0.01))                                      # instances in step mode
+    fmu = loop.ports["plant"].unit.fmu
+    functions = fmu._functions
+    assert c_declaration(functions["fmi2GetReal"]) == "int (*)(void *, void *, size_t, void *)"
+    assert c_declaration(functions["fmi2DoStep"]) == "int (*)(void *, double, double, int)"
+    vr = loop.ports["plant"].unit.vr_array("x_true", "y_true", "phi_true")
+    mine, theirs = (ctypes.c_double * 3)(), (ctypes.c_double * 3)()
+    call = hot_call(fmu, "fmi2GetReal", fmu.component, vr, 3, mine)
+    assert type(call.func).__module__ == "_cffi_backend" and call() == 0
+    fmu.fmi2GetReal(fmu.component, vr, 3, theirs)
+    assert list(mine) == list(theirs) and np.all(np.isfinite(list(mine)))
+    odd = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_float)(lambda x: 0)      # a float: not a type it binds
+    odd.argtypes = (ctypes.c_float,)
+    assert c_declaration(odd) is None
+
+
 # ---------------------------------------------------------------------- kernels of FMU bundles
 KERNEL = textwrap.dedent("""
     from numba import njit

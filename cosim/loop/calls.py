@@ -5,23 +5,30 @@ ctypes call (which converts and type-checks each argument), the call logger's ch
 check that raises :class:`fmpy.fmi1.FMICallException` above ``fmi2Warning``.  A closed loop makes 9 to
 11 such calls a step.  Measured on the plant FMU's ``fmi2GetReal`` of its outputs (one process, medians
 of 5 x 100,000 calls): fmpy's method 1.52 us, fmpy's ctypes function 1.00 us, the same C function
-through a prototype whose arguments are bound once as plain addresses 0.50 us.
+through a ctypes prototype whose arguments are bound once as plain addresses 0.50 us, and through a
+cffi function pointer with the same bound addresses 0.25 us (cffi's call converts its arguments in C;
+ctypes builds a Python object per argument).
 
 :func:`hot_call` binds the leading arguments of one FMI function once (the instance, value-reference
-and value arrays by address) and returns ``call(*rest) -> status``; :func:`check` is fmpy's status
-check, raising the same exception.  The arrays bound must outlive the call (the call keeps them).
-With an FMI call logger (``fmiCallLogger``) set, :func:`hot_call` binds fmpy's method instead, so every
-call is still logged and checked.
+and value arrays by address) and returns ``call(*rest) -> status``, a cffi function pointer to the
+function fmpy loaded (:func:`c_declaration` writes its C type from fmpy's ctypes prototype); :func:`check`
+is fmpy's status check, raising the same exception.  The arrays bound must outlive the call (the call
+keeps them).  With an FMI call logger (``fmiCallLogger``) set, :func:`hot_call` binds fmpy's method
+instead, so every call is still logged and checked.
 """
 from __future__ import annotations
 
 import ctypes
 import functools
 
+import cffi
+
 #: fmpy raises above this status (fmi2Warning): fmi2Discard, fmi2Error, fmi2Fatal, fmi2Pending.
 WORST_ACCEPTED = 1
 
-__all__ = ["FMI_NAME", "ORDERS", "WORST_ACCEPTED", "check", "hot_call", "step_sequence"]
+__all__ = ["FMI_NAME", "ORDERS", "WORST_ACCEPTED", "c_declaration", "check", "hot_call", "step_sequence"]
+
+_FFI = cffi.FFI()
 
 #: One step's FMI calls in each master's order (:meth:`ClosedLoop.step_function`): (instance, what),
 #: what "set" (its connected inputs), "step" (fmi2DoStep from t over h) or "get" (its Real outputs).
@@ -61,22 +68,39 @@ def hot_call(fmu, name: str, *fixed):
     if getattr(fmu, "fmiCallLogger", None) is not None or not isinstance(functions, dict) or name not in functions:
         return functools.partial(getattr(fmu, name), *fixed)
     raw = functions[name]
-    if raw.argtypes is None or getattr(raw, "_flags_", 0) != ctypes.CFUNCTYPE(None)._flags_:
+    decl = c_declaration(raw)
+    if decl is None:
         return functools.partial(raw, *fixed)   # not a plain C call as fmpy declared it: its own function
-    pointer = tuple(_is_pointer(t) for t in raw.argtypes)
-    proto = ctypes.CFUNCTYPE(raw.restype, *(ctypes.c_void_p if p else t for p, t in zip(pointer, raw.argtypes)))
-    call = proto(ctypes.cast(raw, ctypes.c_void_p).value)
+    call = _FFI.cast(decl, ctypes.cast(raw, ctypes.c_void_p).value)
     bound = []
-    for arg, p in zip(fixed, pointer):
+    for arg, t in zip(fixed, raw.argtypes):
         if isinstance(arg, ctypes.Array):
-            bound.append(ctypes.c_void_p(ctypes.addressof(arg)))
-        elif p:
-            bound.append(ctypes.c_void_p(arg))
+            bound.append(_FFI.cast("void *", ctypes.addressof(arg)))
+        elif _is_pointer(t):
+            bound.append(_FFI.cast("void *", arg))
         else:
             bound.append(arg)
     out = functools.partial(call, *bound)
     out.keep = (fixed, raw)                     # the arrays bound by address, and the library's function
     return out
+
+
+#: C types of the ctypes types fmpy declares FMI functions with (fmi2Status, fmi2Real, size_t, fmi2Boolean...)
+_C_TYPES = {ctypes.c_int: "int", ctypes.c_uint: "unsigned int", ctypes.c_double: "double",
+            ctypes.c_size_t: "size_t", ctypes.c_char: "char"}
+
+
+def c_declaration(function) -> str | None:
+    """The cffi type of the ctypes function ``function`` (as fmpy loaded it), pointers as ``void *``: for
+    ``fmi2GetReal``, ``"int (*)(void *, void *, size_t, void *)"``.  None when it is not a plain C call
+    of types :data:`_C_TYPES` and pointers (then :func:`hot_call` binds the ctypes function itself)."""
+    if function.argtypes is None or getattr(function, "_flags_", 0) != ctypes.CFUNCTYPE(None)._flags_:
+        return None
+    args = ["void *" if _is_pointer(t) else _C_TYPES.get(t) for t in function.argtypes]
+    result = _C_TYPES.get(function.restype)
+    if result is None or None in args:
+        return None
+    return f"{result} (*)({', '.join(args)})"
 
 
 def _is_pointer(t) -> bool:
