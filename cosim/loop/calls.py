@@ -3,9 +3,9 @@
 ``FMU2Slave.fmi2GetReal(c, vr, n, value)`` is fmpy's ``_call``: a method call, a dict look-up, the
 ctypes call (which converts and type-checks each argument), the call logger's check, and the status
 check that raises :class:`fmpy.fmi1.FMICallException` above ``fmi2Warning``.  A closed loop makes 9 to
-11 such calls a step.  Measured on the plant FMU's ``fmi2GetReal`` of its outputs (one process, medians
-of 5 x 100,000 calls, in one process with the FMUs of the closed loop): fmpy's method 0.9-1.5 us, fmpy's ctypes function
-0.6-0.8 us, the same C function through a ctypes prototype whose arguments are bound once as plain
+11 such calls a step.  Measured on the plant FMU's ``fmi2GetReal`` of its outputs (medians of 5 x
+100,000 calls, in one process with the closed loop's FMUs): fmpy's method 0.9-1.5 us, fmpy's ctypes
+function 0.6-0.8 us, the same C function through a ctypes prototype whose arguments are bound once as plain
 addresses 0.39-0.40 us, and through a cffi function pointer with the same bound addresses 0.27 us
 (cffi converts the arguments in C; ctypes makes a Python object of each).  On a ``fmi2DoStep`` with its
 three numbers, the controller's: 2.73 us by the ctypes prototype, 2.40 us by cffi.  The closed loop's
