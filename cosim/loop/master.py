@@ -138,11 +138,17 @@ class Port:
             return
         u = (fmi2Real * n)()
         set_real = self.call("fmi2SetReal", vr, n, u)
+        # each run of the plan as a pair of numpy views made once: `dst[...] = src` is one C copy (0.1 us;
+        # slices of the ctypes arrays cost 0.3-0.4 us a run, measured)
+        u_np = np.ctypeslib.as_array(u)
+        runs = tuple((u_np[a:b], np.ctypeslib.as_array(buf)[c0:d]) for a, b, buf, c0, d in plan)
+        runs_keep = (u, plan)                           # the ctypes arrays the views look into
 
         def set_inputs():
-            for a, b, buf, c0, d in plan:
-                u[a:b] = buf[c0:d]
+            for dst, src in runs:
+                dst[...] = src
             return set_real()
+        set_inputs.keep = runs_keep
         self.set_inputs = set_inputs
 
     def read_calls(self, flags: bool = True) -> tuple:
