@@ -214,15 +214,17 @@ class _TrackerBase:
             q = self._check_joints(q)                        # (a float array (3,) is checked finite compiled)
         a = self._flat if self._live else self._flat_state()
         if dt is None:
-            dt = np.nan
-        elif not (np.isfinite(dt) and dt > 0):
+            dt = _NAN
+        elif np.isfinite(dt) and dt > 0:
+            dt = float(dt)
+        else:
             raise SolverInputError(f"dt: expected a positive time step in s, got {dt!r}")
         self._held = None
-        since = self._advance(q, float(dt), deadline, a)
+        since = self._advance(q, dt, deadline, a)
         if since == NOT_FINITE:
             self._check_joints(q)                            # raises, naming q; nothing changed
         self._st = None                                      # the flat state moved on
-        X, info = StepInfo.pose_and_info(self._views, since)
+        X, info = _pose_and_info(self._views, since)
         if deadline and not info.certain and self._out_of_budget():
             info = info._replace(out_of_budget=True)
         return X, info
@@ -374,6 +376,8 @@ _INFO_COLUMNS = (("label", I_LABEL), ("near_border", I_NEAR_BORDER), ("n_real", 
 #: The compiled loop of track times its steps with the CPU's cycle counter (x86-64); elsewhere track steps
 #: in Python.
 _CYCLES = platform.machine().lower() in ("x86_64", "amd64")
+#: the step's reader of its result (:meth:`StepInfo.pose_and_info`), and dt when not given, looked up once
+_pose_and_info, _NAN = StepInfo.pose_and_info, float("nan")
 #: float64 in native byte order: a step's joints of this dtype (``is``, numpy's one instance) skip the conversion
 _F64 = np.dtype(np.float64)
 
