@@ -27,7 +27,7 @@ NO_BOUND = np.full(3, np.inf)
 NO_BOUND.flags.writeable = False
 
 
-#: The pose, X_pred and bound in the copy of :meth:`StepInfo.pose_and_info` (``head``: ``OUT_X`` to the bound)
+#: The pose, X_pred and bound in the copy of :meth:`StepInfo.from_views` (``head``: ``OUT_X`` to the bound)
 _BOUND = slice(OUT_BOUND - OUT_X, OUT_BOUND - OUT_X + 3)
 
 
@@ -108,13 +108,18 @@ class StepInfo(NamedTuple):
     @classmethod
     def from_result(cls, out_real: np.ndarray, out_int: np.ndarray, uncertain_since: int) -> "StepInfo":
         """The step's information from its result pack (:mod:`solver._kernels.layout` ``OUT_*``, ``F_*``, ``I_*``)."""
-        return cls.pose_and_info(result_views(out_real, out_int), uncertain_since)[1]
+        return cls.from_views(result_views(out_real, out_int), uncertain_since)[1]
 
     @classmethod
-    def pose_and_info(cls, views: tuple, uncertain_since: int):
-        """``(X, info)`` of a step from the :func:`result_views` of its result pack: the pose (3,) and the
-        :class:`StepInfo`, the pose, ``X_pred`` and bound views of one copy (the step's hot path: the views
-        are made once per tracker, a step pays one copy, two or three slices and two ``tolist``)."""
+    def pose_and_info(cls, out_real: np.ndarray, out_int: np.ndarray, uncertain_since: int):
+        """``(X, info)`` of a step from its result pack: the pose (3,) and :meth:`from_result`."""
+        return cls.from_views(result_views(out_real, out_int), uncertain_since)
+
+    @classmethod
+    def from_views(cls, views: tuple, uncertain_since: int):
+        """:meth:`pose_and_info` from the :func:`result_views` of the result pack (the step's hot path: a
+        tracker makes the views once, a step pays one copy, two or three slices and two ``tolist``); the
+        pose, ``X_pred`` and the bound are views of the one copy."""
         head, floats, ints = views
         i, f = ints.tolist(), floats.tolist()               # Python numbers: quicker to read
         xx = head.copy()                                    # one copy for the pose, X_pred and the bound

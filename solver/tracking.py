@@ -25,9 +25,9 @@ from .checks import SolverInputError, as_array
 from .direct_kinematics import kernel_constants
 from .kinematics import wrap_angle
 from .manipulators import MANIPULATOR_TYPES
+from .step_info import STEP_FIELDS, StepInfo, TrackResult, result_views
 from .stuck import reading_fields, repeat_counts, stuck_refusal
-from .step_info import result_views
-from .tracker_state import STEP_FIELDS, StepInfo, TrackerError, TrackerState, TrackResult
+from .tracker_state import TrackerError, TrackerState
 
 
 def _check_q(q) -> np.ndarray:
@@ -376,8 +376,8 @@ _INFO_COLUMNS = (("label", I_LABEL), ("near_border", I_NEAR_BORDER), ("n_real", 
 #: The compiled loop of track times its steps with the CPU's cycle counter (x86-64); elsewhere track steps
 #: in Python.
 _CYCLES = platform.machine().lower() in ("x86_64", "amd64")
-#: the step's reader of its result (:meth:`StepInfo.pose_and_info`), and dt when not given, looked up once
-_pose_and_info, _NAN = StepInfo.pose_and_info, float("nan")
+#: the step's reader of its result (:meth:`StepInfo.from_views`), and dt when not given, looked up once
+_pose_and_info, _NAN = StepInfo.from_views, float("nan")
 #: float64 in native byte order: a step's joints of this dtype (``is``, numpy's one instance) skip the conversion
 _F64 = np.dtype(np.float64)
 

@@ -301,9 +301,13 @@ def test_hot_calls_are_the_fmus_c_functions_by_their_declared_types(loop):
     assert type(call.func).__module__ == "_cffi_backend" and call() == 0
     fmu.fmi2GetReal(fmu.component, vr, 3, theirs)
     assert list(mine) == list(theirs) and np.all(np.isfinite(list(mine)))
-    odd = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_float)(lambda x: 0)      # a float: not a type it binds
-    odd.argtypes = (ctypes.c_float,)
-    assert c_declaration(odd) is None
+    assert c_declaration(ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_char_p)(lambda c, s: 0)) == \
+        "int (*)(void *, void *)"                                           # a string is an address
+    assert c_declaration(ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_float)(lambda x: 0)) is None    # a float
+    assert c_declaration(ctypes.CFUNCTYPE(None, ctypes.c_void_p)(lambda c: None)) is None       # returns void
+    # a pointer left for the call (an array, or None, there): fmpy's ctypes function, which takes them
+    left = hot_call(fmu, "fmi2GetReal", fmu.component)
+    assert left.func is functions["fmi2GetReal"] and left(vr, 3, theirs) == 0
 
 
 # ---------------------------------------------------------------------- kernels of FMU bundles

@@ -1,15 +1,15 @@
 """The master's hot FMI calls: the FMU's C functions as fmpy loaded them, without fmpy's Python layer.
 
-``FMU2Slave.fmi2GetReal(c, vr, n, value)`` is fmpy's ``_call``: a method call, a dict look-up, the
-ctypes call (which converts and type-checks each argument), the call logger's check, and the status
-check that raises :class:`fmpy.fmi1.FMICallException` above ``fmi2Warning``.  A closed loop makes 9 to
-11 such calls a step.  Measured on the plant FMU's ``fmi2GetReal`` of its outputs (medians of 5 x
-100,000 calls, in one process with the closed loop's FMUs): fmpy's method 0.9-1.5 us, fmpy's ctypes
-function 0.6-0.8 us, the same C function through a ctypes prototype whose arguments are bound once as plain
-addresses 0.39-0.40 us, and through a cffi function pointer with the same bound addresses 0.27 us
-(cffi converts the arguments in C; ctypes makes a Python object of each).  On a ``fmi2DoStep`` with its
-three numbers, the controller's: 2.73 us by the ctypes prototype, 2.40 us by cffi.  The closed loop's
-step (11 calls): 33.5 -> 30.6 us.
+``FMU2Slave.fmi2GetReal(c, vr, n, value)`` is fmpy's ``_call``: a method call, a dict look-up, the ctypes
+call (which converts and type-checks each argument), the call logger's check, and the status check that
+raises :class:`fmpy.fmi1.FMICallException` above ``fmi2Warning``. A closed loop makes 9 to 11 such calls
+a step. Measured on the plant FMU's ``fmi2GetReal`` of its outputs (medians of 5 x 100,000 calls, in one
+process with the closed loop's FMUs): fmpy's method 0.9-1.5 us, fmpy's ctypes function 0.6-0.8 us, the
+same C function through a ctypes prototype whose arguments are bound once as plain addresses
+0.39-0.40 us, and through a cffi function pointer with the same bound addresses 0.27 us (cffi converts
+the arguments in C; ctypes makes a Python object of each). On a ``fmi2DoStep`` with its three numbers,
+the controller's: 2.73 us by the ctypes prototype, 2.40 us by cffi. The closed loop's step (11 calls):
+33.5 -> 30.6 us.
 
 :func:`hot_call` binds the leading arguments of one FMI function once (the instance, value-reference
 and value arrays by address) and returns ``call(*rest) -> status``, a cffi function pointer to the
@@ -57,29 +57,33 @@ def hot_call(fmu, name: str, *fixed):
     name : str
         An FMI function fmpy loaded for it.
     *fixed
-        Its first arguments: the instance (an address, int) and ctypes arrays (passed by address;
-        kept alive by the call) or numbers.
+        Its first arguments: the instance (an address, int; None: NULL) and ctypes arrays (passed by
+        address; kept alive by the call) or numbers.
 
     Returns
     -------
     callable
         ``call(*rest)``: the C function with ``fixed`` then ``rest``; its FMI status (int), unchecked
-        (:func:`check`).  With an FMI call logger set: fmpy's method (logs, checks, raises).
+        (:func:`check`).  ``rest`` are numbers: when a pointer is left for the call, or a type is not
+        one of :data:`_C_TYPES`, ``call`` is fmpy's ctypes function with ``fixed`` bound.  With an FMI
+        call logger set: fmpy's method (logs, checks, raises).
     """
     functions = getattr(fmu, "_functions", None)
     if getattr(fmu, "fmiCallLogger", None) is not None or not isinstance(functions, dict) or name not in functions:
         return functools.partial(getattr(fmu, name), *fixed)
     raw = functions[name]
     decl = c_declaration(raw)
-    if decl is None:
-        return functools.partial(raw, *fixed)   # not a plain C call as fmpy declared it: its own function
+    if decl is None or any(_is_pointer(t) for t in raw.argtypes[len(fixed):]):
+        # not a plain C call as fmpy declared it, or a pointer left for the call (cffi takes only its own
+        # pointers there, ctypes also arrays and None): fmpy's ctypes function
+        return functools.partial(raw, *fixed)
     call = _FFI.cast(decl, ctypes.cast(raw, ctypes.c_void_p).value)
     bound = []
     for arg, t in zip(fixed, raw.argtypes):
         if isinstance(arg, ctypes.Array):
             bound.append(_FFI.cast("void *", ctypes.addressof(arg)))
         elif _is_pointer(t):
-            bound.append(_FFI.cast("void *", arg))
+            bound.append(_FFI.NULL if arg is None else _FFI.cast("void *", arg))
         else:
             bound.append(arg)
     out = functools.partial(call, *bound)
@@ -87,7 +91,9 @@ def hot_call(fmu, name: str, *fixed):
     return out
 
 
-#: C types of the ctypes types fmpy declares FMI functions with (fmi2Status, fmi2Real, size_t, fmi2Boolean...)
+#: C types of the ctypes types fmpy declares FMI functions with (fmi2Status, fmi2Real, size_t, fmi2Boolean,
+#: fmi1Boolean...).  ctypes.c_size_t is an alias (c_ulong on 64-bit Linux and macOS, c_ulonglong on
+#: Windows): an argument of that type is written "size_t", which has its size; a c_char takes one byte.
 _C_TYPES = {ctypes.c_int: "int", ctypes.c_uint: "unsigned int", ctypes.c_double: "double",
             ctypes.c_size_t: "size_t", ctypes.c_char: "char"}
 
