@@ -283,6 +283,39 @@ def test_direct_calls_give_the_runs_of_fmpy_calls(fmus, loop):
         ClosedLoop(fmus, calls="ctypes")
 
 
+def test_a_step_function_never_steps_freed_instances(fmus):
+    """Its calls are bound to the instances of one initialize: after the next (fresh instances, the old
+    ones freed) or after close, it refuses to step instead of calling freed memory (a crash of the host)."""
+    from cosim import ClosedLoop
+
+    def start():                                                        # as run: initialize, read the outputs
+        loop.initialize(sc, 0.0)
+        for port in loop.ports.values():
+            assert all(call() == 0 for _, call in port.read_calls(False))
+
+    sc = Scenario(t_end=0.01)
+    loop = ClosedLoop(fmus)
+    with pytest.raises(RuntimeError, match="call initialize"):
+        loop.step_function()
+    start()
+    old = loop.step_function()
+    old(0.0, sc.h)
+    pose = list(loop.ports["dk"].buffers["Real"])
+    start()                                                             # the instances old was made for: freed
+    with pytest.raises(RuntimeError, match="initialized again or closed"):
+        old(sc.h, sc.h)
+    new = loop.step_function()
+    new(0.0, sc.h)
+    assert list(loop.ports["dk"].buffers["Real"]) == pose               # the same first step again
+    loop.close()
+    with pytest.raises(RuntimeError, match="initialized again or closed"):
+        new(sc.h, sc.h)
+    with pytest.raises(RuntimeError, match="closed"):
+        loop.run(sc)
+    with pytest.raises(RuntimeError, match="closed"):
+        loop.step_function()
+
+
 def test_hot_calls_are_the_fmus_c_functions_by_their_declared_types(loop):
     """A hot call is a cffi pointer of the C type fmpy declared (pointers as addresses); it reads what
     fmpy's method reads and answers its status; a function of a type it does not know stays ctypes."""
