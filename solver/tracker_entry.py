@@ -44,7 +44,7 @@ class CEntry:
         anytime[ANY_DEADLINE] = deadline
         if state_pack is not self._state_pack:
             self._state_pack[:] = state_pack
-        self._io[:3] = q
+        self._q_in[...] = q
         self._io[IO_DEADLINE] = deadline
         (self._call or self._entry())(self._table_address, CMD_PACKED, 0.0, 0.0)
         if self._io[IO_DONE] != 1.0:

@@ -224,7 +224,7 @@ class _TrackerBase:
         if since == NOT_FINITE:
             self._check_joints(q)                            # raises, naming q; nothing changed
         self._st = None                                      # the flat state moved on
-        X, info = _pose_and_info(self._views, since)
+        X, info = _from_views(self._views, since)
         if deadline and not info.certain and self._out_of_budget():
             info = info._replace(out_of_budget=True)
         return X, info
@@ -377,7 +377,7 @@ _INFO_COLUMNS = (("label", I_LABEL), ("near_border", I_NEAR_BORDER), ("n_real", 
 #: in Python.
 _CYCLES = platform.machine().lower() in ("x86_64", "amd64")
 #: the step's reader of its result (:meth:`StepInfo.from_views`), and dt when not given, looked up once
-_pose_and_info, _NAN = StepInfo.from_views, float("nan")
+_from_views, _NAN = StepInfo.from_views, float("nan")
 #: float64 in native byte order: a step's joints of this dtype (``is``, numpy's one instance) skip the conversion
 _F64 = np.dtype(np.float64)
 

@@ -203,6 +203,8 @@ class ClosedLoop:
     def __init__(self, fmus: dict, calls: str = "direct"):
         if calls not in CALL_PATHS:
             raise ValueError(f"calls: expected one of {CALL_PATHS}, got {calls!r}")
+        self._generation = 0                # the instances' generation: +1 at each initialize and at close
+        self._closed = False
         self.units = {}
         try:
             for name in INSTANCES.values():
@@ -213,14 +215,12 @@ class ClosedLoop:
         self.ports = {inst: Port(inst, self.units[name], calls) for inst, name in INSTANCES.items()}
         self._block, self._layout = one_block(self.ports)
         self._fresh = True
-        self._generation = 0                # the instances' generation: +1 at each initialize and at close
-        self._closed = False
         #: the robot description the DK FMU carries (None: the paper's robot) and its geometry
         self.robot = fmu_robot(self.units[INSTANCES["dk"]].path)
         self.model = self.robot.model if self.robot is not None else Manipulator.paper()
 
     def close(self):
-        self._generation = getattr(self, "_generation", 0) + 1     # (also from a failed __init__)
+        self._generation += 1
         self._closed = True
         for unit in self.units.values():
             unit.close()
