@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import json
+import os
 import re
 import subprocess
 import sys
@@ -343,7 +344,8 @@ def test_the_example_robots_ssp_runs_in_ecos(robot_loop):
         pytest.skip("Ecos unavailable (pip install ecospy; apt-get install libtbb12): "
                     + probe.stderr.strip().splitlines()[-1])
     proc = subprocess.run([sys.executable, "-c", ECOS_RUN, str(tmp / "build" / "RRRClosedLoop.ssp"), "1000"],
-                          capture_output=True, text=True, timeout=900, cwd=tmp)
+                          capture_output=True, text=True, timeout=900, cwd=tmp,
+                          env={**os.environ, "TMPDIR": str(tmp)})   # Ecos extracts the SSP there (pytest cleans it)
     line = next((x for x in proc.stdout.splitlines() if x.startswith("ECOS ")), None)
     assert line is not None, proc.stderr[-3000:]
     rows = np.array(json.loads(line[5:]))

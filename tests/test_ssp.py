@@ -147,7 +147,8 @@ def ecos(package, tmp_path_factory):
                     + probe.stderr.strip().splitlines()[-1])
     names = [f"dk::{v}" for v in POSE] + [f"plant::{v}" for v in PLANT] + [f"controller::{v}" for v in CONTROLLER]
     out = tmp_path_factory.mktemp("ecos") / "ecos.npz"
-    proc = run_python(ECOS_RUN, package, SC.h, SC.n_steps, ssp.PARAMETER_SET, json.dumps(names), out)
+    proc = run_python(ECOS_RUN, package, SC.h, SC.n_steps, ssp.PARAMETER_SET, json.dumps(names), out,
+                      tmpdir=out.parent)                      # (Ecos's extracted SSP stays in pytest's folder)
     assert "ecos done" in proc.stdout, proc.stderr[-3000:]
     data = np.load(out)
     cols = {name.split("::")[1]: data["rows"][:, i + 1] for i, name in enumerate(names)}
