@@ -25,7 +25,8 @@ from __future__ import annotations
 import numpy as np
 
 from ._kernels import layout as _lay
-from ._kernels.stepper import baseline_advance, baseline_track
+from ._kernels.baseline_entry import baseline_entry
+from ._kernels.c_entry import CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_K0, IO_SIZE, make_table, stream_table
 from .manipulator import Manipulator
 from .ordering import DEFAULT_RULE, rule_code
 from .tracking import _TrackerBase
@@ -47,18 +48,46 @@ class _Baseline(_TrackerBase):
         self._rule = rule_code(rule)
         self._params = _lay.pack_baseline_params(self._w, NEWTON_TOL, SEPARATION)
         self._out_real[_lay.OUT_BOUND:_lay.OUT_BOUND + 3] = np.inf   # a baseline proves no pose bound
+        self._entry_table()
+
+    def _entry_table(self) -> None:
+        """The table of the baseline's arrays its compiled entry reads (:mod:`._kernels.baseline_entry`):
+        a step is one call of four scalars, its joints written into ``io`` first."""
+        self._io = np.zeros(IO_SIZE)
+        self._q_in = self._io[:3]
+        self._table = make_table(self.kind, self._rule, dict(
+            a=self._flat, pk=self._state_pack, model=self._model_pack, s2s=self._sample_to_sextic,
+            params=self._params, out_real=self._out_real, out_int=self._out_int, io=self._io))
+        self._address = int(self._table.ctypes.data)
+
+    def __getstate__(self):
+        # the table holds this baseline's array addresses: a copy (pickle, deepcopy) makes its own
+        state = super().__getstate__()
+        for name in ("_table", "_address", "_q_in"):
+            state.pop(name, None)
+        return state
+
+    def __setstate__(self, state):
+        super().__setstate__(state)
+        self._entry_table()
 
     def _kernel(self, q, state_pack, deadline):
-        baseline_advance(self.kind, self._rule, q, 0.0, self._flat, state_pack, self._model_pack,
-                         self._sample_to_sextic, self._params, self._out_real, self._out_int, True)
+        if state_pack is not self._state_pack:
+            self._state_pack[:] = state_pack
+        self._q_in[...] = q
+        baseline_entry(self._address, CMD_PACKED, 0.0, 0.0)
 
     def _advance(self, q, dt, deadline, a):
-        return baseline_advance(self.kind, self._rule, q, dt, a, self._state_pack, self._model_pack,
-                                self._sample_to_sextic, self._params, self._out_real, self._out_int, False)
+        self._q_in[...] = q                     # (a is the flat state, which the table holds)
+        return baseline_entry(self._address, CMD_ADVANCE, dt, 0.0)
 
     def _loop(self, qs, k0, a, X, Xp, info_f, info_i, bound, since, cut, cyc):
-        baseline_track(self.kind, self._rule, qs, k0, a, self._state_pack, self._model_pack, self._sample_to_sextic,
-                       self._params, self._out_real, self._out_int, X, Xp, info_f, info_i, bound, since, cut, cyc)
+        if not qs.flags.writeable:              # (the loop only reads it; the table takes writable rows)
+            qs = qs.copy()
+        table = stream_table(self._table, dict(qs=qs, X=X, X_pred=Xp, info_f=info_f, info_i=info_i, bound=bound,
+                                               since=since, cut=cut, cycles=cyc))
+        self._io[IO_K0] = k0
+        baseline_entry(int(table.ctypes.data), CMD_TRACK, 0.0, 0.0)
 
 
 class NewtonTracker(_Baseline):

@@ -274,3 +274,29 @@ def test_track_takes_a_read_only_stream(model, coarse_map1):
     a = Tracker(model, coarse_map1, start_tolerance=EXACT).track(frozen, X[0])
     b = Tracker(model, coarse_map1, start_tolerance=EXACT).track(q, X[0])
     assert np.array_equal(a.X, b.X) and np.array_equal(a.certain, b.certain) and a.certain.all()
+
+
+@pytest.mark.parametrize("how", ["deepcopy", "pickle"])
+def test_a_copied_tracker_steps_its_own_arrays(model, coarse_map1, how):
+    """A tracker's and a baseline's compiled entry reads a table of its arrays' addresses: a copy (deepcopy,
+    pickle) makes its own table, steps as the original would and leaves the original's data alone."""
+    import copy
+    import pickle
+    X = circle_path(40)
+    q = ik(model, X, 1)
+    for make in (lambda: Tracker(model, coarse_map1, start_tolerance=EXACT), lambda: BASELINES["newton"](model),
+                 lambda: BASELINES["nearest"](model)):
+        tr, twin = make(), make()
+        for t in (tr, twin):
+            t.reset(X[0], q[0])
+            for k in range(1, 8):
+                t.step(q[k])
+        dup = copy.deepcopy(tr) if how == "deepcopy" else pickle.loads(pickle.dumps(tr))
+        before = TrackerState.from_array(tr.snapshot()).as_array()
+        for k in range(8, 20):                              # the copy steps on: the original is untouched
+            x_dup, info_dup = dup.step(q[k])
+            x_twin, info_twin = twin.step(q[k])
+            assert _same(x_dup, x_twin) and info_dup.label == info_twin.label
+        assert _same(TrackerState.from_array(tr.snapshot()).as_array(), before)
+        assert _same(tr.step(q[8])[0], make().track(q[:9], X[0]).X[8])
+        assert _same(dup.track(q, X[0]).X, twin.track(q, X[0]).X)

@@ -5,8 +5,8 @@ The tracker's data is one flat array (:mod:`.state_layout`, the same floats as
 (:mod:`.layout` ``STATE_*``), :func:`advance_state` writes the next state from the step's result pack
 into the same array, and :func:`tracker_advance` / :func:`baseline_advance` do the three in one call:
 the Python of a step is then the argument checks and one call.  The tracker's stream loop is the C
-entry point's (:mod:`.c_entry`, ``CMD_TRACK``: the step compiled once); :func:`baseline_track` runs a
-baseline's stream in a compiled loop.
+entry point's (:mod:`.c_entry`, ``CMD_TRACK``: the step compiled once), a baseline's that of its entry
+(:mod:`.baseline_entry`).
 
 These are :meth:`solver.TrackerState.pack` and :meth:`solver.TrackerState.after` (the stuck-joint
 detector off), float for float: the suites' results are bit-identical whichever runs
@@ -21,7 +21,6 @@ from numba import njit
 from .anytime import ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON, walk_floats
 from .baselines import baseline_step
 from .certify import CERT_CONTINUATION, CERT_REACQUIRED
-from .clock import cycles
 from .layout import (F_DQ, F_INNOV, I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_STATUS, INFO_F_SIZE, MAX_REFUSED,
                      OUT_BOUND, OUT_CANDS, OUT_INFO, OUT_N_PAVE, OUT_N_TUBES, OUT_PAVE, OUT_REGION, OUT_TUBE, OUT_X,
                      OUT_X_PRED, PAVE_BOXES, STATE_A_SCALE, STATE_ANCHOR, STATE_ANCHOR_AGE, STATE_ANCHOR_BOUND,
@@ -249,7 +248,7 @@ def tracker_advance(mode, rule, q, dt, deadline, a, pk, model_pack, sample_to_se
     return advance_state(a, q, dt, out_real, out_int, anytime, True)
 
 
-@njit(cache=True)
+@njit(cache=False)  # compiled into its callers: the baselines' entry (baseline_entry) and the bench's loop
 def baseline_advance(kind, rule, q, dt, a, pk, model_pack, sample_to_sextic, params, out_real, out_int, packed):
     """One baseline step (:func:`.baselines.baseline_step`) from the flat state ``a``, advanced in place
     (arguments and result as :func:`tracker_advance`)."""
@@ -278,21 +277,6 @@ def record(k, out_real, out_int, since, cut, c0, c1, X, X_pred, info_f, info_i, 
     since_out[k] = since
     cut_out[k] = cut
     cyc[k] = c1 - c0
-
-
-@njit(cache=True)
-def baseline_track(kind, rule, qs, k0, a, pk, model_pack, sample_to_sextic, params, out_real, out_int, X, X_pred,
-                   info_f, info_i, bound, since_out, cut_out, cyc):
-    """Baseline steps to the joints ``qs[k0:]`` ((n, 3) rad) from the flat state ``a`` (at ``qs[k0 - 1]``); rows
-    ``k0``.. of the result arrays (:func:`record`)."""
-    packed = k0 < 0                 # False, typed bool: a literal False would compile baseline_advance again
-    for k in range(k0, qs.shape[0]):
-        c0 = cycles()
-        since = baseline_advance(kind, rule, qs[k], math.nan, a, pk, model_pack, sample_to_sextic, params,
-                                 out_real, out_int, packed)
-        c1 = cycles()
-        record(k, out_real, out_int, since, False, c0, c1, X, X_pred, info_f, info_i, bound, since_out, cut_out,
-               cyc)
 
 
 @njit(cache=True)

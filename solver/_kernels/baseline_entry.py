@@ -1,0 +1,78 @@
+"""A baseline's step as one compiled call of four scalars: what :class:`solver.baselines.NewtonTracker` and
+the other baselines call from Python.
+
+:func:`baseline_entry` reads the baseline's arrays from a table of addresses (the layout of the
+tracker's C entry point, :func:`.c_entry.make_table`: rows ``T_*``, the baseline's kind in the mode
+row), so a step from Python is one numba dispatch of ``(table address, command, t, h)``: four
+scalars, about 0.3 us less than dispatching :func:`.stepper.baseline_advance`'s twelve arguments
+(whose seven arrays numba types and unboxes at every call), measured in ``bench/bench_step.py``.
+Commands (:mod:`.c_entry`'s codes):
+
+- ``CMD_ADVANCE``: :func:`.stepper.baseline_advance` on the flat state, joints ``io[IO_Q:IO_Q+3]``,
+  ``t`` s after the last sample (NaN: unknown); returns the step's ``uncertain_since`` (or
+  :data:`.stepper.NOT_FINITE`);
+- ``CMD_PACKED``: the step of a caller that wrote the state pack itself (the TrackerState path);
+- ``CMD_TRACK``: the steps to the joints ``qs[k:]`` for ``k`` from ``io[IO_K0]``, into the rows of the
+  stream's arrays (:func:`.c_entry.stream_table`, :func:`.stepper.record`); returns the number of steps.
+
+A baseline has no step budget and no C caller: this is a numba function (its errors raise in Python
+as any kernel's), not a ``cfunc``.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import carray, njit
+
+from .c_entry import (CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_K0, IO_Q, T_A, T_CUT, T_CYCLES, T_INFO_F, T_INFO_I,
+                      T_IO, T_MODE, T_MODEL, T_OUT_INT, T_OUT_REAL, T_PARAMS, T_PK, T_QS, T_RULE, T_S2S, T_SINCE,
+                      T_XS, T_XS_PRED, T_BOUNDS, TABLE_SIZE)
+from .clock import cycles
+from .pointers import address_pointer
+from .stepper import baseline_advance, record
+
+__all__ = ["baseline_entry"]
+
+
+@njit(cache=False)                  # compiled into the entry only
+def _vector(tb, row):
+    return carray(address_pointer(tb[4 * row]), (tb[4 * row + 1],), np.float64)
+
+
+@njit(cache=True)
+def baseline_entry(table_address, cmd, t, h):
+    """The baseline's step (module doc): ``table_address`` of a :func:`.c_entry.make_table` table (int64),
+    ``cmd`` a command code, ``t`` the time step (s; NaN: unknown); ``h`` is unused (no budget)."""
+    tb = carray(address_pointer(table_address), (TABLE_SIZE,), np.int64)
+    a, pk, model, params = _vector(tb, T_A), _vector(tb, T_PK), _vector(tb, T_MODEL), _vector(tb, T_PARAMS)
+    s2s = carray(address_pointer(tb[4 * T_S2S]), (tb[4 * T_S2S + 1], tb[4 * T_S2S + 2], tb[4 * T_S2S + 3]), np.float64)
+    out_real, io = _vector(tb, T_OUT_REAL), _vector(tb, T_IO)
+    out_int = carray(address_pointer(tb[4 * T_OUT_INT]), (tb[4 * T_OUT_INT + 1],), np.int64)
+    kind, rule = tb[T_MODE], tb[T_RULE]
+    q = io[IO_Q:IO_Q + 3]
+    packed = cmd == CMD_PACKED
+    if cmd != CMD_TRACK:
+        dt = t if cmd == CMD_ADVANCE else math.nan
+        return baseline_advance(kind, rule, q, dt, a, pk, model, s2s, params, out_real, out_int, packed)
+    n = tb[4 * T_QS + 1]
+    if tb[4 * T_CYCLES] == 0:
+        return 0
+    qs = carray(address_pointer(tb[4 * T_QS]), (n, 3), np.float64)
+    X = carray(address_pointer(tb[4 * T_XS]), (n, 3), np.float64)
+    X_pred = carray(address_pointer(tb[4 * T_XS_PRED]), (n, 3), np.float64)
+    bound = carray(address_pointer(tb[4 * T_BOUNDS]), (n, 3), np.float64)
+    info_f = carray(address_pointer(tb[4 * T_INFO_F]), (n, tb[4 * T_INFO_F + 2]), np.float64)
+    info_i = carray(address_pointer(tb[4 * T_INFO_I]), (n, tb[4 * T_INFO_I + 2]), np.int64)
+    since_out = carray(address_pointer(tb[4 * T_SINCE]), (n,), np.int64)
+    cut_out = carray(address_pointer(tb[4 * T_CUT]), (n,), np.bool_)
+    cyc = carray(address_pointer(tb[4 * T_CYCLES]), (n,), np.int64)
+    k0 = int(io[IO_K0])
+    for k in range(k0, n):
+        for i in range(3):
+            q[i] = qs[k, i]
+        c0 = cycles()
+        since = baseline_advance(kind, rule, q, math.nan, a, pk, model, s2s, params, out_real, out_int, packed)
+        c1 = cycles()
+        record(k, out_real, out_int, since, False, c0, c1, X, X_pred, info_f, info_i, bound, since_out, cut_out, cyc)
+    return max(n - k0, 0)
