@@ -6,6 +6,8 @@ On the paper circle (``--n`` points, posture 1, exact joints) it times, interlea
 
 * ``kernel``: the compiled step alone, as the compiled stream loop of ``track`` times it (the CPU's
   cycle counter around each step inside compiled code: no Python, no call overhead);
+* ``call``: the step's compiled call from Python alone (the joints in, one call of the entry point that
+  steps and advances the flat state), without the argument checks and the ``StepInfo``;
 * ``step``: ``Tracker.step(q)`` from Python (argument checks, one compiled call that packs the flat
   state, steps and advances it in place, the ``StepInfo``);
 * ``step (objects)``: the same step with the state as a ``TrackerState`` object packed and rebuilt in
@@ -35,12 +37,26 @@ from solver.baselines import NewtonTracker
 def _time_steps(tr, X, q, objects: bool) -> list:
     tr._objects = objects
     tr.reset(X[0], q[0])
-    step, out = tr.step, []
-    for k in range(1, len(q)):
-        t0 = time.perf_counter()
-        step(q[k])
-        out.append(time.perf_counter() - t0)
+    step, out, clock = tr.step, [], time.perf_counter
+    for qk in list(q[1:]):                               # the rows made before: the clock times the step only
+        t0 = clock()
+        step(qk)
+        out.append(clock() - t0)
     tr._objects = False
+    return out
+
+
+def _time_calls(tr, X, q) -> list:
+    """The step's compiled call from Python alone (the joints in, one call of the entry point that steps
+    and advances the flat state), without the argument checks and the ``StepInfo``: what ``step`` costs
+    beyond it is the Python a step returns its answer through."""
+    tr.reset(X[0], q[0])
+    advance, a, nan, out, clock = tr._advance, tr._flat_state(), float("nan"), [], time.perf_counter
+    for qk in list(q[1:]):
+        t0 = clock()
+        advance(qk, nan, 0.0, a)
+        out.append(clock() - t0)
+    tr.flat_advanced()                                   # the flat state moved on outside step
     return out
 
 
@@ -75,10 +91,11 @@ def measure(n: int = 1000, repeats: int = 5) -> dict:
     trackers = {"tracker": Tracker(model, cached_map(model, 1), start_tolerance=(1e-9, 1e-9, 1e-9)),
                 "newton": NewtonTracker(model)}
     samples = {(name, what): [] for name in trackers
-               for what in ("kernel", "step", "step (objects)", "track", "track ratio")}
+               for what in ("kernel", "call", "step", "step (objects)", "track", "track ratio")}
     for _ in range(repeats):
         for name, tr in trackers.items():                  # interleaved: the same conditions for all
             samples[name, "step"] += _time_steps(tr, X, q, False)
+            samples[name, "call"] += _time_calls(tr, X, q)
             samples[name, "step (objects)"] += _time_steps(tr, X, q, True)
             per_step, kernel = _time_track(tr, X, q)
             samples[name, "track"].append(per_step)
@@ -101,16 +118,18 @@ def main(argv=None) -> None:
     med = measure(args.n, args.repeats)
     rows, ratios = [], {}
     for name in ("tracker", "newton"):
-        k, s, o, t = (med[name, w] for w in ("kernel", "step", "step (objects)", "track"))
+        k, c, s, o, t = (med[name, w] for w in ("kernel", "call", "step", "step (objects)", "track"))
         ratios[name] = (s / k, med[name, "track ratio"])
-        rows.append((name, f"{k:.2f}", f"{s:.2f}", f"{o:.2f}", f"{t:.2f}", f"{s / k:.2f}x", f"{o / k:.2f}x",
+        rows.append((name, f"{k:.2f}", f"{c:.2f}", f"{s:.2f}", f"{o:.2f}", f"{t:.2f}", f"{s / k:.2f}x", f"{o / k:.2f}x",
                      f"{ratios[name][1]:.3f}x"))
-    body = table(["method", "kernel (us)", "step (us)", "step, objects (us)", "track, per step (us)",
+    body = table(["method", "kernel (us)", "call (us)", "step (us)", "step, objects (us)", "track, per step (us)",
                   "step / kernel", "objects / kernel", "track / kernels' sum"], rows)
     print(f"paper circle, {args.n} points, exact joints, {args.repeats} passes; medians")
     print(body)
     note = (f"The paper circle, {args.n} points, exact joints, {args.repeats} passes, interleaved.  *kernel*: "
             "the compiled step alone, timed by the CPU's cycle counter inside the compiled loop of `track`; "
+            "*call*: the step's compiled call from Python alone (the joints in, one call of the entry point "
+            "that steps and advances the flat state; no argument checks, no `StepInfo`); "
             "*step*: `step(q)` from Python (one compiled call that packs the flat state, steps and advances "
             "it in place); *objects*: the reference path that packs and rebuilds a `TrackerState` in Python "
             "at every step (every step before the compiled stepper; now only with the stuck-joint detector "

@@ -26,7 +26,8 @@ import numpy as np
 
 from ._kernels import layout as _lay
 from ._kernels.baseline_entry import baseline_entry
-from ._kernels.c_entry import CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_K0, IO_SIZE, make_table, stream_table
+from ._kernels.c_entry import CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_K0, IO_RATE, IO_SIZE, make_table, stream_table
+from ._kernels.clock import cycles_per_second
 from .manipulator import Manipulator
 from .ordering import DEFAULT_RULE, rule_code
 from .tracking import _TrackerBase
@@ -81,12 +82,11 @@ class _Baseline(_TrackerBase):
         self._q_in[...] = q                     # (a is the flat state, which the table holds)
         return baseline_entry(self._address, CMD_ADVANCE, dt, 0.0)
 
-    def _loop(self, qs, k0, a, X, Xp, info_f, info_i, bound, since, cut, cyc):
+    def _loop(self, qs, k0, floats, ints, bools):
         if not qs.flags.writeable:              # (the loop only reads it; the table takes writable rows)
             qs = qs.copy()
-        table = stream_table(self._table, dict(qs=qs, X=X, X_pred=Xp, info_f=info_f, info_i=info_i, bound=bound,
-                                               since=since, cut=cut, cycles=cyc))
-        self._io[IO_K0] = k0
+        table = stream_table(self._table, qs, floats, ints, bools)
+        self._io[IO_K0], self._io[IO_RATE] = k0, cycles_per_second()
         baseline_entry(int(table.ctypes.data), CMD_TRACK, 0.0, 0.0)
 
 

@@ -372,11 +372,9 @@ class Tracker(CEntry, _TrackerBase):
         if self._encoder_tolerance(q, f"the reading of step {self.state.steps + 1}", stacklevel=4):
             self._watch = 0
 
-    def _loop(self, qs, k0, a, X, Xp, info_f, info_i, bound, since, cut, cyc):
+    def _loop(self, qs, k0, floats, ints, bools):
         budget = 0.0 if self.step_budget is None else self.step_budget * cycles_per_second()
-        assert a is self._flat
-        self._stream(qs, k0, budget, dict(X=X, X_pred=Xp, info_f=info_f, info_i=info_i, bound=bound, since=since,
-                                          cut=cut, cycles=cyc))
+        self._stream(qs, k0, budget, floats, ints, bools)
 
     def _walk(self):
         n = walk_floats(self._anytime)

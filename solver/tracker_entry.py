@@ -14,7 +14,8 @@ import numpy as np
 
 from ._kernels.anytime import ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON
 from ._kernels.c_entry import (ADVANCE_OFFSET, CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_BUDGET, IO_DEADLINE, IO_DONE,
-                               IO_K0, IO_SIZE, entry, make_table, set_rows, stream_table)
+                               IO_K0, IO_RATE, IO_SIZE, entry, make_table, set_rows, stream_table)
+from ._kernels.clock import cycles_per_second
 from .tracker_state import TrackerError
 from ._kernels.state_layout import STATE_FLOATS
 
@@ -57,16 +58,17 @@ class CEntry:
             self._failed()
         return r - ADVANCE_OFFSET
 
-    def _stream(self, qs, k0, budget, arrays: dict) -> None:
+    def _stream(self, qs, k0, budget, floats, ints, bools) -> None:
         """Steps to the joints ``qs[k0:]`` ((n, 3) rad, C-contiguous) in one call of the entry point, each with
-        a budget of ``budget`` cycles (0.0: none), into the rows ``k0``.. of the stream's result ``arrays``
-        (:func:`solver._kernels.c_entry.stream_table`).  The call releases the GIL: another thread may run
-        meanwhile, but not on this tracker (a tracker is one thread's)."""
+        a budget of ``budget`` cycles (0.0: none), into the rows ``k0``.. of the stream's result blocks
+        (:func:`solver.step_info.track_blocks`, :func:`solver._kernels.c_entry.stream_table`).  The call
+        releases the GIL: another thread may run meanwhile, but not on this tracker (a tracker is one
+        thread's)."""
         if not qs.flags.writeable:              # (the loop only reads it; the table takes writable rows)
             qs = qs.copy()
-        table = stream_table(self._table, dict(qs=qs, **arrays))
+        table = stream_table(self._table, qs, floats, ints, bools)
         io = self._io
-        io[IO_K0], io[IO_BUDGET] = k0, budget
+        io[IO_K0], io[IO_BUDGET], io[IO_RATE] = k0, budget, cycles_per_second()
         (self._call or self._entry())(table.ctypes.data, CMD_TRACK, 0.0, 0.0)
         if io[IO_DONE] != 1.0:
             self._failed()

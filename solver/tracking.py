@@ -14,18 +14,16 @@ import time
 
 import numpy as np
 
-from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, I_AMBIGUOUS, I_CERTAIN, I_CERTIFICATE, I_JUMP, I_LABEL,
-                              I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, I_TRUST, INFO_F_SIZE, INFO_I_SIZE,
-                              OUT_N_PAVE, OUT_N_TUBES, OUT_REGION, OUT_SIZE, OUT_X, STATE_SIZE,
+from ._kernels.layout import (I_CERTAIN, INFO_I_SIZE, OUT_N_PAVE, OUT_N_TUBES, OUT_REGION, OUT_SIZE, OUT_X, STATE_SIZE,
                               STATUS_REJECTED, TRUST_CERTAIN, TRUST_LOST)
-from ._kernels.clock import cycles_per_second, deadline_after
+from ._kernels.clock import deadline_after
 from ._kernels.state_layout import STATE_FLOATS
 from ._kernels.stepper import NOT_FINITE, copy_state
 from .checks import SolverInputError, as_array
 from .direct_kinematics import kernel_constants
 from .kinematics import wrap_angle
 from .manipulators import MANIPULATOR_TYPES
-from .step_info import STEP_FIELDS, StepInfo, TrackResult, result_views
+from .step_info import STEP_FIELDS, StepInfo, TrackResult, result_views, track_blocks
 from .stuck import reading_fields, repeat_counts, stuck_refusal
 from .tracker_state import TrackerError, TrackerState
 
@@ -299,14 +297,12 @@ class _TrackerBase:
                                        f"({len(out)} rows outside)")
         n = len(q_stream)
         self.reset(X0, q_stream[0])
-        out = {k: np.zeros(n, dtype=t) for k, t in STEP_FIELDS + (("seconds", float),)}
+        blocks, out = track_blocks(n)                             # the result's arrays, views of three blocks
         start = getattr(self, "start", None)
         certain = start is None or start.certain                  # baselines start from X0 as given
         out["certain"][0], out["uncertain_since"][0] = certain, -1 if certain else 0
         out["trust"][0] = TRUST_CERTAIN if certain else TRUST_LOST
-        X = np.zeros((n, 3))
-        Xp = np.zeros((n, 3))
-        bound = np.full((n, 3), np.inf)
+        X, Xp, bound = out["X"], out["X_pred"], out["pose_bound"]
         X[0] = Xp[0] = self.state.X
         if start is not None:
             bound[0] = start.pose_bound
@@ -322,8 +318,8 @@ class _TrackerBase:
                 out[key][k] = getattr(info, key)
             k += 1
         if k < n:
-            self._track_compiled(np.ascontiguousarray(q_stream, dtype=float), k, X, Xp, bound, out)
-        return TrackResult(X=X, X_pred=Xp, pose_bound=bound, **out)
+            self._track_compiled(np.ascontiguousarray(q_stream, dtype=float), k, blocks)
+        return TrackResult(**out)
 
     def track_many(self, q_streams, X0s) -> list:
         """Track several joint streams, each from its own start (a batch of paths; each stream's loop
@@ -347,31 +343,18 @@ class _TrackerBase:
                                    f"{X0s.shape}")
         return [self.track(q, X0) for q, X0 in zip(q_streams, X0s)]
 
-    def _track_compiled(self, qs: np.ndarray, k0: int, X, Xp, bound, out: dict) -> None:
-        """Steps ``k0``.. of :meth:`track` (joints ``qs`` (n, 3)) in one compiled loop, into its arrays."""
-        n = len(qs)
-        info_f, info_i = np.zeros((n, INFO_F_SIZE)), np.zeros((n, INFO_I_SIZE), dtype=np.int64)
-        since, cut, cyc = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.int64)
-        self._loop(qs, k0, self._flat_state(), X, Xp, info_f, info_i, bound, since, cut, cyc)
+    def _track_compiled(self, qs: np.ndarray, k0: int, blocks: tuple) -> None:
+        """Steps ``k0``.. of :meth:`track` (joints ``qs`` (n, 3)) in one compiled loop, into the result's
+        blocks (:func:`solver.step_info.track_blocks`)."""
+        self._flat_state()
+        self._loop(qs, k0, *blocks)
         self._st, self._held = None, None
-        rows = slice(k0, n)
-        for key, col in _INFO_COLUMNS:
-            out[key][rows] = info_i[rows, col]
-        for key, col in (("cond", F_COND), ("d_best", F_D_BEST), ("d_second", F_D_SECOND)):
-            out[key][rows] = info_f[rows, col]
-        out["uncertain_since"][rows], out["out_of_budget"][rows] = since[rows], cut[rows]
-        out["seconds"][rows] = cyc[rows] / cycles_per_second()
 
-    def _loop(self, qs, k0, a, X, Xp, info_f, info_i, bound, since, cut, cyc) -> None:  # pragma: no cover
-        """The compiled loop of :meth:`_track_compiled` (the tracker's: one call of its C entry point,
-        :mod:`solver.tracker_entry`; the baselines': :func:`._kernels.stepper.baseline_track`)."""
+    def _loop(self, qs, k0, floats, ints, bools) -> None:  # pragma: no cover - abstract
+        """The compiled loop of :meth:`_track_compiled` from the live flat state: one call of the tracker's C
+        entry point (:mod:`solver.tracker_entry`) or of a baseline's (:mod:`._kernels.baseline_entry`)."""
         raise NotImplementedError
 
-
-#: TrackResult fields read from a step's integer result pack, and their columns.
-_INFO_COLUMNS = (("label", I_LABEL), ("near_border", I_NEAR_BORDER), ("n_real", I_N_REAL),
-                 ("ambiguous", I_AMBIGUOUS), ("status", I_STATUS), ("jump", I_JUMP), ("certain", I_CERTAIN),
-                 ("certificate", I_CERTIFICATE), ("n_candidates", I_N_CAND), ("trust", I_TRUST))
 
 #: The compiled loop of track times its steps with the CPU's cycle counter (x86-64); elsewhere track steps
 #: in Python.

@@ -9,7 +9,6 @@ from solver import Tracker, circle_path, ik
 from solver.baselines import BASELINES
 from solver.checks import SolverInputError
 from solver.tracker_state import TrackerError, TrackerState
-from solver._kernels.layout import INFO_F_SIZE, INFO_I_SIZE
 
 from conftest import coarse_map
 
@@ -242,26 +241,39 @@ def test_a_copied_or_pickled_tracker_steps_on_its_own_arrays(model, coarse_map1)
     assert not np.array_equal(before, np.asarray(tr.snapshot()))
 
 
-def test_the_stream_table_refuses_result_arrays_shorter_than_the_stream(model, coarse_map1):
-    """The stream loop reads every row count from the joints' array: a result array of another length
-    (or width) would be written past its end, so the table refuses it, naming it."""
-    from solver._kernels.c_entry import stream_table
-    tr = Tracker(model, coarse_map1)
+def test_the_stream_table_refuses_result_blocks_of_another_stream(model, coarse_map1):
+    """The stream loop reads every row count from the joints' array: a result block of another length
+    (or dtype) would be written past its end, so the table refuses it, naming it; and the compiled loop
+    itself steps nothing (returns 0, the blocks untouched) from a table whose rows disagree."""
+    from solver._kernels.baseline_entry import baseline_entry
+    from solver._kernels.c_entry import CMD_TRACK, entry, set_rows, stream_table
+    from solver.step_info import track_blocks
     n = 5
-    arrays = dict(qs=np.zeros((n, 3)), X=np.zeros((n, 3)), X_pred=np.zeros((n, 3)), bound=np.zeros((n, 3)),
-                  info_f=np.zeros((n, INFO_F_SIZE)), info_i=np.zeros((n, INFO_I_SIZE), dtype=np.int64),
-                  since=np.zeros(n, dtype=np.int64), cut=np.zeros(n, dtype=np.bool_),
-                  cycles=np.zeros(n, dtype=np.int64))
-    table = stream_table(tr._table, arrays)
-    assert table[0] == tr._table[0] and table is not tr._table
-    with pytest.raises(ValueError, match=r"'X_pred': expected shape \(5, 3\)"):
-        stream_table(tr._table, dict(arrays, X_pred=np.zeros((n - 1, 3))))
-    with pytest.raises(ValueError, match=r"'info_i': expected shape \(5, 12\)"):
-        stream_table(tr._table, dict(arrays, info_i=np.zeros((n, 3), dtype=np.int64)))
-    with pytest.raises(ValueError, match="'cut': expected a 1-D bool array"):
-        stream_table(tr._table, dict(arrays, cut=np.zeros(n)))
-    with pytest.raises(ValueError, match=r"missing \['bound'\]"):
-        stream_table(tr._table, {k: v for k, v in arrays.items() if k != "bound"})
+    qs = ik(model, circle_path(n), 1)
+    for tr in (Tracker(model, coarse_map1), BASELINES["newton"](model)):
+        (floats, ints, bools), _ = track_blocks(n)
+        table = stream_table(tr._table, qs, floats, ints, bools)
+        assert table[0] == tr._table[0] and table is not tr._table
+        (short, _, _), _ = track_blocks(n - 1)
+        with pytest.raises(ValueError, match=r"'floats': expected shape \(65,\)"):
+            stream_table(tr._table, qs, short, ints, bools)
+        with pytest.raises(ValueError, match=r"'ints': expected shape \(7, 5\)"):
+            stream_table(tr._table, qs, floats, ints[:, :3], bools)
+        with pytest.raises(ValueError, match="'bools': expected a 2-D bool array"):
+            stream_table(tr._table, qs, floats, ints, bools.astype(float))
+        with pytest.raises(ValueError, match=r"'qs': expected shape \(5, 3\)"):
+            stream_table(tr._table, qs[:, :2].copy(), floats, ints, bools)
+        # past the Python check: rows that disagree (a block of n - 1 steps) make the loop step nothing
+        tr.reset(circle_path(n)[0], qs[0])
+        tr._flat_state()
+        bad = tr._table.copy()
+        set_rows(bad, dict(qs=qs, floats=short, ints=ints, bools=bools))
+        before = short.copy()
+        if isinstance(tr, Tracker):
+            assert entry().ctypes(bad.ctypes.data, CMD_TRACK, 0.0, 0.0) == 0
+        else:
+            assert baseline_entry(int(bad.ctypes.data), CMD_TRACK, 0.0, 0.0) == 0
+        assert _same(short, before) and not ints.any()
 
 
 def test_track_takes_a_read_only_stream(model, coarse_map1):

@@ -12,8 +12,9 @@ Commands (:mod:`.c_entry`'s codes):
   ``t`` s after the last sample (NaN: unknown); returns the step's ``uncertain_since`` (or
   :data:`.stepper.NOT_FINITE`);
 - ``CMD_PACKED``: the step of a caller that wrote the state pack itself (the TrackerState path);
-- ``CMD_TRACK``: the steps to the joints ``qs[k:]`` for ``k`` from ``io[IO_K0]``, into the rows of the
-  stream's arrays (:func:`.c_entry.stream_table`, :func:`.stepper.record`); returns the number of steps.
+- ``CMD_TRACK``: the steps to the joints ``qs[k:]`` for ``k`` from ``io[IO_K0]``, into the stream's result
+  blocks (:func:`.c_entry.stream_table`, :func:`.stepper.record`; ``io[IO_RATE]`` the cycle counter's rate);
+  returns the number of steps (0 when the table's stream rows are unset or do not agree).
 
 A baseline has no step budget and no C caller: this is a numba function (its errors raise in Python
 as any kernel's), not a ``cfunc``.
@@ -25,9 +26,8 @@ import math
 import numpy as np
 from numba import carray, njit
 
-from .c_entry import (CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_K0, IO_Q, T_A, T_CUT, T_CYCLES, T_INFO_F, T_INFO_I,
-                      T_IO, T_MODE, T_MODEL, T_OUT_INT, T_OUT_REAL, T_PARAMS, T_PK, T_QS, T_RULE, T_S2S, T_SINCE,
-                      T_XS, T_XS_PRED, T_BOUNDS, TABLE_SIZE)
+from .c_entry import (CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_K0, IO_Q, IO_RATE, T_A, T_IO, T_MODE, T_MODEL,
+                      T_OUT_INT, T_OUT_REAL, T_PARAMS, T_PK, T_RULE, T_S2S, TABLE_SIZE, stream_blocks)
 from .clock import cycles
 from .pointers import address_pointer
 from .stepper import baseline_advance, record
@@ -55,24 +55,16 @@ def baseline_entry(table_address, cmd, t, h):
     if cmd != CMD_TRACK:
         dt = t if cmd == CMD_ADVANCE else math.nan
         return baseline_advance(kind, rule, q, dt, a, pk, model, s2s, params, out_real, out_int, packed)
-    n = tb[4 * T_QS + 1]
-    if tb[4 * T_CYCLES] == 0:
+    ok, qs, floats, ints, bools = stream_blocks(tb)
+    if not ok:
         return 0
-    qs = carray(address_pointer(tb[4 * T_QS]), (n, 3), np.float64)
-    X = carray(address_pointer(tb[4 * T_XS]), (n, 3), np.float64)
-    X_pred = carray(address_pointer(tb[4 * T_XS_PRED]), (n, 3), np.float64)
-    bound = carray(address_pointer(tb[4 * T_BOUNDS]), (n, 3), np.float64)
-    info_f = carray(address_pointer(tb[4 * T_INFO_F]), (n, tb[4 * T_INFO_F + 2]), np.float64)
-    info_i = carray(address_pointer(tb[4 * T_INFO_I]), (n, tb[4 * T_INFO_I + 2]), np.int64)
-    since_out = carray(address_pointer(tb[4 * T_SINCE]), (n,), np.int64)
-    cut_out = carray(address_pointer(tb[4 * T_CUT]), (n,), np.bool_)
-    cyc = carray(address_pointer(tb[4 * T_CYCLES]), (n,), np.int64)
-    k0 = int(io[IO_K0])
+    n = qs.shape[0]
+    k0, rate = int(io[IO_K0]), io[IO_RATE]
     for k in range(k0, n):
         for i in range(3):
             q[i] = qs[k, i]
         c0 = cycles()
         since = baseline_advance(kind, rule, q, math.nan, a, pk, model, s2s, params, out_real, out_int, packed)
         c1 = cycles()
-        record(k, out_real, out_int, since, False, c0, c1, X, X_pred, info_f, info_i, bound, since_out, cut_out, cyc)
+        record(k, out_real, out_int, since, False, c0, c1, rate, floats, ints, bools)
     return max(n - k0, 0)

@@ -14,7 +14,8 @@ the rows ``T_*``), so the same machine code serves
   TrackerState path, :meth:`solver.TrackerState.pack`);
 - :data:`CMD_TRACK`: a whole stream (what :meth:`solver.Tracker.track` calls once): the steps to the joints
   ``qs[k:]`` for ``k`` from ``io[IO_K0]``, each with a budget of ``io[IO_BUDGET]`` cycles (0: none), into
-  the rows of the stream's result arrays (:func:`.stepper.record`); returns the number of steps;
+  the stream's result blocks (:func:`.stepper.record`, ``io[IO_RATE]`` the cycle counter's rate); returns the
+  number of steps (0 when the table's stream rows are unset or do not agree);
 - :data:`CMD_PUBLISH`: a *guarded* step a C host (the DK FMU's loader) takes at time ``t`` over ``h``
   seconds: the joints are read from a value array at the slots ``SLOT_Q*``, the step's outputs are
   written to the value arrays at the other slots (:data:`SLOTS`), and the step is *undone* (the flat
@@ -45,8 +46,8 @@ from numba import carray, cfunc, njit, types
 from .anytime import ANY_CUT
 from .clock import cycles
 from .pointers import address_pointer
-from .layout import (F_COND, I_AMBIGUOUS, I_CERTAIN, I_LABEL, I_N_REAL, I_NEAR_BORDER, I_STATUS, I_TRUST, INFO_F_SIZE,
-                     INFO_I_SIZE, OUT_BOUND, OUT_INFO, OUT_X)
+from .layout import (F_COND, I_AMBIGUOUS, I_CERTAIN, I_LABEL, I_N_REAL, I_NEAR_BORDER, I_STATUS, I_TRUST, OUT_BOUND,
+                     OUT_INFO, OUT_X, TRACK_BOOLS, TRACK_FLOATS, TRACK_INTS)
 from .stepper import copy_state, record, tracker_advance
 
 __all__ = ["entry", "make_table", "stream_table", "CMD_ADVANCE", "CMD_PACKED", "CMD_PUBLISH", "CMD_TRACK", "FALL_BACK",
@@ -61,14 +62,15 @@ ADVANCE_OFFSET = 3
 
 # the arrays of the table, 4 int64 each: address, then up to three dimensions
 (T_A, T_PK, T_MODEL, T_S2S, T_LABELS, T_MAP, T_STENCIL, T_PARAMS, T_OUT_REAL, T_OUT_INT, T_ANYTIME, T_IO, T_BACKUP,
- T_REAL, T_INT, T_BOOL, T_SLOTS, T_QS, T_XS, T_XS_PRED, T_INFO_F, T_INFO_I, T_BOUNDS, T_SINCE, T_CUT, T_CYCLES) = range(26)
-N_ARRAYS = 26
+ T_REAL, T_INT, T_BOOL, T_SLOTS, T_QS, T_FLOATS, T_INTS, T_BOOLS) = range(21)
+N_ARRAYS = 21
 T_MODE, T_RULE = 4 * N_ARRAYS, 4 * N_ARRAYS + 1      # two integers after the arrays
 TABLE_SIZE = 4 * N_ARRAYS + 2
 
 # the scalars a call reads and writes (float64 array ``io``)
 IO_Q, IO_DT, IO_DEADLINE = 0, 3, 4                   # in: joints (rad), time since the last sample (s), deadline
-IO_SHARE, IO_RATE, IO_EPISODE = 5, 6, 7              # publish, in: budget share of h, cycles per second, status
+IO_SHARE, IO_RATE, IO_EPISODE = 5, 6, 7              # publish, in: budget share of h, cycles per second (also
+                                                     # track's), status
 IO_SINCE_STEP, IO_SINCE_TIME = 8, 9                  # publish, in/out: the uncertain episode (NaN: none), its time
 IO_TIME, IO_NO_BOUND, IO_STEPS = 10, 11, 12          # publish, out: t + h; in: the bound of no bound; out: count
 IO_DONE = 13                                         # out: 1.0 when the call ran to its end (0.0: it raised)
@@ -137,20 +139,33 @@ def _publish(tb, t, h, a, pk, model, s2s, labels, mp, stencil, params, out_real,
     return PUBLISHED
 
 
+@njit(cache=False)                  # compiled into the entry points only
+def stream_blocks(tb):
+    """The stream rows of a table (:data:`CMD_TRACK`): ``(ok, qs, floats, ints, bools)``, the joints (n, 3)
+    and the result blocks (``floats`` (TRACK_FLOATS * n,), ``ints`` (TRACK_INTS, n) int64, ``bools``
+    (TRACK_BOOLS, n); :mod:`.layout` ``TF_*``, ``TI_*``, ``TB_*``); ``ok`` False (and n = 0) when a row
+    is unset or its shape is not that of the ``n`` rows of ``qs``."""
+    n = tb[4 * T_QS + 1]
+    ok = (tb[4 * T_QS] != 0 and tb[4 * T_QS + 2] == 3 and tb[4 * T_FLOATS] != 0 and tb[4 * T_INTS] != 0
+          and tb[4 * T_BOOLS] != 0 and tb[4 * T_FLOATS + 1] == TRACK_FLOATS * n and tb[4 * T_INTS + 1] == TRACK_INTS
+          and tb[4 * T_INTS + 2] == n and tb[4 * T_BOOLS + 1] == TRACK_BOOLS and tb[4 * T_BOOLS + 2] == n)
+    if not ok:
+        n = 0
+    qs = carray(address_pointer(tb[4 * T_QS]), (n, 3), np.float64)
+    floats = carray(address_pointer(tb[4 * T_FLOATS]), (TRACK_FLOATS * n,), np.float64)
+    ints = carray(address_pointer(tb[4 * T_INTS]), (TRACK_INTS, n), np.int64)
+    bools = carray(address_pointer(tb[4 * T_BOOLS]), (TRACK_BOOLS, n), np.bool_)
+    return ok, qs, floats, ints, bools
+
+
 @njit(cache=False)                  # compiled into the entry point only
 def _track(tb, a, pk, model, s2s, labels, mp, stencil, params, out_real, out_int, anytime, io, packed):
     """The stream of :data:`CMD_TRACK` (see the module doc): the number of steps taken."""
-    n = tb[4 * T_QS + 1]
-    qs = carray(address_pointer(tb[4 * T_QS]), (n, 3), np.float64)
-    X = carray(address_pointer(tb[4 * T_XS]), (n, 3), np.float64)
-    X_pred = carray(address_pointer(tb[4 * T_XS_PRED]), (n, 3), np.float64)
-    info_f = carray(address_pointer(tb[4 * T_INFO_F]), (n, tb[4 * T_INFO_F + 2]), np.float64)
-    info_i = carray(address_pointer(tb[4 * T_INFO_I]), (n, tb[4 * T_INFO_I + 2]), np.int64)
-    bound = carray(address_pointer(tb[4 * T_BOUNDS]), (n, 3), np.float64)
-    since_out = carray(address_pointer(tb[4 * T_SINCE]), (n,), np.int64)
-    cut_out = carray(address_pointer(tb[4 * T_CUT]), (n,), np.bool_)
-    cyc = carray(address_pointer(tb[4 * T_CYCLES]), (n,), np.int64)
-    k0, budget = int(io[IO_K0]), io[IO_BUDGET]
+    ok, qs, floats, ints, bools = stream_blocks(tb)
+    if not ok:
+        return 0
+    n = qs.shape[0]
+    k0, budget, rate = int(io[IO_K0]), io[IO_BUDGET], io[IO_RATE]
     q = io[IO_Q:IO_Q + 3]           # the step's arguments typed as CMD_ADVANCE's: tracker_advance compiles once
     for k in range(k0, n):
         for i in range(3):
@@ -162,7 +177,7 @@ def _track(tb, a, pk, model, s2s, labels, mp, stencil, params, out_real, out_int
                                 stencil, params, out_real, out_int, anytime, packed)
         c1 = cycles()
         cut = io[IO_DEADLINE] > 0.0 and out_int[I_CERTAIN] == 0 and anytime[ANY_CUT] > 0.0
-        record(k, out_real, out_int, since, cut, c0, c1, X, X_pred, info_f, info_i, bound, since_out, cut_out, cyc)
+        record(k, out_real, out_int, since, cut, c0, c1, rate, floats, ints, bools)
     return max(n - k0, 0)
 
 
@@ -188,8 +203,6 @@ def _step(table, cmd, t, h):
             return FALL_BACK
         r = _publish(tb, t, h, a, pk, model, s2s, labels, mp, stencil, params, out_real, out_int, anytime, io)
     elif cmd == CMD_TRACK:
-        if tb[4 * T_CYCLES] == 0:
-            return 0
         r = _track(tb, a, pk, model, s2s, labels, mp, stencil, params, out_real, out_int, anytime, io,
                    cmd == CMD_PACKED)                    # a typed False, as the call below
     else:
@@ -227,8 +240,8 @@ def make_table(mode: int, rule: int, arrays: dict) -> np.ndarray:
     """The table (TABLE_SIZE,) int64 of :func:`entry` for a tracker's ``arrays`` (name -> array: ``a``,
     ``pk``, ``model``, ``s2s``, ``labels``, ``map``, ``stencil``, ``params``, ``out_real``, ``out_int``,
     ``anytime``, ``io``, ``backup``; a publishing caller adds ``real``, ``integer``, ``boolean``, ``slots``
-    with :func:`set_rows`, a tracking one ``qs``, ``X``, ``X_pred``, ``info_f``, ``info_i``, ``bound``,
-    ``since``, ``cut``, ``cycles``).  The caller keeps the arrays alive as long as the table."""
+    with :func:`set_rows`, a tracking one ``qs``, ``floats``, ``ints``, ``bools`` with :func:`stream_table`).
+    The caller keeps the arrays alive as long as the table."""
     table = np.zeros(TABLE_SIZE, dtype=np.int64)
     set_rows(table, arrays)
     table[T_MODE], table[T_RULE] = int(mode), int(rule)
@@ -238,26 +251,24 @@ def make_table(mode: int, rule: int, arrays: dict) -> np.ndarray:
 _ROWS = {"a": T_A, "pk": T_PK, "model": T_MODEL, "s2s": T_S2S, "labels": T_LABELS, "map": T_MAP,
          "stencil": T_STENCIL, "params": T_PARAMS, "out_real": T_OUT_REAL, "out_int": T_OUT_INT,
          "anytime": T_ANYTIME, "io": T_IO, "backup": T_BACKUP, "real": T_REAL, "integer": T_INT, "boolean": T_BOOL,
-         "slots": T_SLOTS, "qs": T_QS, "X": T_XS, "X_pred": T_XS_PRED, "info_f": T_INFO_F, "info_i": T_INFO_I,
-         "bound": T_BOUNDS, "since": T_SINCE, "cut": T_CUT, "cycles": T_CYCLES}
+         "slots": T_SLOTS, "qs": T_QS, "floats": T_FLOATS, "ints": T_INTS, "bools": T_BOOLS}
 _DTYPES = {"labels": np.int8, "stencil": np.int64, "out_int": np.int64, "integer": np.int32, "boolean": np.int32,
-           "slots": np.int64, "info_i": np.int64, "since": np.int64, "cut": np.bool_, "cycles": np.int64}
-_NDIM = {"s2s": 3, "labels": 3, "stencil": 2, "qs": 2, "X": 2, "X_pred": 2, "info_f": 2, "info_i": 2, "bound": 2}
-_STREAM_ROWS = ("qs", "X", "X_pred", "info_f", "info_i", "bound", "since", "cut", "cycles")
+           "slots": np.int64, "ints": np.int64, "bools": np.bool_}
+_NDIM = {"s2s": 3, "labels": 3, "stencil": 2, "qs": 2, "ints": 2, "bools": 2}
 
 
-def stream_table(table: np.ndarray, arrays: dict) -> np.ndarray:
-    """A copy of ``table`` whose stream rows (:data:`CMD_TRACK`) point at ``arrays``: ``qs``, ``X``, ``X_pred``,
-    ``bound`` (n, 3), ``info_f`` (n, INFO_F_SIZE), ``info_i`` (n, INFO_I_SIZE) int64, ``since`` and ``cycles``
-    (n,) int64, ``cut`` (n,) bool; the row counts are checked against ``qs``'s, which the loop reads."""
-    missing = [name for name in _STREAM_ROWS if name not in arrays]
-    if missing:
-        raise ValueError(f"stream table: expected the arrays {list(_STREAM_ROWS)}, missing {missing}")
-    n = arrays["qs"].shape[0]
+def stream_table(table: np.ndarray, qs: np.ndarray, floats: np.ndarray, ints: np.ndarray,
+                 bools: np.ndarray) -> np.ndarray:
+    """A copy of ``table`` whose stream rows (:data:`CMD_TRACK`) point at the joints ``qs`` (n, 3) and the
+    result blocks ``floats`` (TRACK_FLOATS * n,), ``ints`` (TRACK_INTS, n) int64, ``bools`` (TRACK_BOOLS, n)
+    (:func:`solver.step_info.track_blocks`); shapes and dtypes checked (the loop also refuses a table whose
+    rows disagree)."""
+    n = qs.shape[0] if qs.ndim == 2 else -1
+    want = {"qs": (n, 3), "floats": (TRACK_FLOATS * n,), "ints": (TRACK_INTS, n), "bools": (TRACK_BOOLS, n)}
+    arrays = {"qs": qs, "floats": floats, "ints": ints, "bools": bools}
     for name, array in arrays.items():
-        cols = {"info_f": INFO_F_SIZE, "info_i": INFO_I_SIZE}.get(name, 3)
-        if array.shape[:1] != (n,) or (array.ndim == 2 and array.shape[1] != cols):
-            raise ValueError(f"stream table {name!r}: expected shape ({n}, {cols}) or ({n},), got {array.shape}")
+        if getattr(array, "shape", None) != want[name]:
+            raise ValueError(f"stream table {name!r}: expected shape {want[name]}, got {getattr(array, 'shape', None)}")
     out = table.copy()
     set_rows(out, arrays)
     return out

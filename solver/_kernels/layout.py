@@ -114,6 +114,20 @@ I_LABEL, I_NEAR_BORDER, I_N_REAL, I_AMBIGUOUS, I_STATUS, I_JUMP, I_REGION = 0, 1
 I_CERTAIN, I_CERTIFICATE, I_N_CAND, I_INTACT, I_TRUST = 7, 8, 9, 10, 11
 INFO_I_SIZE = 12
 
+# ----------------------------------------------------------------------------- a stream's results
+# What the compiled stream loop of ``track`` writes at step k of an n-step stream (:func:`.stepper.record`),
+# straight into the arrays :class:`solver.TrackResult` returns (views of three blocks):
+# a float block (TRACK_FLOATS * n,): the pose (n, 3) from TF_X * n, the prediction (n, 3) from TF_X_PRED * n,
+# the pose bound (n, 3) from TF_BOUND * n, then cond, d_best, d_second and the step's seconds, (n,) each;
+TF_X, TF_X_PRED, TF_BOUND, TF_COND, TF_D_BEST, TF_D_SECOND, TF_SECONDS = 0, 3, 6, 9, 10, 11, 12
+TRACK_FLOATS = 13
+# an int64 block (TRACK_INTS, n), one row a field;
+TI_LABEL, TI_N_REAL, TI_STATUS, TI_CERTIFICATE, TI_N_CAND, TI_SINCE, TI_TRUST = 0, 1, 2, 3, 4, 5, 6
+TRACK_INTS = 7
+# a bool block (TRACK_BOOLS, n), one row a field.
+TB_NEAR_BORDER, TB_AMBIGUOUS, TB_JUMP, TB_CERTAIN, TB_OUT_OF_BUDGET = 0, 1, 2, 3, 4
+TRACK_BOOLS = 5
+
 # ----------------------------------------------------------------------------- codes
 #: Status of a step (also the DK FMU's ``status`` output); REJECTED: a sample the tracker (outlier
 #: gate) or the FMU (input check) refused, the pose held.

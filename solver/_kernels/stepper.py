@@ -21,13 +21,16 @@ from numba import njit
 from .anytime import ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON, walk_floats
 from .baselines import baseline_step
 from .certify import CERT_CONTINUATION, CERT_REACQUIRED
-from .layout import (F_DQ, F_INNOV, I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_STATUS, INFO_F_SIZE, MAX_REFUSED,
+from .layout import (F_COND, F_D_BEST, F_D_SECOND, F_DQ, F_INNOV, I_AMBIGUOUS, I_CERTAIN, I_CERTIFICATE, I_INTACT,
+                     I_JUMP, I_LABEL, I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, I_TRUST, MAX_REFUSED,
                      OUT_BOUND, OUT_CANDS, OUT_INFO, OUT_N_PAVE, OUT_N_TUBES, OUT_PAVE, OUT_REGION, OUT_TUBE, OUT_X,
                      OUT_X_PRED, PAVE_BOXES, STATE_A_SCALE, STATE_ANCHOR, STATE_ANCHOR_AGE, STATE_ANCHOR_BOUND,
                      STATE_CANDS, STATE_DQ_SCALE, STATE_EXT_SCALE, STATE_HAVE_Q2, STATE_HISTORY, STATE_INTACT,
                      STATE_N_CAND, STATE_N_PAVE, STATE_N_TUBES, STATE_PAVE, STATE_Q, STATE_Q2, STATE_REFUSED,
                      STATE_STEP_DT, STATE_TUBE, STATE_VERIFIED, STATE_X, STATE_X2, STATUS_REJECTED,
-                     STATUS_UNREACHABLE)
+                     STATUS_UNREACHABLE, TB_AMBIGUOUS, TB_CERTAIN, TB_JUMP, TB_NEAR_BORDER, TB_OUT_OF_BUDGET, TF_BOUND,
+                     TF_COND, TF_D_BEST, TF_D_SECOND, TF_SECONDS, TF_X, TF_X_PRED, TI_CERTIFICATE, TI_LABEL, TI_N_CAND,
+                     TI_N_REAL, TI_SINCE, TI_STATUS, TI_TRUST)
 from .state_layout import (MAX_HELD, _A_SCALE, _AGE, _ANCHOR, _ANCHOR_BOUND, _BASE, _CANDS, _CLEAN_LAG, _CLEAN_TIME,
                            _DQ_SCALE, _DT, _INTACT, _N_CAND, _N_PAVE, _N_TUBES, _PAVE, _Q, _Q2, _READING, _REFUSED,
                            _REPEATS, _SINCE, _SKIPPED, _SKIPPED_TIME, _STEPS, _TUBE, _VERIFIED, _WALK, _X, _X2)
@@ -263,20 +266,33 @@ def baseline_advance(kind, rule, q, dt, a, pk, model_pack, sample_to_sextic, par
 
 
 @njit(cache=True)
-def record(k, out_real, out_int, since, cut, c0, c1, X, X_pred, info_f, info_i, bound, since_out, cut_out, cyc):
-    """Row ``k`` of a stream's result arrays from a step's result pack (``cut``: out of budget; ``c0``,
-    ``c1``: the cycle counter before and after the step)."""
+def record(k, out_real, out_int, since, cut, c0, c1, rate, floats, ints, bools):
+    """Step ``k`` of a stream into its result blocks (:mod:`.layout` ``TF_*``, ``TI_*``, ``TB_*``: ``floats``
+    (TRACK_FLOATS * n,), ``ints`` (TRACK_INTS, n) int64, ``bools`` (TRACK_BOOLS, n)) from the step's result
+    pack: ``since`` its ``uncertain_since``, ``cut`` out of budget, ``c0``, ``c1`` the cycle counter before
+    and after the step, ``rate`` the counter's cycles per second."""
+    n = ints.shape[1]
+    certain = out_int[I_CERTAIN] != 0
     for i in range(3):
-        X[k, i] = out_real[OUT_X + i]
-        X_pred[k, i] = out_real[OUT_X_PRED + i]
-        bound[k, i] = out_real[OUT_BOUND + i] if out_int[I_CERTAIN] != 0 else math.inf
-    for i in range(INFO_F_SIZE):
-        info_f[k, i] = out_real[OUT_INFO + i]
-    for i in range(out_int.size):
-        info_i[k, i] = out_int[i]
-    since_out[k] = since
-    cut_out[k] = cut
-    cyc[k] = c1 - c0
+        floats[TF_X * n + 3 * k + i] = out_real[OUT_X + i]
+        floats[TF_X_PRED * n + 3 * k + i] = out_real[OUT_X_PRED + i]
+        floats[TF_BOUND * n + 3 * k + i] = out_real[OUT_BOUND + i] if certain else math.inf
+    floats[TF_COND * n + k] = out_real[OUT_INFO + F_COND]
+    floats[TF_D_BEST * n + k] = out_real[OUT_INFO + F_D_BEST]
+    floats[TF_D_SECOND * n + k] = out_real[OUT_INFO + F_D_SECOND]
+    floats[TF_SECONDS * n + k] = (c1 - c0) / rate
+    ints[TI_LABEL, k] = out_int[I_LABEL]
+    ints[TI_N_REAL, k] = out_int[I_N_REAL]
+    ints[TI_STATUS, k] = out_int[I_STATUS]
+    ints[TI_CERTIFICATE, k] = out_int[I_CERTIFICATE]
+    ints[TI_N_CAND, k] = out_int[I_N_CAND]
+    ints[TI_SINCE, k] = since
+    ints[TI_TRUST, k] = out_int[I_TRUST]
+    bools[TB_NEAR_BORDER, k] = out_int[I_NEAR_BORDER] != 0
+    bools[TB_AMBIGUOUS, k] = out_int[I_AMBIGUOUS] != 0
+    bools[TB_JUMP, k] = out_int[I_JUMP] != 0
+    bools[TB_CERTAIN, k] = certain
+    bools[TB_OUT_OF_BUDGET, k] = cut
 
 
 @njit(cache=True)
