@@ -164,6 +164,10 @@ class TrackResult(NamedTuple):
         Half-widths of the proven pose box (m, m, rad) at certain steps, inf elsewhere; row 0 the start's.
     seconds : ndarray (n,)
         Wall time of each step (s); 0 for the initial pose (which is certain).
+
+    The arrays are C-contiguous views of three blocks, one per dtype (:func:`track_blocks`), that the
+    compiled loop writes step by step: an array kept alone keeps its block alive (``.copy()`` it to
+    keep only its own memory).
     """
 
     X: np.ndarray
