@@ -31,6 +31,7 @@ from ._kernels.clock import cycles_per_second
 from .manipulator import Manipulator
 from .ordering import DEFAULT_RULE, rule_code
 from .tracking import _TrackerBase
+from .tracker_state import TrackerError
 
 __all__ = ["NewtonTracker", "PredictorNewtonTracker", "CLDKTracker", "NearestTracker", "NewtonSeparationTracker",
            "BASELINES", "SEPARATION"]
@@ -87,7 +88,9 @@ class _Baseline(_TrackerBase):
             qs = qs.copy()
         table = stream_table(self._table, qs, floats, ints, bools)
         self._io[IO_K0], self._io[IO_RATE] = k0, cycles_per_second()
-        baseline_entry(int(table.ctypes.data), CMD_TRACK, 0.0, 0.0)
+        steps = baseline_entry(int(table.ctypes.data), CMD_TRACK, 0.0, 0.0)
+        if steps != len(qs) - k0:               # (the loop refused its table: stream_table checks it first)
+            raise TrackerError(f"{self.name}: the compiled stream took {steps} of {len(qs) - k0} steps")
 
 
 class NewtonTracker(_Baseline):

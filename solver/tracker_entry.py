@@ -69,9 +69,11 @@ class CEntry:
         table = stream_table(self._table, qs, floats, ints, bools)
         io = self._io
         io[IO_K0], io[IO_BUDGET], io[IO_RATE] = k0, budget, cycles_per_second()
-        (self._call or self._entry())(table.ctypes.data, CMD_TRACK, 0.0, 0.0)
+        steps = (self._call or self._entry())(table.ctypes.data, CMD_TRACK, 0.0, 0.0)
         if io[IO_DONE] != 1.0:
             self._failed()
+        if steps != len(qs) - k0:               # (the loop refused its table: stream_table checks it first)
+            raise TrackerError(f"{self.name}: the compiled stream took {steps} of {len(qs) - k0} steps")
 
     def _failed(self):
         """A compiled kernel raised inside the entry point (numba printed it): the step's data is not
