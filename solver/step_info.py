@@ -237,5 +237,5 @@ _INT_NAMES = _in_order({"label": TI_LABEL, "n_real": TI_N_REAL, "status": TI_STA
                         "n_candidates": TI_N_CAND, "uncertain_since": TI_SINCE, "trust": TI_TRUST})
 _BOOL_NAMES = _in_order({"near_border": TB_NEAR_BORDER, "ambiguous": TB_AMBIGUOUS, "jump": TB_JUMP,
                          "certain": TB_CERTAIN, "out_of_budget": TB_OUT_OF_BUDGET})
-assert TF_COND == 9 and TRACK_FLOATS - TF_COND == len(_FLOAT_NAMES) and TRACK_INTS == len(_INT_NAMES) \
+assert (TF_X, TF_X_PRED, TF_BOUND, TF_COND) == (0, 3, 6, 9) and TRACK_FLOATS - TF_COND == len(_FLOAT_NAMES) and TRACK_INTS == len(_INT_NAMES) \
     and TRACK_BOOLS == len(_BOOL_NAMES)

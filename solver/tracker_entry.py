@@ -60,7 +60,7 @@ class CEntry:
 
     def _stream(self, qs, k0, budget, floats, ints, bools) -> None:
         """Steps to the joints ``qs[k0:]`` ((n, 3) rad, C-contiguous) in one call of the entry point, each with
-        a budget of ``budget`` cycles (0.0: none), into the rows ``k0``.. of the stream's result blocks
+        a budget of ``budget`` cycles (0.0: none), into steps ``k0``.. of the stream's result blocks
         (:func:`solver.step_info.track_blocks`, :func:`solver._kernels.c_entry.stream_table`).  The call
         releases the GIL: another thread may run meanwhile, but not on this tracker (a tracker is one
         thread's)."""

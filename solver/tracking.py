@@ -347,8 +347,10 @@ class _TrackerBase:
         """Steps ``k0``.. of :meth:`track` (joints ``qs`` (n, 3)) in one compiled loop, into the result's
         blocks (:func:`solver.step_info.track_blocks`)."""
         self._flat_state()
-        self._loop(qs, k0, *blocks)
-        self._st, self._held = None, None
+        try:
+            self._loop(qs, k0, *blocks)
+        finally:                                                  # the flat state moved on, even part way
+            self._st, self._held = None, None
 
     def _loop(self, qs, k0, floats, ints, bools) -> None:  # pragma: no cover - abstract
         """The compiled loop of :meth:`_track_compiled` from the live flat state: one call of the tracker's C

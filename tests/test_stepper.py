@@ -289,26 +289,78 @@ def test_track_takes_a_read_only_stream(model, coarse_map1):
 
 
 @pytest.mark.parametrize("how", ["deepcopy", "pickle"])
-def test_a_copied_tracker_steps_its_own_arrays(model, coarse_map1, how):
-    """A tracker's and a baseline's compiled entry reads a table of its arrays' addresses: a copy (deepcopy,
-    pickle) makes its own table, steps as the original would and leaves the original's data alone."""
+def test_a_copied_baseline_steps_its_own_arrays(model, how):
+    """A baseline's compiled entry reads a table of its arrays' addresses (as the tracker's, tested above):
+    a copy (deepcopy, pickle) makes its own table, steps as the original would and leaves the original's
+    data alone."""
     import copy
     import pickle
     X = circle_path(40)
     q = ik(model, X, 1)
-    for make in (lambda: Tracker(model, coarse_map1, start_tolerance=EXACT), lambda: BASELINES["newton"](model),
-                 lambda: BASELINES["nearest"](model)):
-        tr, twin = make(), make()
+    for name in ("newton", "nearest"):
+        tr, twin = BASELINES[name](model), BASELINES[name](model)
         for t in (tr, twin):
             t.reset(X[0], q[0])
             for k in range(1, 8):
                 t.step(q[k])
         dup = copy.deepcopy(tr) if how == "deepcopy" else pickle.loads(pickle.dumps(tr))
+        assert dup._table[0] != tr._table[0]
         before = TrackerState.from_array(tr.snapshot()).as_array()
         for k in range(8, 20):                              # the copy steps on: the original is untouched
             x_dup, info_dup = dup.step(q[k])
             x_twin, info_twin = twin.step(q[k])
             assert _same(x_dup, x_twin) and info_dup.label == info_twin.label
         assert _same(TrackerState.from_array(tr.snapshot()).as_array(), before)
-        assert _same(tr.step(q[8])[0], make().track(q[:9], X[0]).X[8])
+        assert _same(tr.step(q[8])[0], BASELINES[name](model).track(q[:9], X[0]).X[8])
         assert _same(dup.track(q, X[0]).X, twin.track(q, X[0]).X)
+
+
+def test_a_stream_the_loop_refuses_raises_and_leaves_the_state(model, coarse_map1, monkeypatch):
+    """Past stream_table's checks, the compiled loop refuses a stream whose rows disagree, a first step
+    outside 0..n or a cycle rate that is not positive (nothing stepped, nothing written); ``track`` then
+    raises TrackerError naming the steps taken, the tracker's data left as the loop found it.  A stream
+    it takes reports each step's seconds, in sum no more than the call's wall time."""
+    import time
+    import solver.baselines
+    import solver.tracker_entry
+    from solver._kernels.baseline_entry import UNKNOWN_COMMAND, baseline_entry
+    from solver._kernels.c_entry import CMD_PUBLISH, CMD_TRACK, IO_K0, IO_RATE, entry, stream_table
+    from solver.step_info import track_blocks
+    X = circle_path(30)
+    q = ik(model, X, 1)
+    for make, module in ((lambda: Tracker(model, coarse_map1, start_tolerance=EXACT), solver.tracker_entry),
+                         (lambda: BASELINES["newton"](model), solver.baselines)):
+        tr = make()
+        t0 = time.perf_counter()
+        res = tr.track(q, X[0])
+        wall = time.perf_counter() - t0
+        assert np.all(res.seconds[1:] > 0.0) and res.seconds.sum() <= wall
+        # the loop's own guards: k0 out of 0..n, NaN, or no rate -> 0 steps, the blocks untouched
+        tr.reset(X[0], q[0])
+        tr._flat_state()
+        blocks, fields = track_blocks(len(q))
+        table = stream_table(tr._table, q, *blocks)
+        call = ((lambda: entry().ctypes(table.ctypes.data, CMD_TRACK, 0.0, 0.0)) if module is solver.tracker_entry
+                else (lambda: baseline_entry(int(table.ctypes.data), CMD_TRACK, 0.0, 0.0)))
+        for k0, rate in ((-1.0, 1e9), (len(q) + 1.0, 1e9), (np.nan, 1e9), (1.0, 0.0), (1.0, np.nan)):
+            tr._io[IO_K0], tr._io[IO_RATE] = k0, rate
+            before, fresh = tr.state.as_array(), [b.copy() for b in blocks]
+            assert call() == 0
+            assert all(_same(b, f) for b, f in zip(blocks, fresh))
+            tr.flat_advanced()                                # (what a C caller says: read the flat state anew)
+            assert _same(tr.state.as_array(), before)
+        if module is solver.baselines:
+            assert baseline_entry(tr._address, CMD_PUBLISH, 0.0, 0.0) == UNKNOWN_COMMAND
+        # a table the loop refuses (no stream rows): track raises, the data is what the loop started from
+        # (the reset's, or after the encoder-grid watch's first readings stepped in Python)
+        seen = []
+
+        def refused(table, *arrays, tr=tr):
+            seen.append(tr.state.as_array())
+            return table.copy()
+
+        monkeypatch.setattr(module, "stream_table", refused)
+        with pytest.raises(TrackerError, match=r"the compiled stream took 0 of \d+ steps"):
+            tr.track(q, X[0])
+        monkeypatch.undo()
+        assert len(seen) == 1 and _same(tr.state.as_array(), seen[0])

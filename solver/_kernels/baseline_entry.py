@@ -14,7 +14,10 @@ Commands (:mod:`.c_entry`'s codes):
 - ``CMD_PACKED``: the step of a caller that wrote the state pack itself (the TrackerState path);
 - ``CMD_TRACK``: the steps to the joints ``qs[k:]`` for ``k`` from ``io[IO_K0]``, into the stream's result
   blocks (:func:`.c_entry.stream_table`, :func:`.stepper.record`; ``io[IO_RATE]`` the cycle counter's rate);
-  returns the number of steps (0 when the table's stream rows are unset or do not agree).
+  returns the number of steps (0 when the table's stream rows are unset or do not agree, or k0 or the
+  rate is out of range: :func:`.c_entry.stream_blocks`).
+
+Any other command does nothing and returns :data:`UNKNOWN_COMMAND`.
 
 A baseline has no step budget and no C caller: this is a numba function (its errors raise in Python
 as any kernel's), not a ``cfunc``.
@@ -26,13 +29,16 @@ import math
 import numpy as np
 from numba import carray, njit
 
-from .c_entry import (CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_K0, IO_Q, IO_RATE, T_A, T_IO, T_MODE, T_MODEL,
+from .c_entry import (CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_Q, IO_RATE, T_A, T_IO, T_MODE, T_MODEL,
                       T_OUT_INT, T_OUT_REAL, T_PARAMS, T_PK, T_RULE, T_S2S, TABLE_SIZE, stream_blocks)
 from .clock import cycles
 from .pointers import address_pointer
 from .stepper import baseline_advance, record
 
-__all__ = ["baseline_entry"]
+__all__ = ["baseline_entry", "UNKNOWN_COMMAND"]
+
+#: What :func:`baseline_entry` returns for a command it does not know (nothing done).
+UNKNOWN_COMMAND = -3
 
 
 @njit(cache=False)                  # compiled into the entry only
@@ -52,14 +58,14 @@ def baseline_entry(table_address, cmd, t, h):
     kind, rule = tb[T_MODE], tb[T_RULE]
     q = io[IO_Q:IO_Q + 3]
     packed = cmd == CMD_PACKED
-    if cmd != CMD_TRACK:
+    if cmd == CMD_ADVANCE or cmd == CMD_PACKED:
         dt = t if cmd == CMD_ADVANCE else math.nan
         return baseline_advance(kind, rule, q, dt, a, pk, model, s2s, params, out_real, out_int, packed)
-    ok, qs, floats, ints, bools = stream_blocks(tb)
-    if not ok:
-        return 0
+    if cmd != CMD_TRACK:
+        return UNKNOWN_COMMAND
+    k0, qs, floats, ints, bools = stream_blocks(tb, io)
     n = qs.shape[0]
-    k0, rate = int(io[IO_K0]), io[IO_RATE]
+    rate = io[IO_RATE]
     for k in range(k0, n):
         for i in range(3):
             q[i] = qs[k, i]

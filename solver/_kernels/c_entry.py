@@ -9,13 +9,14 @@ the rows ``T_*``), so the same machine code serves
   ``io[IO_DT]``, ``io[IO_DEADLINE]``; returns the step's ``uncertain_since`` (or
   :data:`.stepper.NOT_FINITE`) plus :data:`ADVANCE_OFFSET`, so that a kernel that raised (0) needs no
   read of ``io[IO_DONE]``.  What :meth:`solver.Tracker.step` calls (through ctypes: one call of
-  three scalars instead of a 17-argument numba dispatch);
+  four scalars instead of a 17-argument numba dispatch);
 - :data:`CMD_PACKED`: the step of a caller that wrote the state and anytime packs itself (the
   TrackerState path, :meth:`solver.TrackerState.pack`);
 - :data:`CMD_TRACK`: a whole stream (what :meth:`solver.Tracker.track` calls once): the steps to the joints
   ``qs[k:]`` for ``k`` from ``io[IO_K0]``, each with a budget of ``io[IO_BUDGET]`` cycles (0: none), into
   the stream's result blocks (:func:`.stepper.record`, ``io[IO_RATE]`` the cycle counter's rate); returns the
-  number of steps (0 when the table's stream rows are unset or do not agree);
+  number of steps (0 when the table's stream rows are unset or do not agree, or k0 or the rate is
+  out of range: :func:`stream_blocks`);
 - :data:`CMD_PUBLISH`: a *guarded* step a C host (the DK FMU's loader) takes at time ``t`` over ``h``
   seconds: the joints are read from a value array at the slots ``SLOT_Q*``, the step's outputs are
   written to the value arrays at the other slots (:data:`SLOTS`), and the step is *undone* (the flat
@@ -140,32 +141,32 @@ def _publish(tb, t, h, a, pk, model, s2s, labels, mp, stencil, params, out_real,
 
 
 @njit(cache=False)                  # compiled into the entry points only
-def stream_blocks(tb):
-    """The stream rows of a table (:data:`CMD_TRACK`): ``(ok, qs, floats, ints, bools)``, the joints (n, 3)
-    and the result blocks (``floats`` (TRACK_FLOATS * n,), ``ints`` (TRACK_INTS, n) int64, ``bools``
-    (TRACK_BOOLS, n); :mod:`.layout` ``TF_*``, ``TI_*``, ``TB_*``); ``ok`` False (and n = 0) when a row
-    is unset or its shape is not that of the ``n`` rows of ``qs``."""
+def stream_blocks(tb, io):
+    """The stream of a table (:data:`CMD_TRACK`): ``(k0, qs, floats, ints, bools)``, the first step
+    ``io[IO_K0]``, the joints (n, 3) and the result blocks (``floats`` (TRACK_FLOATS * n,), ``ints``
+    (TRACK_INTS, n) int64, ``bools`` (TRACK_BOOLS, n); :mod:`.layout` ``TF_*``, ``TI_*``, ``TB_*``).
+    k0 = n (nothing to step) when a row is unset, its shape is not that of the ``n`` rows of ``qs``,
+    ``io[IO_K0]`` is not a step index 0..n or the cycle counter's rate ``io[IO_RATE]`` is not positive."""
     n = tb[4 * T_QS + 1]
     ok = (tb[4 * T_QS] != 0 and tb[4 * T_QS + 2] == 3 and tb[4 * T_FLOATS] != 0 and tb[4 * T_INTS] != 0
           and tb[4 * T_BOOLS] != 0 and tb[4 * T_FLOATS + 1] == TRACK_FLOATS * n and tb[4 * T_INTS + 1] == TRACK_INTS
-          and tb[4 * T_INTS + 2] == n and tb[4 * T_BOOLS + 1] == TRACK_BOOLS and tb[4 * T_BOOLS + 2] == n)
+          and tb[4 * T_INTS + 2] == n and tb[4 * T_BOOLS + 1] == TRACK_BOOLS and tb[4 * T_BOOLS + 2] == n
+          and io[IO_K0] >= 0.0 and io[IO_K0] <= n and io[IO_RATE] > 0.0)
     if not ok:
         n = 0
     qs = carray(address_pointer(tb[4 * T_QS]), (n, 3), np.float64)
     floats = carray(address_pointer(tb[4 * T_FLOATS]), (TRACK_FLOATS * n,), np.float64)
     ints = carray(address_pointer(tb[4 * T_INTS]), (TRACK_INTS, n), np.int64)
     bools = carray(address_pointer(tb[4 * T_BOOLS]), (TRACK_BOOLS, n), np.bool_)
-    return ok, qs, floats, ints, bools
+    return int(io[IO_K0]) if ok else 0, qs, floats, ints, bools
 
 
 @njit(cache=False)                  # compiled into the entry point only
 def _track(tb, a, pk, model, s2s, labels, mp, stencil, params, out_real, out_int, anytime, io, packed):
     """The stream of :data:`CMD_TRACK` (see the module doc): the number of steps taken."""
-    ok, qs, floats, ints, bools = stream_blocks(tb)
-    if not ok:
-        return 0
+    k0, qs, floats, ints, bools = stream_blocks(tb, io)
     n = qs.shape[0]
-    k0, budget, rate = int(io[IO_K0]), io[IO_BUDGET], io[IO_RATE]
+    budget, rate = io[IO_BUDGET], io[IO_RATE]
     q = io[IO_Q:IO_Q + 3]           # the step's arguments typed as CMD_ADVANCE's: tracker_advance compiles once
     for k in range(k0, n):
         for i in range(3):
