@@ -34,14 +34,20 @@ from solver import Manipulator, Tracker, cached_map, circle_path, ik
 from solver.baselines import NewtonTracker
 
 
+def _time_each(call, q, *args) -> list:
+    """Seconds of ``call(q[k], *args)`` for k = 1.. (the rows made before: the clock times the call only)."""
+    out, clock = [], time.perf_counter
+    for qk in list(q[1:]):
+        t0 = clock()
+        call(qk, *args)
+        out.append(clock() - t0)
+    return out
+
+
 def _time_steps(tr, X, q, objects: bool) -> list:
     tr._objects = objects
     tr.reset(X[0], q[0])
-    step, out, clock = tr.step, [], time.perf_counter
-    for qk in list(q[1:]):                               # the rows made before: the clock times the step only
-        t0 = clock()
-        step(qk)
-        out.append(clock() - t0)
+    out = _time_each(tr.step, q)
     tr._objects = False
     return out
 
@@ -51,11 +57,7 @@ def _time_calls(tr, X, q) -> list:
     and advances the flat state), without the argument checks and the ``StepInfo``: what ``step`` costs
     beyond it is the Python a step returns its answer through."""
     tr.reset(X[0], q[0])
-    advance, a, nan, out, clock = tr._advance, tr._flat_state(), float("nan"), [], time.perf_counter
-    for qk in list(q[1:]):
-        t0 = clock()
-        advance(qk, nan, 0.0, a)
-        out.append(clock() - t0)
+    out = _time_each(tr._advance, q, float("nan"), 0.0, tr._flat_state())
     tr.flat_advanced()                                   # the flat state moved on outside step
     return out
 

@@ -26,12 +26,10 @@ import numpy as np
 
 from ._kernels import layout as _lay
 from ._kernels.baseline_entry import baseline_entry
-from ._kernels.c_entry import CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_K0, IO_RATE, IO_SIZE, make_table, stream_table
-from ._kernels.clock import cycles_per_second
+from ._kernels.c_entry import CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_SIZE, make_table
 from .manipulator import Manipulator
 from .ordering import DEFAULT_RULE, rule_code
 from .tracking import _TrackerBase
-from .tracker_state import TrackerError
 
 __all__ = ["NewtonTracker", "PredictorNewtonTracker", "CLDKTracker", "NearestTracker", "NewtonSeparationTracker",
            "BASELINES", "SEPARATION"]
@@ -60,37 +58,18 @@ class _Baseline(_TrackerBase):
         self._table = make_table(self.kind, self._rule, dict(
             a=self._flat, pk=self._state_pack, model=self._model_pack, s2s=self._sample_to_sextic,
             params=self._params, out_real=self._out_real, out_int=self._out_int, io=self._io))
-        self._address = int(self._table.ctypes.data)
+        self._table_address = int(self._table.ctypes.data)
 
-    def __getstate__(self):
-        # the table holds this baseline's array addresses: a copy (pickle, deepcopy) makes its own
-        state = super().__getstate__()
-        for name in ("_table", "_address", "_q_in"):
-            state.pop(name, None)
-        return state
-
-    def __setstate__(self, state):
-        super().__setstate__(state)
-        self._entry_table()
-
-    def _kernel(self, q, state_pack, deadline):
-        if state_pack is not self._state_pack:
-            self._state_pack[:] = state_pack
+    def _kernel(self, q, deadline):
         self._q_in[...] = q
-        baseline_entry(self._address, CMD_PACKED, 0.0, 0.0)
+        baseline_entry(self._table_address, CMD_PACKED, 0.0, 0.0)
 
     def _advance(self, q, dt, deadline, a):
         self._q_in[...] = q                     # (a is the flat state, which the table holds)
-        return baseline_entry(self._address, CMD_ADVANCE, dt, 0.0)
+        return baseline_entry(self._table_address, CMD_ADVANCE, dt, 0.0)
 
-    def _loop(self, qs, k0, floats, ints, bools):
-        if not qs.flags.writeable:              # (the loop only reads it; the table takes writable rows)
-            qs = qs.copy()
-        table = stream_table(self._table, qs, floats, ints, bools)
-        self._io[IO_K0], self._io[IO_RATE] = k0, cycles_per_second()
-        steps = baseline_entry(int(table.ctypes.data), CMD_TRACK, 0.0, 0.0)
-        if steps != len(qs) - k0:               # (the loop refused its table: stream_table checks it first)
-            raise TrackerError(f"{self.name}: the compiled stream took {steps} of {len(qs) - k0} steps")
+    def _loop(self, table):
+        return baseline_entry(int(table.ctypes.data), CMD_TRACK, 0.0, 0.0)
 
 
 class NewtonTracker(_Baseline):

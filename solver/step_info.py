@@ -221,21 +221,13 @@ def track_blocks(n: int) -> tuple:
     return (floats, ints, bools), fields
 
 
-def _in_order(names: dict) -> tuple:
-    """The field names by their block row (``{name: row}``), checked to fill every row once."""
-    order = sorted(names, key=names.get)
-    assert [names[k] for k in order] == list(range(len(order))), names
-    return tuple(order)
-
-
-#: TrackResult's arrays in the order of their blocks' rows (:func:`track_blocks`; :mod:`.layout` ``TF_*``,
-#: ``TI_*``, ``TB_*``)
-_TRIPLE_NAMES = _in_order({"X": TF_X // 3, "X_pred": TF_X_PRED // 3, "pose_bound": TF_BOUND // 3})
-_FLOAT_NAMES = _in_order({"cond": TF_COND - TF_COND, "d_best": TF_D_BEST - TF_COND,
-                          "d_second": TF_D_SECOND - TF_COND, "seconds": TF_SECONDS - TF_COND})
-_INT_NAMES = _in_order({"label": TI_LABEL, "n_real": TI_N_REAL, "status": TI_STATUS, "certificate": TI_CERTIFICATE,
-                        "n_candidates": TI_N_CAND, "uncertain_since": TI_SINCE, "trust": TI_TRUST})
-_BOOL_NAMES = _in_order({"near_border": TB_NEAR_BORDER, "ambiguous": TB_AMBIGUOUS, "jump": TB_JUMP,
-                         "certain": TB_CERTAIN, "out_of_budget": TB_OUT_OF_BUDGET})
-assert (TF_X, TF_X_PRED, TF_BOUND, TF_COND) == (0, 3, 6, 9) and TRACK_FLOATS - TF_COND == len(_FLOAT_NAMES) and TRACK_INTS == len(_INT_NAMES) \
-    and TRACK_BOOLS == len(_BOOL_NAMES)
+#: TrackResult's arrays in the order of their blocks (:func:`track_blocks`): the (n, 3) floats from TF_X * n,
+#: TF_X_PRED * n, TF_BOUND * n; the (n,) floats from TF_COND * n on; the rows of the int and the bool block
+_TRIPLE_NAMES = ("X", "X_pred", "pose_bound")
+_FLOAT_NAMES = ("cond", "d_best", "d_second", "seconds")
+_INT_NAMES = ("label", "n_real", "status", "certificate", "n_candidates", "uncertain_since", "trust")
+_BOOL_NAMES = ("near_border", "ambiguous", "jump", "certain", "out_of_budget")
+assert (TF_X, TF_X_PRED, TF_BOUND, TF_COND, TF_D_BEST, TF_D_SECOND, TF_SECONDS) == (0, 3, 6, 9, 10, 11, 12)
+assert (TI_LABEL, TI_N_REAL, TI_STATUS, TI_CERTIFICATE, TI_N_CAND, TI_SINCE, TI_TRUST) == tuple(range(7))
+assert (TB_NEAR_BORDER, TB_AMBIGUOUS, TB_JUMP, TB_CERTAIN, TB_OUT_OF_BUDGET) == tuple(range(5))
+assert (TRACK_FLOATS, TRACK_INTS, TRACK_BOOLS) == (13, len(_INT_NAMES), len(_BOOL_NAMES))

@@ -372,10 +372,6 @@ class Tracker(CEntry, _TrackerBase):
         if self._encoder_tolerance(q, f"the reading of step {self.state.steps + 1}", stacklevel=4):
             self._watch = 0
 
-    def _loop(self, qs, k0, floats, ints, bools):
-        budget = 0.0 if self.step_budget is None else self.step_budget * cycles_per_second()
-        self._stream(qs, k0, budget, floats, ints, bools)
-
     def _walk(self):
         n = walk_floats(self._anytime)
         return self._anytime[:n].copy() if n else None

@@ -14,7 +14,7 @@ import numpy as np
 
 from ._kernels.anytime import ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON
 from ._kernels.c_entry import (ADVANCE_OFFSET, CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_BUDGET, IO_DEADLINE, IO_DONE,
-                               IO_K0, IO_RATE, IO_SIZE, entry, make_table, set_rows, stream_table)
+                               IO_SIZE, entry, make_table, set_rows)
 from ._kernels.clock import cycles_per_second
 from .tracker_state import TrackerError
 from ._kernels.state_layout import STATE_FLOATS
@@ -36,15 +36,13 @@ class CEntry:
         self._table_address = self._table.ctypes.data
         self._call = None                       # entry().ctypes, on the first step
 
-    def _kernel(self, q, state_pack, deadline):
+    def _kernel(self, q, deadline):
         anytime, walk = self._anytime, self.state.walk
         if walk is None:
             anytime[ANY_N] = anytime[ANY_K_ON] = anytime[ANY_R_ON] = 0.0
         else:
             anytime[:len(walk)] = walk
         anytime[ANY_DEADLINE] = deadline
-        if state_pack is not self._state_pack:
-            self._state_pack[:] = state_pack
         self._q_in[...] = q
         self._io[IO_DEADLINE] = deadline
         (self._call or self._entry())(self._table_address, CMD_PACKED, 0.0, 0.0)
@@ -58,22 +56,15 @@ class CEntry:
             self._failed()
         return r - ADVANCE_OFFSET
 
-    def _stream(self, qs, k0, budget, floats, ints, bools) -> None:
-        """Steps to the joints ``qs[k0:]`` ((n, 3) rad, C-contiguous) in one call of the entry point, each with
-        a budget of ``budget`` cycles (0.0: none), into steps ``k0``.. of the stream's result blocks
-        (:func:`solver.step_info.track_blocks`, :func:`solver._kernels.c_entry.stream_table`).  The call
-        releases the GIL: another thread may run meanwhile, but not on this tracker (a tracker is one
-        thread's)."""
-        if not qs.flags.writeable:              # (the loop only reads it; the table takes writable rows)
-            qs = qs.copy()
-        table = stream_table(self._table, qs, floats, ints, bools)
-        io = self._io
-        io[IO_K0], io[IO_BUDGET], io[IO_RATE] = k0, budget, cycles_per_second()
+    def _loop(self, table):
+        """The stream of ``table`` in one call of the entry point (``CMD_TRACK``), each step with the
+        tracker's step budget (none without one).  The call releases the GIL: another thread may run
+        meanwhile, but not on this tracker (a tracker is one thread's)."""
+        self._io[IO_BUDGET] = 0.0 if self.step_budget is None else self.step_budget * cycles_per_second()
         steps = (self._call or self._entry())(table.ctypes.data, CMD_TRACK, 0.0, 0.0)
-        if io[IO_DONE] != 1.0:
+        if self._io[IO_DONE] != 1.0:
             self._failed()
-        if steps != len(qs) - k0:               # (the loop refused its table: stream_table checks it first)
-            raise TrackerError(f"{self.name}: the compiled stream took {steps} of {len(qs) - k0} steps")
+        return steps
 
     def _failed(self):
         """A compiled kernel raised inside the entry point (numba printed it): the step's data is not
@@ -81,17 +72,6 @@ class CEntry:
         self._st, self._live, self._held = None, False, None
         raise TrackerError(f"{self.name}: the compiled step failed (its error is printed above); the tracker's "
                            "state is discarded: call reset(X0, q0)")
-
-    def __getstate__(self):
-        # the table holds this tracker's array addresses: a copy (pickle, deepcopy) makes its own
-        state = super().__getstate__()
-        for name in ("_table", "_table_address", "_call", "_backup", "_q_in"):
-            state.pop(name, None)
-        return state
-
-    def __setstate__(self, state):
-        super().__setstate__(state)
-        self._entry_table()
 
     def c_step(self, real, integer, boolean, slots):
         """The compiled step for a C caller that publishes steps into value arrays (the DK FMU's loader):

@@ -16,7 +16,8 @@ import numpy as np
 
 from ._kernels.layout import (I_CERTAIN, INFO_I_SIZE, OUT_N_PAVE, OUT_N_TUBES, OUT_REGION, OUT_SIZE, OUT_X, STATE_SIZE,
                               STATUS_REJECTED, TRUST_CERTAIN, TRUST_LOST)
-from ._kernels.clock import deadline_after
+from ._kernels.c_entry import IO_K0, IO_RATE, stream_table
+from ._kernels.clock import cycles_per_second, deadline_after
 from ._kernels.state_layout import STATE_FLOATS
 from ._kernels.stepper import NOT_FINITE, copy_state
 from .checks import SolverInputError, as_array
@@ -74,15 +75,24 @@ class _TrackerBase:
         #: seconds one step may take (None: no budget); only the tracker has anytime proofs
         self.step_budget: float | None = None
 
+    #: What a copy (pickle, deepcopy) makes anew instead of copying: the result views and the compiled
+    #: entry's table, its address, the joints' view into ``io`` (they look into this tracker's own arrays),
+    #: the entry's ctypes function and the C caller's backup (:mod:`solver.tracker_entry`).
+    _REMADE = ("_views", "_table", "_table_address", "_q_in", "_call", "_backup")
+
     def __getstate__(self):
-        # the result views look into this tracker's own result pack: a copy (pickle, deepcopy) makes its own
-        state = dict(self.__dict__)
-        state.pop("_views", None)
-        return state
+        return {k: v for k, v in self.__dict__.items() if k not in self._REMADE}
 
     def __setstate__(self, state):
         self.__dict__.update(state)
         self._views = result_views(self._out_real, self._out_int)
+        self._entry_table()
+
+    def _entry_table(self) -> None:  # pragma: no cover - abstract
+        """The compiled entry's table over the tracker's arrays, ``io`` and its joints' view ``_q_in`` (made
+        at construction and by a copy): the tracker's :mod:`solver.tracker_entry`, a baseline's
+        :mod:`._kernels.baseline_entry`."""
+        raise NotImplementedError
 
     @property
     def state(self) -> TrackerState | None:
@@ -165,9 +175,10 @@ class _TrackerBase:
         self.state = TrackerState(X0, q0.copy(), None, 0.0, 0, float("nan"), anchor=X0, anchor_age=0.0,
                                   reading=q0.copy())
 
-    def _kernel(self, q, state_pack, deadline: float):               # pragma: no cover - abstract
-        """Run the compiled step on joints ``q`` and the state pack into the output packs, until the
-        ``deadline`` (:mod:`solver._kernels.clock`; 0.0: none)."""
+    def _kernel(self, q, deadline: float):               # pragma: no cover - abstract
+        """Run the compiled step on joints ``q`` and the state pack ``_state_pack`` (written by
+        :meth:`TrackerState.pack`) into the output packs, until the ``deadline``
+        (:mod:`solver._kernels.clock`; 0.0: none)."""
         raise NotImplementedError
 
     def _walk(self) -> np.ndarray | None:
@@ -262,7 +273,7 @@ class _TrackerBase:
                                                0.0, 0.0, False, 0, max(len(held.candidates), 1), held.since(False))
             extra = reading_fields(st, q, repeats, dt)
         st.pack(self._state_pack, dt, self.stuck_after)
-        self._kernel(q, self._state_pack, deadline)
+        self._kernel(q, deadline)
         of, oi = self._out_real, self._out_int
         certain = bool(oi[I_CERTAIN])
         info = StepInfo.from_result(of, oi, st.since(certain))
@@ -344,17 +355,25 @@ class _TrackerBase:
         return [self.track(q, X0) for q, X0 in zip(q_streams, X0s)]
 
     def _track_compiled(self, qs: np.ndarray, k0: int, blocks: tuple) -> None:
-        """Steps ``k0``.. of :meth:`track` (joints ``qs`` (n, 3)) in one compiled loop, into the result's
-        blocks (:func:`solver.step_info.track_blocks`)."""
+        """Steps ``k0``.. of :meth:`track` (joints ``qs`` (n, 3)) in one call of the compiled entry, into the
+        result's blocks (:func:`solver.step_info.track_blocks`); TrackerError when the loop took fewer
+        steps (it refused its table, which :func:`._kernels.c_entry.stream_table` checks first)."""
         self._flat_state()
+        if not qs.flags.writeable:              # (the loop only reads it; the table takes writable rows)
+            qs = qs.copy()
+        table = stream_table(self._table, qs, *blocks)
+        self._io[IO_K0], self._io[IO_RATE] = k0, cycles_per_second()      # the loop writes each step's seconds
         try:
-            self._loop(qs, k0, *blocks)
+            steps = self._loop(table)
         finally:                                                  # the flat state moved on, even part way
             self._st, self._held = None, None
+        if steps != len(qs) - k0:
+            raise TrackerError(f"{self.name}: the compiled stream took {steps} of {len(qs) - k0} steps")
 
-    def _loop(self, qs, k0, floats, ints, bools) -> None:  # pragma: no cover - abstract
-        """The compiled loop of :meth:`_track_compiled` from the live flat state: one call of the tracker's C
-        entry point (:mod:`solver.tracker_entry`) or of a baseline's (:mod:`._kernels.baseline_entry`)."""
+    def _loop(self, table: np.ndarray) -> int:  # pragma: no cover - abstract
+        """The compiled stream of the stream ``table`` (``CMD_TRACK``) from the live flat state, ``io`` set:
+        one call of the tracker's C entry point (:mod:`solver.tracker_entry`) or of a baseline's
+        (:mod:`._kernels.baseline_entry`); returns the steps it took."""
         raise NotImplementedError
 
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import copy
 import json
-import os
 import re
 import subprocess
 import sys
@@ -20,6 +19,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cosim.fmus import builds, map_report
+from host_support import run_python
 from cosim.fmus.robot_build import robot_circle
 from solver import Manipulator, MapTensor, Tracker, default_bounds, ik
 from solver.geometry_tolerance import built_robot
@@ -339,13 +339,12 @@ def test_the_example_robots_ssp_runs_in_ecos(robot_loop):
     """The robot's SSP (its three FMUs, its start values) in Ecos: the DK pose is the true pose at every
     step and the plant follows the reference after the ramp."""
     tmp, _ = robot_loop
-    probe = subprocess.run([sys.executable, "-c", "import ecospy"], capture_output=True, text=True, cwd=tmp)
+    probe = run_python("import ecospy", cwd=tmp)
     if probe.returncode != 0:
         pytest.skip("Ecos unavailable (pip install ecospy; apt-get install libtbb12): "
                     + probe.stderr.strip().splitlines()[-1])
-    proc = subprocess.run([sys.executable, "-c", ECOS_RUN, str(tmp / "build" / "RRRClosedLoop.ssp"), "1000"],
-                          capture_output=True, text=True, timeout=900, cwd=tmp,
-                          env={**os.environ, "TMPDIR": str(tmp)})   # Ecos extracts the SSP there (pytest cleans it)
+    proc = run_python(ECOS_RUN, tmp / "build" / "RRRClosedLoop.ssp", 1000, cwd=tmp, timeout=900,
+                      tmpdir=tmp)                             # Ecos extracts the SSP there (pytest cleans it)
     line = next((x for x in proc.stdout.splitlines() if x.startswith("ECOS ")), None)
     assert line is not None, proc.stderr[-3000:]
     rows = np.array(json.loads(line[5:]))

@@ -323,6 +323,7 @@ def test_a_stream_the_loop_refuses_raises_and_leaves_the_state(model, coarse_map
     import time
     import solver.baselines
     import solver.tracker_entry
+    import solver.tracking
     from solver._kernels.baseline_entry import UNKNOWN_COMMAND, baseline_entry
     from solver._kernels.c_entry import CMD_PUBLISH, CMD_TRACK, IO_K0, IO_RATE, entry, stream_table
     from solver.step_info import track_blocks
@@ -350,7 +351,7 @@ def test_a_stream_the_loop_refuses_raises_and_leaves_the_state(model, coarse_map
             tr.flat_advanced()                                # (what a C caller says: read the flat state anew)
             assert _same(tr.state.as_array(), before)
         if module is solver.baselines:
-            assert baseline_entry(tr._address, CMD_PUBLISH, 0.0, 0.0) == UNKNOWN_COMMAND
+            assert baseline_entry(tr._table_address, CMD_PUBLISH, 0.0, 0.0) == UNKNOWN_COMMAND
         # a table the loop refuses (no stream rows): track raises, the data is what the loop started from
         # (the reset's, or after the encoder-grid watch's first readings stepped in Python)
         seen = []
@@ -359,7 +360,7 @@ def test_a_stream_the_loop_refuses_raises_and_leaves_the_state(model, coarse_map
             seen.append(tr.state.as_array())
             return table.copy()
 
-        monkeypatch.setattr(module, "stream_table", refused)
+        monkeypatch.setattr(solver.tracking, "stream_table", refused)
         with pytest.raises(TrackerError, match=r"the compiled stream took 0 of \d+ steps"):
             tr.track(q, X[0])
         monkeypatch.undo()

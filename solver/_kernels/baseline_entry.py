@@ -29,8 +29,8 @@ import math
 import numpy as np
 from numba import carray, njit
 
-from .c_entry import (CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_Q, IO_RATE, T_A, T_IO, T_MODE, T_MODEL,
-                      T_OUT_INT, T_OUT_REAL, T_PARAMS, T_PK, T_RULE, T_S2S, TABLE_SIZE, stream_blocks)
+from .c_entry import (CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_Q, IO_RATE, T_MODE, T_RULE, TABLE_SIZE, stream_blocks,
+                      table_arrays)
 from .clock import cycles
 from .pointers import address_pointer
 from .stepper import baseline_advance, record
@@ -41,20 +41,12 @@ __all__ = ["baseline_entry", "UNKNOWN_COMMAND"]
 UNKNOWN_COMMAND = -3
 
 
-@njit(cache=False)                  # compiled into the entry only
-def _vector(tb, row):
-    return carray(address_pointer(tb[4 * row]), (tb[4 * row + 1],), np.float64)
-
-
 @njit(cache=True)
 def baseline_entry(table_address, cmd, t, h):
     """The baseline's step (module doc): ``table_address`` of a :func:`.c_entry.make_table` table (int64),
     ``cmd`` a command code, ``t`` the time step (s; NaN: unknown); ``h`` is unused (no budget)."""
     tb = carray(address_pointer(table_address), (TABLE_SIZE,), np.int64)
-    a, pk, model, params = _vector(tb, T_A), _vector(tb, T_PK), _vector(tb, T_MODEL), _vector(tb, T_PARAMS)
-    s2s = carray(address_pointer(tb[4 * T_S2S]), (tb[4 * T_S2S + 1], tb[4 * T_S2S + 2], tb[4 * T_S2S + 3]), np.float64)
-    out_real, io = _vector(tb, T_OUT_REAL), _vector(tb, T_IO)
-    out_int = carray(address_pointer(tb[4 * T_OUT_INT]), (tb[4 * T_OUT_INT + 1],), np.int64)
+    a, pk, model, s2s, params, out_real, out_int, io = table_arrays(tb)
     kind, rule = tb[T_MODE], tb[T_RULE]
     q = io[IO_Q:IO_Q + 3]
     packed = cmd == CMD_PACKED

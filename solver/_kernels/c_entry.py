@@ -141,11 +141,27 @@ def _publish(tb, t, h, a, pk, model, s2s, labels, mp, stencil, params, out_real,
 
 
 @njit(cache=False)                  # compiled into the entry points only
+def table_arrays(tb):
+    """The arrays of a table (int64 (TABLE_SIZE,)) that a tracker's and a baseline's step both read: ``(a, pk,
+    model, s2s, params, out_real, out_int, io)`` (the tracker's map, labels, stencil and anytime pack are its
+    own: :func:`_step`)."""
+    a = carray(address_pointer(tb[4 * T_A]), (tb[4 * T_A + 1],), np.float64)
+    pk = carray(address_pointer(tb[4 * T_PK]), (tb[4 * T_PK + 1],), np.float64)
+    model = carray(address_pointer(tb[4 * T_MODEL]), (tb[4 * T_MODEL + 1],), np.float64)
+    s2s = carray(address_pointer(tb[4 * T_S2S]), (tb[4 * T_S2S + 1], tb[4 * T_S2S + 2], tb[4 * T_S2S + 3]), np.float64)
+    params = carray(address_pointer(tb[4 * T_PARAMS]), (tb[4 * T_PARAMS + 1],), np.float64)
+    out_real = carray(address_pointer(tb[4 * T_OUT_REAL]), (tb[4 * T_OUT_REAL + 1],), np.float64)
+    out_int = carray(address_pointer(tb[4 * T_OUT_INT]), (tb[4 * T_OUT_INT + 1],), np.int64)
+    io = carray(address_pointer(tb[4 * T_IO]), (tb[4 * T_IO + 1],), np.float64)
+    return a, pk, model, s2s, params, out_real, out_int, io
+
+
+@njit(cache=False)                  # compiled into the entry points only
 def stream_blocks(tb, io):
     """The stream of a table (:data:`CMD_TRACK`): ``(k0, qs, floats, ints, bools)``, the first step
     ``io[IO_K0]``, the joints (n, 3) and the result blocks (``floats`` (TRACK_FLOATS * n,), ``ints``
     (TRACK_INTS, n) int64, ``bools`` (TRACK_BOOLS, n); :mod:`.layout` ``TF_*``, ``TI_*``, ``TB_*``).
-    k0 = n (nothing to step) when a row is unset, its shape is not that of the ``n`` rows of ``qs``,
+    Nothing to step (k0 = n = 0) when a row is unset, its shape is not that of the ``n`` rows of ``qs``,
     ``io[IO_K0]`` is not a step index 0..n or the cycle counter's rate ``io[IO_RATE]`` is not positive."""
     n = tb[4 * T_QS + 1]
     ok = (tb[4 * T_QS] != 0 and tb[4 * T_QS + 2] == 3 and tb[4 * T_FLOATS] != 0 and tb[4 * T_INTS] != 0
@@ -185,19 +201,12 @@ def _track(tb, a, pk, model, s2s, labels, mp, stencil, params, out_real, out_int
 def _step(table, cmd, t, h):
     """The entry point's body (module doc)."""
     tb = carray(table, (TABLE_SIZE,), np.int64)
-    a = carray(address_pointer(tb[4 * T_A]), (tb[4 * T_A + 1],), np.float64)
-    pk = carray(address_pointer(tb[4 * T_PK]), (tb[4 * T_PK + 1],), np.float64)
-    model = carray(address_pointer(tb[4 * T_MODEL]), (tb[4 * T_MODEL + 1],), np.float64)
-    s2s = carray(address_pointer(tb[4 * T_S2S]), (tb[4 * T_S2S + 1], tb[4 * T_S2S + 2], tb[4 * T_S2S + 3]), np.float64)
+    a, pk, model, s2s, params, out_real, out_int, io = table_arrays(tb)
     labels = carray(address_pointer(tb[4 * T_LABELS]), (tb[4 * T_LABELS + 1], tb[4 * T_LABELS + 2], tb[4 * T_LABELS + 3]),
                     np.int8)
     mp = carray(address_pointer(tb[4 * T_MAP]), (tb[4 * T_MAP + 1],), np.float64)
     stencil = carray(address_pointer(tb[4 * T_STENCIL]), (tb[4 * T_STENCIL + 1], tb[4 * T_STENCIL + 2]), np.int64)
-    params = carray(address_pointer(tb[4 * T_PARAMS]), (tb[4 * T_PARAMS + 1],), np.float64)
-    out_real = carray(address_pointer(tb[4 * T_OUT_REAL]), (tb[4 * T_OUT_REAL + 1],), np.float64)
-    out_int = carray(address_pointer(tb[4 * T_OUT_INT]), (tb[4 * T_OUT_INT + 1],), np.int64)
     anytime = carray(address_pointer(tb[4 * T_ANYTIME]), (tb[4 * T_ANYTIME + 1],), np.float64)
-    io = carray(address_pointer(tb[4 * T_IO]), (tb[4 * T_IO + 1],), np.float64)
     io[IO_DONE] = 0.0
     if cmd == CMD_PUBLISH:
         if tb[4 * T_SLOTS] == 0:
