@@ -33,7 +33,7 @@ from solver._kernels.layout import OUT_X, OUT_X_PRED, STATUS_UNREACHABLE
 from solver._kernels.stepper import advance_state, load_walk, pack_state
 from solver._kernels.tracker import (gate_phase, hold, margins, publish as publish_phase, solve_phase,
                                      speed_gate_phase, step_pack)
-from solver._kernels.tracker_packs import STEP_X_LIN
+from solver._kernels.tracker_packs import STEP_SIZE, STEP_X_LIN
 
 PHASES = ("pack", "gate", "solve", "predict", "choose", "certify", "finish", "advance")
 
@@ -47,7 +47,8 @@ def timed_step(mode, rule, q, a, pk, model_pack, sample_to_sextic, labels, map_p
     pack_state(a, math.nan, pk)
     load_walk(a, anytime, 0.0)
     c1 = cycles()
-    work = step_pack(q, pk, params, out_real, out_int)
+    work = np.empty(STEP_SIZE)
+    step_pack(q, pk, params, out_real, out_int, work)
     anytime[ANY_CUT] = 0.0
     refused, untrusted = gate_phase(pk, work, params, model_pack, out_real, out_int)
     if refused:

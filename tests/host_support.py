@@ -32,11 +32,16 @@ def session_fmus(tmp_path_factory) -> dict:
 
 
 def run_python(code: str, *args, python: str | Path = sys.executable, cwd: Path | None = None,
-               timeout: float = 600, tmpdir: Path | None = None) -> subprocess.CompletedProcess:
+               timeout: float = 600, tmpdir: Path | None = None,
+               env: dict | None = None) -> subprocess.CompletedProcess:
     """Run ``code`` (dedented) as a script with ``args`` in a child ``python``; never raises on its status.
     ``tmpdir``: the child's temporary folder (``TMPDIR``; Ecos extracts every SSP it runs into one there
-    and never removes it: 5 MB a run, left in /tmp otherwise)."""
-    env = None if tmpdir is None else {**os.environ, "TMPDIR": str(tmpdir)}
+    and never removes it: 5 MB a run, left in /tmp otherwise); ``env``: variables set in the child besides
+    this process's."""
+    extra = dict(env or {})
+    if tmpdir is not None:
+        extra["TMPDIR"] = str(tmpdir)
+    env = {**os.environ, **extra} if extra else None
     return subprocess.run([str(python), "-c", textwrap.dedent(code), *map(str, args)], capture_output=True,
                           text=True, timeout=timeout, cwd=str(cwd or REPO), env=env)
 

@@ -21,6 +21,8 @@ into flat float arrays whose fields are read through the named offsets of :mod:`
 - :mod:`.gates`: the outlier and speed gates for measured joints;
 - :mod:`.choice`: the predictor along the joint step and the nearest solution to a prediction;
 - :mod:`.tracker_packs`: the named packs of a tracker step (the step's scratch and its result);
+- :mod:`.scratch`: small working arrays in the calling kernel's stack frame, not on the heap (a step
+  makes no heap allocation but the tube chain's table of pieces);
 - :mod:`.clock`: the CPU's cycle counter, the step budget's deadline;
 - :mod:`.anytime`: with a step budget, the tube chain as a walk the next steps continue;
 - :mod:`.cache_stamp`: numba's cache stamped with the content of every kernel module;

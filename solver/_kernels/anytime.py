@@ -33,6 +33,7 @@ from .certify import FOLLOW_DONE, FOLLOW_FAILED, follow_on, tiny_box
 from .clock import expired
 from .exclusion import PREIMAGE_STACK
 from .linalg import wrap
+from .scratch import floats
 from .tube import TUBE_Q, TUBE_SIZE
 from .tube import TUBE_S
 from .tube_chain import (COVER_ALL, COVER_ONE, COVER_PARTS, COVER_SLABS, MAX_COVER, MAX_PIECES, SLABS, cover_box,
@@ -148,7 +149,7 @@ def walk_on(anytime, tol, max_tests, deadline, M, l1, l2sq, b, out):
     pieces = anytime[ANY_PIECES:].reshape((MAX_PIECES, TUBE_SIZE))
     n, last = int(anytime[ANY_N]), int(anytime[ANY_LAST])
     s, step, tests = anytime[ANY_S], anytime[ANY_STEP], int(anytime[ANY_TESTS])
-    qc, t, dq, half = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    qc, t, dq, half = floats(3), floats(3), floats(3), floats(3)
     while int(anytime[ANY_N_PATH]) >= 2:
         qp = anytime[ANY_PATH:ANY_PATH + 3]
         for i in range(3):
@@ -295,7 +296,9 @@ def cont_on(anytime, max_tests, deadline, M, l1, b, l2sq, out):
     over), FOLLOW_CUT (it goes on at the next call) or FOLLOW_FAILED (over)."""
     x = anytime[ANY_K_X:ANY_K_X + 3]
     prog = anytime[ANY_K_PROG:ANY_K_PROG + 3]
-    zero, d1, d2 = np.zeros(3), np.empty(3), np.zeros(3)
+    zero, d1, d2 = floats(3), floats(3), floats(3)
+    zero[:] = 0.0
+    d2[:] = 0.0
     while int(anytime[ANY_K_N_PATH]) >= 2:
         q0 = anytime[ANY_K_PATH:ANY_K_PATH + 3]
         parabola = anytime[ANY_K_KIND] > 1.0

@@ -16,6 +16,7 @@ from .layout import (BASELINE_CLDK, BASELINE_NEAREST, BASELINE_NEWTON, BASELINE_
                      OUT_X, OUT_X_PRED, STATE_Q, STATE_X, STATUS_DIVERGED, STATUS_OK, STATUS_UNREACHABLE)
 from .linalg import wrap
 from .choice import joint_step, nearest, wdist
+from .scratch import floats, scratch, scratch2
 
 
 @njit(cache=True)
@@ -24,9 +25,9 @@ def newton(X0, q, M, l1, l2sq, b, damping, max_iter, tol, X_out):
 
     Returns (residual max|F_i|, iterations, Hadamard ratio at the end).
     """
-    D = np.empty((3, 2))
+    D = scratch2(3, 2, np.float64)
     elbows(q, M, l1, D)
-    r2 = np.empty(3)
+    r2 = floats(3)
     for i in range(3):
         r2[i] = radius_sq(l2sq[i], q[i])
     l2sq = r2
@@ -55,7 +56,7 @@ def baseline_step(kind, rule, q, state, model_pack, sample_to_sextic, baseline_p
         info_i[i] = 0
     for i in range(INFO_F_SIZE):
         info_f[i] = 0.0
-    dq = np.empty(3)
+    dq = floats(3)
     info_f[F_DQ] = joint_step(q, qp, dq)
     info_i[I_N_REAL] = -1
     if kind == BASELINE_NEAREST:
@@ -66,7 +67,7 @@ def baseline_step(kind, rule, q, state, model_pack, sample_to_sextic, baseline_p
     if kind == BASELINE_NEWTON or kind == BASELINE_NEWTON_SEPARATION:
         X_pred[:] = Xp
     else:
-        dX = np.empty(3)
+        dX = floats(3)
         info_f[F_COND_PREV] = velocity(Xp, qp, dq, M, l1, l2sq, b, dX)
         for i in range(3):
             X_pred[i] = Xp[i] + dX[i]
@@ -85,12 +86,13 @@ def nearest_step(q, Xp, rule, model_pack, sample_to_sextic, baseline_params, X_o
     """The nearest baseline: all DK solutions at ``q`` (3,), the real one nearest (eq. 19) the
     previous pose ``Xp`` (3,); the previous pose held (unreachable) when none is real."""
     w = baseline_params[BASELINE_WEIGHTS:BASELINE_WEIGHTS + 3]
-    poses = np.empty((6, 3), dtype=np.complex128)
-    real = np.empty(6, dtype=np.bool_)
+    poses = scratch2(6, 3, np.complex128)
+    real = scratch(6, np.bool_)
     dk_one(q, model_pack, sample_to_sextic, rule, poses, real)
     X_pred[:] = Xp
     info_i[I_N_REAL] = np.count_nonzero(real)
-    nothing = np.zeros(7, dtype=np.bool_)
+    nothing = scratch(7, np.bool_)
+    nothing[:] = False
     kbest, _ = nearest(poses, real, Xp, w, nothing, nothing, nothing, False)
     if kbest < 0:
         X_out[:] = Xp
@@ -108,13 +110,13 @@ def separation_flag(q, Xp, rule, model_pack, sample_to_sextic, baseline_params, 
     """The separation flag of Newton's answer ``X_out`` (3,): certain when every other real DK solution
     at ``q`` is more than BASELINE_SEPARATION times farther from it than the step from ``Xp``."""
     w = baseline_params[BASELINE_WEIGHTS:BASELINE_WEIGHTS + 3]
-    poses = np.empty((6, 3), dtype=np.complex128)
-    real = np.empty(6, dtype=np.bool_)
+    poses = scratch2(6, 3, np.complex128)
+    real = scratch(6, np.bool_)
     dk_one(q, model_pack, sample_to_sextic, rule, poses, real)
     info_i[I_N_REAL] = np.count_nonzero(real)
     d_step = wdist(X_out, Xp, w)
     d_other = np.inf
-    Xr = np.empty(3)
+    Xr = floats(3)
     for k in range(6):
         if real[k]:
             for i in range(3):

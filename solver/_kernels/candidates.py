@@ -16,6 +16,7 @@ from numba import njit
 from .certify import (CERT_CONTINUATION, CERT_ELIMINATION, CERT_NONE, CERT_POSTURE, elbow_bits, follow_back,
                       follow_branch, same_pose)
 from .kinematics import geometry
+from .scratch import floats, scratch
 
 
 @njit(cache=True)
@@ -36,8 +37,8 @@ def certify(cands, n_cand, verified, intact, qp, dq, d2_par, have_par, eps, pose
     segment between the samples crossed no fold on its way.
     """
     M, l1, l2sq, b = geometry(model_pack)
-    d1_par = np.empty(3)
-    qu = np.empty(3)
+    d1_par = floats(3)
+    qu = floats(3)
     for i in range(3):
         d1_par[i] = dq[i] - d2_par[i]
         qu[i] = qp[i] + dq[i]
@@ -49,7 +50,8 @@ def certify(cands, n_cand, verified, intact, qp, dq, d2_par, have_par, eps, pose
                             real, max_tests, M, l1, b, l2sq, new_cands, keep, deadline)
         if p >= 0:
             return 1, CERT_CONTINUATION, eps == 0.0 or p == 0, True
-    linked = np.zeros(6, dtype=np.bool_)      # followed back to a candidate
+    linked = scratch(6, np.bool_)               # followed back to a candidate
+    linked[:] = False
     n_new = eliminate(cands, n_cand, qu, dq, d1_par, d2_par, n_paths, poses, real, max_tests, M, l1, b, l2sq,
                       new_cands, keep, linked, deadline)
     code = CERT_ELIMINATION
@@ -83,9 +85,10 @@ def continue_single(X0, verified, tube_first, qp, dq, d1_par, d2_par, n_paths, e
     solution of ``poses`` (6, 3) complex / ``real`` (6,) marks it in ``keep`` (6,) and puts the
     chain's end in ``new_cands[0]``.  Returns that path's index, or -1 when none does.
     """
-    zero = np.zeros(3)
-    end = np.empty(3)
-    Xr = np.empty(3)
+    zero = floats(3)
+    zero[:] = 0.0
+    end = floats(3)
+    Xr = floats(3)
     for p in range(0 if tube_first else 1, n_paths + 1):
         d1 = dq if p <= 1 else d1_par
         d2 = zero if p <= 1 else d2_par
@@ -113,8 +116,9 @@ def eliminate(cands, n_cand, qu, dq, d1_par, d2_par, n_paths, poses, real, max_t
     ``cands[:n_cand]`` is dropped.  The others are marked in ``keep`` (6,) and listed in
     ``new_cands`` (6, 3); ``linked`` (6,) marks those whose chain ended on a candidate.
     Returns how many are kept."""
-    zero = np.zeros(3)
-    Xr = np.empty(3)
+    zero = floats(3)
+    zero[:] = 0.0
+    Xr = floats(3)
     n_new = 0
     for k in range(6):
         if not real[k]:
@@ -143,8 +147,9 @@ def keep_posture(poses, qu, posture_bits, M, l1, b, new_cands, keep):
     """Posture: of the solutions marked in ``keep`` (6,), those whose elbows are in the posture
     ``posture_bits`` + 1 at the joints ``qu``.  When at least one is, ``keep`` and ``new_cands``
     (6, 3) are narrowed to them; returns how many are (0: nothing changed)."""
-    Xr = np.empty(3)
-    in_posture = np.zeros(6, dtype=np.bool_)      # kept candidates in the tracker's posture
+    Xr = floats(3)
+    in_posture = scratch(6, np.bool_)           # kept candidates in the tracker's posture
+    in_posture[:] = False
     n_post = 0
     for k in range(6):
         if keep[k]:

@@ -27,6 +27,7 @@ from .layout import (I_CERTAIN, I_CERTIFICATE, I_INTACT, I_N_CAND, I_TRUST, MAP_
 from .linalg import turns_to, wrap
 from .paving import region_step
 from .reacquisition import cover_solution, eliminant_reacquired, reacquired, reacquired_anytime, region_choice
+from .scratch import floats, scratch
 from .tracker_packs import STEP_DQ, STEP_QU
 from .tube import TUBE_SIZE, tube_test
 from .tube_chain import MAX_COVER, pose_bound, tube_chain
@@ -82,7 +83,7 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
     boxed = False                              # re-acquired by the eliminant: the bound is its box, no tubes
     for r in range(3):
         bound[r] = np.inf
-    keep = np.empty(6, dtype=np.bool_)
+    keep = scratch(6, np.bool_)
     tol = params[PARAM_JOINT_TOL]
     measured = is_measured(params, model_pack)
     sol = -1
@@ -133,7 +134,8 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
         certain = chosen == sole and intact
         linked = linked and chosen == sole
     elif mode != MODE_PAPER and not keep[chosen]:
-        mask = np.zeros(7, dtype=np.bool_)
+        mask = scratch(7, np.bool_)
+        mask[0] = False
         for k in range(6):
             mask[k + 1] = keep[k]
         chosen, _ = nearest(poses, real, out_real[OUT_X_PRED:OUT_X_PRED + 3], map_pack[MAP_WEIGHTS:MAP_WEIGHTS + 3],
@@ -147,13 +149,14 @@ def certify_phase(mode, chosen, untrusted, state, work, poses, real, params, mod
                 new_cands[0, i] = poses[taken, i].real
     if untrusted:
         certain, intact, linked = False, False, False
-    Xc = np.empty(3)
+    Xc = floats(3)
     for i in range(3):
         Xc[i] = poses[chosen, i].real
     qu = work[STEP_QU:STEP_QU + 3]
     if certain and cert != CERT_TUBE and cert != CERT_REACQUIRED:       # exact joints: the point's tube
         M, l1, l2sq, b = geometry(model_pack)
-        zero = np.zeros(3)
+        zero = floats(3)
+        zero[:] = 0.0
         certain = tube_test(Xc, qu, zero, zero, M, l1, l2sq, b, tubes[0])
         n_tubes = 1
     if certain and not boxed and not (cert == CERT_TUBE and chosen == sol):     # (the tube chain's own: its
@@ -225,11 +228,12 @@ def anytime_chains(untrusted, state, work, poses, real, params, model_pack, new_
     elif append and anytime[ANY_K_ON] <= 0.0 and int(state[STATE_N_CAND]) == 1:
         cont_begin(anytime, state[STATE_CANDS:STATE_CANDS + 3], state[STATE_VERIFIED] > 0.0,
                    state[STATE_INTACT] > 0.0, state[STATE_Q:STATE_Q + 3])
-    d2 = np.zeros(3)
+    d2 = floats(3)
+    d2[:] = 0.0
     if anytime[ANY_K_ON] > 0.0 and (not append or cont_append(anytime, work[STEP_QU:STEP_QU + 3], d2,
                                                                 parabola(state, work, d2))):
         M, l1, l2sq, b = geometry(model_pack)
-        end, Xr = np.empty(3), np.empty(3)
+        end, Xr = floats(3), floats(3)
         status = cont_on(anytime, int(params[PARAM_MAX_TESTS]), deadline, M, l1, b, l2sq, end)
         if status == FOLLOW_CUT:
             n = 0
@@ -330,7 +334,8 @@ def chains(state, work, poses, real, params, model_pack, new_cands, keep, deadli
     with three samples, the parabola through them (time-scaled).  Writes ``new_cands`` (6, 3) and
     ``keep`` (6,); returns (candidates, certificate code, chain intact since the reset, linked)."""
     qp, dq = state[STATE_Q:STATE_Q + 3], work[STEP_DQ:STEP_DQ + 3]
-    d2 = np.zeros(3)
+    d2 = floats(3)
+    d2[:] = 0.0
     have_par = parabola(state, work, d2)
     intact_before = state[STATE_INTACT] > 0.0
     n_new, cert, intact, linked = certify(state[STATE_CANDS:STATE_CANDS + 18].reshape((6, 3)),
@@ -351,7 +356,7 @@ def paving_cut(state, qu, params, model_pack, Xc, bound, out_real, deadline):
     region_step(state, qu, params, model_pack, hull, out_real[OUT_N_PAVE:OUT_N_PAVE + 1 + 6 * PAVE_BOXES], deadline)
     if hull[0] <= hull[1] and hull[2] <= hull[3] and hull[4] <= hull[5]:
         shift = turns_to(0.5 * (hull[4] + hull[5]), Xc[2])
-        b = np.empty(3)
+        b = floats(3)
         ok = True
         for r in range(3):
             s = shift if r == 2 else 0.0

@@ -25,6 +25,7 @@ from .kinematics import geometry
 from .krawczyk import PAD, W_G, W_J, W_SIZE, W_TOT, W_Y, krawczyk, newton_on_path, point_terms
 from .linalg import inverse3_flat as inverse3
 from .linalg import wrap
+from .scratch import floats, scratch2
 
 #: Half-width of the tiny verified boxes that link a chain (m, m, rad).
 TINY = 1e-9
@@ -66,7 +67,8 @@ def prove_part(qc, e, pq, px, n, guess, M, l1, b, l2sq, w, xc, rho):
     points ``pq[:n]`` (joints) / ``px[:n]`` (their solutions) that lie in the joint box.
     Returns 1 when proved, 0 when not, -1 when there is no regular solution at ``qc``.
     """
-    none = np.zeros(3)
+    none = floats(3)
+    none[:] = 0.0
     xc[:] = guess
     if newton_on_path(xc, qc, none, none, 0.0, M, l1, b, l2sq, w, 8) > 1e-12:
         return -1
@@ -102,11 +104,12 @@ def split_tube(x, xb, q0, d1, s, sb, eps, M, l1, b, l2sq, w):
     point of a convex set agree on all of it): one branch over the whole piece.
     Returns the number of Krawczyk tests (> 0) when proved, minus it when not.
     """
-    none = np.zeros(3)
-    tiny = np.full(3, TINY)
-    pq, px = np.empty((4, 3)), np.empty((4, 3))
-    e, ea, qa, xa, qc, xc = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-    rho = np.empty(3)
+    none, tiny = floats(3), floats(3)
+    none[:] = 0.0
+    tiny[:] = TINY
+    pq, px = scratch2(4, 3, np.float64), scratch2(4, 3, np.float64)
+    e, ea, qa, xa, qc, xc = floats(3), floats(3), floats(3), floats(3), floats(3), floats(3)
+    rho = floats(3)
     sm = 0.5 * (s + sb)
     for i in range(3):
         pq[0, i], px[0, i] = q0[i] + sm * d1[i], 0.5 * (x[i] + xb[i])
@@ -149,10 +152,12 @@ def follow_branch(X0, verified, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, out,
     Returns ``-tests`` when the chain could not be closed within ``max_tests`` or before the
     ``deadline`` (:mod:`.clock`).
     """
-    x = X0.copy()
+    x = floats(3)
+    x[:] = X0
     if not verified and not tiny_box(x, q0, d1, d2, M, l1, b, l2sq):
         return -1
-    prog = np.array([0.0, 1.0, 0.0 if verified else 1.0])
+    prog = floats(3)
+    prog[0], prog[1], prog[2] = 0.0, 1.0, 0.0 if verified else 1.0
     if follow_on(x, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, deadline, prog) <= 0:
         return -max(int(prog[2]), 1)
     out[:] = x
@@ -162,8 +167,11 @@ def follow_branch(X0, verified, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, out,
 @njit(cache=False)
 def tiny_box(x, q0, d1, d2, M, l1, b, l2sq):
     """The tiny box about ``x`` (3,) at ``q(0)`` holds exactly one solution (the first test of a chain)."""
-    w = np.empty(W_SIZE)
-    return krawczyk(x, np.full(3, TINY), q0, d1, d2, 0.0, 0.0, np.zeros(3), M, l1, b, l2sq, w)
+    w = floats(W_SIZE)
+    tiny, none = floats(3), floats(3)
+    tiny[:] = TINY
+    none[:] = 0.0
+    return krawczyk(x, tiny, q0, d1, d2, 0.0, 0.0, none, M, l1, b, l2sq, w)
 
 
 #: What :func:`follow_on` ends with.
@@ -177,13 +185,17 @@ def follow_on(x, q0, d1, d2, eps, M, l1, b, l2sq, max_tests, deadline, prog):
     branch at ``s``; both are updated in place.  Returns FOLLOW_DONE (``x`` is the branch at
     ``q(1)``), FOLLOW_CUT (the ``deadline`` passed: call again with the same ``prog``) or
     FOLLOW_FAILED (``max_tests`` used, a singular Jacobian, or a piece shorter than the tube)."""
-    w = np.empty(W_SIZE)
-    bx = LinkBoxes(np.full(3, TINY), np.zeros(3), np.full(3, eps), np.empty(3), np.empty(3))
+    w = floats(W_SIZE)
+    tiny, none, tube = floats(3), floats(3), floats(3)
+    tiny[:] = TINY
+    none[:] = 0.0
+    tube[:] = eps
+    bx = LinkBoxes(tiny, none, tube, floats(3), floats(3))
     dq_max = 0.0
     for i in range(3):
         dq_max = max(dq_max, abs(d1[i]))
     s, h, tests = prog[0], prog[1], int(prog[2])
-    xb = np.empty(3)
+    xb = floats(3)
     status = FOLLOW_DONE
     while s < 1.0:
         if tests >= max_tests:
@@ -272,7 +284,7 @@ def follow_back(X, q, d1, d2, cands, n_cand, max_tests, M, l1, b, l2sq, deadline
     Returns 1 when it ends on one of ``cands[:n_cand]`` (6, 3), 0 when it ends elsewhere, -1 when
     the chain could not be closed within ``max_tests`` tests.
     """
-    rd1, rd2, end = np.empty(3), np.empty(3), np.empty(3)
+    rd1, rd2, end = floats(3), floats(3), floats(3)
     for i in range(3):
         rd1[i] = -(d1[i] + 2.0 * d2[i])
         rd2[i] = d2[i]
@@ -290,7 +302,9 @@ def comes_from(X, q, dq, cands, n_cand, max_tests, model_pack, deadline=0.0):
     back along the straight joint segment to ``q - dq``, to one of ``cands[:n_cand]`` (6, 3)
     (at most ``max_tests`` tests)."""
     M, l1, l2sq, b = geometry(model_pack)
-    return follow_back(X, q, dq, np.zeros(3), cands, n_cand, max_tests, M, l1, b, l2sq, deadline) == 1
+    d2 = floats(3)
+    d2[:] = 0.0
+    return follow_back(X, q, dq, d2, cands, n_cand, max_tests, M, l1, b, l2sq, deadline) == 1
 
 
 @njit(cache=True)

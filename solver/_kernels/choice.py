@@ -16,6 +16,7 @@ from .layout import (F_COND_PREV, I_REGION, MAP_ORIGIN, MAP_PERIODIC, MAP_R2, MA
                      STRATEGY_CONTINUATION, STRATEGY_EXTRAPOLATION, STRATEGY_SEGMENT)
 from .linalg import wrap
 from .maptensor import label_at_one, near_mask_one
+from .scratch import floats, scratch
 from .tracker_packs import STEP_DQ, STEP_DQN, STEP_X_EXT, STEP_X_LIN
 
 
@@ -36,9 +37,10 @@ def continuation(X0, q0, dq, nsub, M, l1, l2sq, b, out):
     Writes the end pose to ``out``; returns the smallest Hadamard ratio of J met.
     """
     h = 1.0 / nsub
-    X = X0.copy()
-    k1, k2, k3, k4 = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-    Xs, qs = np.empty(3), np.empty(3)
+    X = floats(3)
+    X[:] = X0
+    k1, k2, k3, k4 = floats(3), floats(3), floats(3), floats(3)
+    Xs, qs = floats(3), floats(3)
     worst = 1.0
     for n in range(nsub):
         s0 = n * h
@@ -74,7 +76,7 @@ def nearest(poses, real, Xref, w, m1, m2, m3, use_map):
     """The real solution nearest to ``Xref`` among those whose label is in one of the masks
     (all real ones if ``use_map`` is off or none qualifies), and its decisiveness
     ``d_best / d_second`` (0 = certain, 1 = a tie)."""
-    Xr = np.empty(3)
+    Xr = floats(3)
     best, second, k_best = np.inf, np.inf, -1
     best_any, second_any, k_any = np.inf, np.inf, -1
     for k in range(6):
@@ -103,7 +105,7 @@ def linear_prediction(state, work, model_pack, out_real):
     F_COND_PREV and returns the Hadamard ratio of J there."""
     M, l1, l2sq, b = geometry(model_pack)
     Xp = state[STATE_X:STATE_X + 3]
-    dX = np.empty(3)
+    dX = floats(3)
     cond_prev = velocity(Xp, state[STATE_Q:STATE_Q + 3], work[STEP_DQ:STEP_DQ + 3], M, l1, l2sq, b, dX)
     for i in range(3):
         work[STEP_X_LIN + i] = Xp[i] + dX[i]
@@ -174,8 +176,10 @@ def choose_default(poses, real, near_prev, work, state, params, labels, map_pack
     out_int[I_REGION] = label_at_one(labels, origin, step, periodic, X_pred)
     use_map = params[PARAM_USE_MAP] > 0.0
     have_ext = int(state[STATE_HISTORY]) >= 2 and params[PARAM_STRATEGY] != STRATEGY_CONTINUATION
-    near_pred = np.zeros(7, dtype=np.bool_)
-    near_ext = np.zeros(7, dtype=np.bool_)
+    near_pred = scratch(7, np.bool_)
+    near_pred[:] = False
+    near_ext = scratch(7, np.bool_)
+    near_ext[:] = False
     kc, rc = nearest(poses, real, X_pred, w, near_prev, near_pred, near_ext, False)
     ke, re = kc, rc
     if have_ext:

@@ -22,6 +22,7 @@ from .kinematics import elbows, geometry, loop_row, newton_step, radius_sq
 from .layout import MODEL_COS8, MODEL_NEWTON_STEPS, MODEL_PSI, MODEL_REAL_TOL, MODEL_SIN8, MODEL_SNAP_TOL
 from .linalg import solve3, wrap
 from .ordering import number_solutions
+from .scratch import floats, scratch, scratch2
 
 EPS = 2.220446049250313e-16
 #: A polished real root may not move phi further than this from the sextic's root (rad).
@@ -72,7 +73,16 @@ def polish(x, y, phi, D, b, l2sq, steps):
 
 @njit(cache=True)
 def roots6(coef):
-    """All roots of the degree-6 polynomial ``coef`` (highest first, coef[0] != 0).
+    """All roots (6,) complex of the degree-6 polynomial ``coef`` (7,) (highest first, coef[0] != 0):
+    :func:`roots6_into` into a new array."""
+    z = np.empty(6, dtype=np.complex128)
+    roots6_into(coef, z)
+    return z
+
+
+@njit(cache=False)
+def roots6_into(coef, z):
+    """All roots of the degree-6 polynomial ``coef`` (7,) (highest first, coef[0] != 0) into ``z`` (6,) complex.
 
     Aberth-Ehrlich simultaneous iteration (Gauss-Seidel updates) from points on
     a circle of radius the geometric mean of the root moduli.  A root is frozen
@@ -87,22 +97,24 @@ def roots6(coef):
     the paper circle; roots equal to within 1e-15).
     """
     n = 6
-    ar = np.empty(n + 1)
-    aa = np.empty(n + 1)                             # |a_i|, for the rounding bound
+    ar = floats(7)
+    aa = floats(7)                                   # |a_i|, for the rounding bound
     for i in range(n + 1):
         ar[i] = coef[i] / coef[0]
         aa[i] = abs(ar[i])
     r = aa[n] ** (1.0 / n) if ar[n] != 0.0 else 1.0
     if r == 0.0 or not math.isfinite(r):
         r = 1.0
-    zr = np.empty(n)
-    zi = np.empty(n)
+    zr = floats(6)
+    zi = floats(6)
     for k in range(n):
         ang = 2.0 * math.pi * k / n + 0.4
         zr[k] = r * math.cos(ang)
         zi[k] = r * math.sin(ang)
-    done = np.zeros(n, dtype=np.bool_)
-    last2 = np.full(n, np.inf)                       # |w|^2 of each root's last correction
+    done = scratch(6, np.bool_)
+    last2 = floats(6)                                # |w|^2 of each root's last correction
+    done[:] = False
+    last2[:] = np.inf
     at_rounding = 4.0 * EPS * EPS                    # (2 eps)^2
     p_rounding = 16.0 * EPS * EPS                    # (4 eps)^2
     for _ in range(200):
@@ -150,10 +162,8 @@ def roots6(coef):
             last2[k] = w2
         if alldone:
             break
-    z = np.empty(n, dtype=np.complex128)
     for k in range(n):
         z[k] = complex(zr[k], zi[k])
-    return z
 
 
 @njit(cache=True)
@@ -186,9 +196,9 @@ def deflated_newton(x, y, p, ax, ay, ap, D, b, l2sq, iters):
     The factor makes the accepted solution ``X_a`` repel the iteration, so from a start near a
     (near-)double root it converges to the *other* solution.  Returns x, y, phi.
     """
-    A = np.empty((3, 3))
-    r = np.empty(3)
-    step = np.empty(3)
+    A = scratch2(3, 3, np.float64)
+    r = floats(3)
+    step = floats(3)
     for _ in range(iters):
         c, s = math.cos(p), math.sin(p)
         dx, dy, dp = x - ax, y - ay, wrap(p - ap)
@@ -235,7 +245,7 @@ def acceptable(x, y, ph, res, had, ph0, out, isreal, real_tol):
 def sextic(D, b, l2sq, cos8, sin8, sample_to_sextic, coef):
     """Steps 2-3: the eliminant at the eight sample angles, mapped to the sextic's coefficients
     ``coef`` (7,) for the half-angle shift of the sample of largest ``|f|``; returns that sample's index."""
-    f = np.empty(8)
+    f = floats(8)
     jbest, fbest = 0, -1.0
     for m in range(8):
         delta, nx, ny, u0x, u0y, k0, _a, _b, _c, _d, _e, _f = elim(cos8[m], sin8[m], D, b, l2sq)
@@ -338,26 +348,28 @@ def dk_one(q, model_pack, sample_to_sextic, rule, poses, real):
     """
     M, l1, l2sq, b = geometry(model_pack)
     snap_tol, real_tol = model_pack[MODEL_SNAP_TOL], model_pack[MODEL_REAL_TOL]
-    D = np.empty((3, 2))
+    D = scratch2(3, 2, np.float64)
     elbows(q, M, l1, D)                              # the 3-RPR has l1 = 0: D = M, its base joints
-    r2 = np.empty(3)
+    r2 = floats(3)
     for i in range(3):
         r2[i] = radius_sq(l2sq[i], q[i])             # ... and its joints are the legs' lengths
     l2sq = r2
-    coef = np.empty(7)
+    coef = floats(7)
     jbest = sextic(D, b, l2sq, model_pack[MODEL_COS8:MODEL_COS8 + 8], model_pack[MODEL_SIN8:MODEL_SIN8 + 8],
                    sample_to_sextic, coef)
     psi = model_pack[MODEL_PSI + jbest]
-    out = np.empty((6, 3), dtype=np.complex128)
-    isreal = np.zeros(6, dtype=np.bool_)
+    out = scratch2(6, 3, np.complex128)
+    isreal = scratch(6, np.bool_)
+    isreal[:] = False
     if coef[0] == 0.0 or not math.isfinite(coef[0]):
         # f vanishes identically: a degenerate architecture, no isolated solutions
         for k in range(6):
             for c in range(3):
                 out[k, c] = complex(np.nan, np.nan)
     else:
-        t = roots6(coef)
-        phi_root = np.empty(6, dtype=np.complex128)
+        t = scratch(6, np.complex128)
+        roots6_into(coef, t)
+        phi_root = scratch(6, np.complex128)
         for k in range(6):
             phi_root[k] = psi + 2.0 * cmath.atan(t[k])
         for k in range(6):                           # complex roots first: P from step 1 at complex phi

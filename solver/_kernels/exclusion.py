@@ -27,6 +27,7 @@ from .certify import TINY, elbow_bits, prove_part, same_pose
 from .clock import expired
 from .kinematics import geometry, leg_offset, leg_slack
 from .krawczyk import PAD, TWO_PI, W_SIZE, _smul, icos, isin, krawczyk
+from .scratch import floats, scratch2
 from .tube import (TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_T, TUBE_V, TUBE_W, TUBE_X, set_spread, slab_test,
                    tube_test)
 from .tube_chain import cover_box, needle_frame, slab_cover
@@ -179,7 +180,8 @@ def posture_preimage_in(c, rho, q, eps, posture_bits, root, M, l1, l2sq, b, max_
         return -1
     stack = np.empty((PREIMAGE_STACK, 6))
     stack[0, :] = root
-    prog = np.array([1.0, 0.0])
+    prog = floats(2)
+    prog[0], prog[1] = 1.0, 0.0
     r = preimage_on(c, rho, q, eps, posture_bits, M, l1, l2sq, b, max_boxes, deadline, stack, prog)
     return int(prog[1]) if r > 0 else -max(int(prog[1]), 1)
 
@@ -200,13 +202,14 @@ def preimage_on(c, rho, q, eps, posture_bits, M, l1, l2sq, b, max_boxes, deadlin
     for i in range(3):
         scale_phi = max(scale_phi, math.hypot(b[i, 0], b[i, 1]))
     first = True
+    box = floats(6)
     while top > 0:
         if not first and expired(deadline):
             prog[0], prog[1] = top, seen
             return 0
         first = False
         top -= 1
-        box = stack[top].copy()
+        box[:] = stack[top]
         seen += 1
         if seen > max_boxes:
             prog[0], prog[1] = 0.0, seen
@@ -251,11 +254,15 @@ def reacquire_box(X, q, eps, posture_bits, region, model_pack, box):
     M, l1, l2sq, b = geometry(model_pack)
     if elbow_bits(X, q, M, l1, b) != posture_bits or not in_region(X, region):
         return False
-    w = np.empty(W_SIZE)
-    xc, rho, none = np.empty(3), np.empty(3), np.zeros(3)
-    if prove_part(q, np.full(3, eps), np.empty((1, 3)), np.empty((1, 3)), 0, X, M, l1, b, l2sq, w, xc, rho) != 1:
+    w = floats(W_SIZE)
+    xc, rho, none, e, tiny = floats(3), floats(3), floats(3), floats(3), floats(3)
+    none[:] = 0.0
+    e[:] = eps
+    tiny[:] = TINY
+    no_points = scratch2(1, 3, np.float64)
+    if prove_part(q, e, no_points, no_points, 0, X, M, l1, b, l2sq, w, xc, rho) != 1:
         return False
-    if not same_pose(xc, X) or not krawczyk(xc, np.full(3, TINY), q, none, none, 0.0, 0.0, none, M, l1, b, l2sq, w):
+    if not same_pose(xc, X) or not krawczyk(xc, tiny, q, none, none, 0.0, 0.0, none, M, l1, b, l2sq, w):
         return False
     box[:3], box[3:] = xc, rho
     return True
@@ -275,7 +282,7 @@ def exclusion_cover(out, point, qc, t, attempt, M, l1, l2sq, b, deadline=0.0):
         return cover_box(out, 0, point, qc, t, kind, M, l1, l2sq, b, deadline)
     if cover_box(out, 0, point, qc, t, 1, M, l1, l2sq, b, deadline) == 1 or not out[0, TUBE_S] == out[0, TUBE_S]:
         return -1                                       # one tube held it (attempt 1's) or no S to cut across
-    V = np.empty((3, 3))
+    V = scratch2(3, 3, np.float64)
     needle_frame(out[0, TUBE_S:TUBE_S + 9].reshape((3, 3)).copy(), V)
     return slab_cover(out, 0, point, qc, t, -kind, V, M, l1, l2sq, b, deadline)
 
@@ -295,11 +302,14 @@ def tube_exclusion(Xc, qc, tol, posture_lo, posture_hi, region, max_boxes, attem
     :func:`hull_excludes`).  The robot, at joints in some part, is then in that box, where the only
     solution is the part's tube's.  Returns n when proved, else 0 (also when the ``deadline`` passed).
     """
-    point = np.empty(TUBE_SIZE)
-    zero = np.zeros(3)
+    point = floats(TUBE_SIZE)
+    zero = floats(3)
+    zero[:] = 0.0
     if not tube_test(Xc, qc, zero, zero, M, l1, l2sq, b, point):
         return 0
-    n = exclusion_cover(out, point, qc, np.full(3, tol), attempt, M, l1, l2sq, b, deadline)
+    t = floats(3)
+    t[:] = tol
+    n = exclusion_cover(out, point, qc, t, attempt, M, l1, l2sq, b, deadline)
     if n <= 0:
         return 0
     for k in range(n):
@@ -316,7 +326,7 @@ def hull_excludes(sub, posture_lo, posture_hi, region, max_boxes, M, l1, l2sq, b
     postures reaching the set's joint box lies in it.  (A box far wider than the needle lets the
     branch and bound drop the poses about the needle quickly; the fat tube's test decides how wide
     it may be.)"""
-    hull = np.empty(3)
+    hull = floats(3)
     xc, q, t = sub[TUBE_X:TUBE_X + 3].copy(), sub[TUBE_Q:TUBE_Q + 3].copy(), sub[TUBE_T:TUBE_T + 3]
     for factor in HULL_FACTORS:
         if not fat_hull(sub, factor, M, l1, l2sq, b, hull):
@@ -334,8 +344,8 @@ def fat_hull(sub, factor, M, l1, l2sq, b, hull):
     """The box about the tube ``sub``'s centre pose, ``factor`` times its needle's hull (half-widths into
     ``hull`` (3,): m, m, rad), holds one solution per joint vector of the tube's joint set, and the
     tube's solutions lie inside it: True when a fat tube (:func:`.tube.slab_test`) proves both."""
-    fat = np.empty(TUBE_SIZE)
-    rho = np.empty(3)
+    fat = floats(TUBE_SIZE)
+    rho = floats(3)
     xc, q = sub[TUBE_X:TUBE_X + 3].copy(), sub[TUBE_Q:TUBE_Q + 3].copy()
     V = sub[TUBE_V:TUBE_V + 9].reshape((3, 3)).copy()
     tw, t = sub[TUBE_W:TUBE_W + 3].copy(), sub[TUBE_T:TUBE_T + 3].copy()

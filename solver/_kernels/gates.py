@@ -30,6 +30,7 @@ from .certify import RHO_CAP
 from .layout import PARAM_ROOT, PARAM_SPEED, STATE_ANCHOR, STATE_ANCHOR_AGE, STATE_ANCHOR_BOUND
 from .kinematics import jacobian
 from .linalg import det3, wrap
+from .scratch import floats, scratch2
 
 #: Verdicts of :func:`outlier_gate`.
 GATE_PASS, GATE_SUSPECT, GATE_REFUSE = 0, 1, 2
@@ -72,7 +73,7 @@ def speed_gate(poses, real, chosen, Xp, params, seconds):
     -1 (nothing to take: hold).
     """
     r, rp = reach(params, seconds)
-    X = np.empty(3)
+    X = floats(3)
     other, n_in = -1, 0
     for k in range(6):
         if not real[k]:
@@ -91,8 +92,8 @@ def speed_gate(poses, real, chosen, Xp, params, seconds):
 def pose_gains(X, q, M, l1, l2sq, b, S):
     """``S = |J^-1 K|`` (3, 3), elementwise, at ``(X, q)``: how far each joint moves each pose
     coordinate (m/rad, m/rad, rad/rad); False (``S`` unwritten) at a singularity of ``J``."""
-    J = np.empty((3, 3))
-    kd = np.empty(3)
+    J = scratch2(3, 3, np.float64)
+    kd = floats(3)
     jacobian(X, q, M, l1, l2sq, b, J, kd)
     det = det3(J)
     if det == 0.0 or not math.isfinite(det):
@@ -121,7 +122,7 @@ def outlier_gate(innov, threshold, noise, Xp, qp, M, l1, l2sq, b):
     worst = max(abs(innov[0]), max(abs(innov[1]), abs(innov[2])))
     if not worst > threshold:
         return GATE_PASS
-    S = np.empty((3, 3))
+    S = scratch2(3, 3, np.float64)
     if not pose_gains(Xp, qp, M, l1, l2sq, b, S):
         return GATE_REFUSE
     for r in range(3):
@@ -144,10 +145,10 @@ def swing(poses, real, Xp, qp, noise, params, seconds, M, l1, l2sq, b):
     nothing (it may still be a glitch), and leaves the gate's envelopes as they were."""
     if not (params[PARAM_SPEED] > 0.0 and math.isfinite(seconds)):
         return False
-    S = np.empty((3, 3))
+    S = scratch2(3, 3, np.float64)
     if not pose_gains(Xp, qp, M, l1, l2sq, b, S):
         return False
-    r = np.empty(3)
+    r = floats(3)
     for i in range(3):
         r[i] = params[PARAM_SPEED + (1 if i == 2 else 0)] * seconds + min(noise * (S[i, 0] + S[i, 1] + S[i, 2]),
                                                                           2.0 * RHO_CAP)

@@ -13,6 +13,8 @@ import math
 import numpy as np
 from numba import njit
 
+from .scratch import floats
+
 
 @njit(cache=True)
 def _leg_margin(mx, my, l1, bx, by, b_radius, x0, x1, y0, y1, p0, p1, q0, q1):
@@ -84,9 +86,10 @@ def joint_width(M, l1, b, b_radius, e, X_lo, X_hi, q_lo, q_hi, iterations):
     """``max_i eps_i`` (rad) with ``e_i / m_i(joints widened by eps) <= eps_i``: the iteration
     ``eps <- e / m(eps)`` from 0 (increasing, to the least fixed point), a twentieth more, verified;
     ``inf`` when it is not. Continuous in its inputs (no iteration count depends on rounding)."""
-    eps = np.zeros(3)
-    m = np.empty(3)
-    lo, hi = np.empty(3), np.empty(3)
+    eps = floats(3)
+    eps[:] = 0.0
+    m = floats(3)
+    lo, hi = floats(3), floats(3)
     for _ in range(iterations):
         for i in range(3):
             lo[i], hi[i] = q_lo[i] - eps[i], q_hi[i] + eps[i]

@@ -14,6 +14,7 @@ from numba import njit
 from .clock import expired
 from .krawczyk import PAD
 from .linalg import wrap
+from .scratch import floats, scratch2
 from .tube import SLACK, TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_T, TUBE_V, TUBE_W, TUBE_X, lin_bound, slab_test
 
 
@@ -47,7 +48,7 @@ def meeting(a, b_, qm, U, h):
     ``h`` (3,)), in the frame of ``b_`` (``U = V_b``): there ``a``'s set lies in the box about
     ``V_b^T (q_a - q_b)`` of half-widths ``|V_b^T V_a| tw_a``, cut by ``b_``'s own ``|w| <= tw_b``.
     (For two slabs of one cover, ``V_b^T V_a = I``: exact.)  Returns False when they cannot meet."""
-    w = np.empty(3)
+    w = floats(3)
     for n in range(3):
         c, mag, half = 0.0, 0.0, 0.0
         for m in range(3):
@@ -80,8 +81,8 @@ def takes_over(pieces, n, new, need, deadline=0.0):
     sets may meet (:func:`meeting`, :func:`handoff`)?  ``need`` (3,) receives the largest
     half-widths ``new`` would need.  False also when the ``deadline`` (:mod:`.clock`) passes first."""
     ok = True
-    qm, h, nd = np.empty(3), np.empty(3), np.empty(3)
-    U = np.empty((3, 3))
+    qm, h, nd = floats(3), floats(3), floats(3)
+    U = scratch2(3, 3, np.float64)
     for r in range(3):
         need[r] = 0.0
     for j in range(n):
@@ -126,7 +127,8 @@ def tested_takeover(pieces, n, xg, qc, V, tw, tq, M, l1, l2sq, b, new, deadline=
     half-widths the hand-offs need (until the ``deadline``).  A single joint vector (``tq`` zero: the
     exact reading of a tracker step) starts from :func:`point_prior`, so that its test runs once; when
     the test fails that wide, it starts again from its own width, as any other."""
-    need = np.zeros(3)
+    need = floats(3)
+    need[:] = 0.0
     prior = tq[0] == 0.0 and tq[1] == 0.0 and tq[2] == 0.0 and point_prior(pieces, n, xg, qc, need)
     if not slab_test(xg, qc, V, tw, tq, need, M, l1, l2sq, b, new):
         if not prior:

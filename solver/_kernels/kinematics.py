@@ -20,6 +20,7 @@ from numba import njit
 
 from .layout import MODEL_L1, MODEL_L2SQ, MODEL_MOTORS, MODEL_OFFSET, MODEL_PLATFORM
 from .linalg import cramer3, det3, hadamard, row_ratio, solve3, wrap
+from .scratch import floats, scratch2
 
 
 @njit(cache=True)
@@ -196,10 +197,10 @@ def jacobian_batch(X, q, M, l1, l2sq, b, J, kd):
 @njit(cache=True)
 def velocity(X, q, dq, M, l1, l2sq, b, out):
     """dX = -J^-1 K dq at (X, q) (the velocity model, eq. 20); returns the Hadamard ratio of J."""
-    J = np.empty((3, 3))
-    kd = np.empty(3)
+    J = scratch2(3, 3, np.float64)
+    kd = floats(3)
     jacobian(X, q, M, l1, l2sq, b, J, kd)
-    r = np.empty(3)
+    r = floats(3)
     for i in range(3):
         r[i] = -kd[i] * dq[i]
     if not solve3(J, r, out):
@@ -213,9 +214,9 @@ def newton_step(x, y, phi, D, b, l2sq):
     """At a real pose with elbows ``D``: max|F_i|, the Newton step (dx, dy, dphi) on F(X) = 0,
     whether the step is finite, and the Hadamard ratio of J (0 when singular)."""
     c, s = math.cos(phi), math.sin(phi)
-    A = np.empty((3, 3))                     # J / 2
-    g = np.empty(3)                          # -F / 2
-    step = np.empty(3)
+    A = scratch2(3, 3, np.float64)           # J / 2
+    g = floats(3)                            # -F / 2
+    step = floats(3)
     res = 0.0
     for i in range(3):
         _rbx, _rby, lx, ly, lr = loop_row(x, y, c, s, b[i, 0], b[i, 1], D[i, 0], D[i, 1], 0.0, 0.0)
@@ -233,7 +234,7 @@ def newton_step(x, y, phi, D, b, l2sq):
 def det_sign(x, y, phi, D, b):
     """Sign of det J at a real pose with elbows ``D`` (+1 or -1; 0 exactly singular)."""
     c, s = math.cos(phi), math.sin(phi)
-    A = np.empty((3, 3))
+    A = scratch2(3, 3, np.float64)
     for i in range(3):
         _rbx, _rby, lx, ly, lr = loop_row(x, y, c, s, b[i, 0], b[i, 1], D[i, 0], D[i, 1], 0.0, 0.0)
         A[i, 0], A[i, 1], A[i, 2] = lx, ly, lr

@@ -12,6 +12,11 @@ import numpy as np
 from numba import njit
 
 from .linalg import wrap
+from .scratch import floats, scratch
+
+#: A stencil spanning fewer node offsets than this along every axis keeps its per-axis distances on the
+#: stack (:mod:`.scratch`); a wider one (a map far finer than its procedure-2 radius) on the heap.
+STENCIL_SPAN = 32
 
 
 @njit(cache=True)
@@ -38,10 +43,13 @@ def near_mask_one(labels, origin, step, periodic, X, r2, w, stencil, out):
         lo0, hi0 = min(lo0, stencil[s, 0]), max(hi0, stencil[s, 0])
         lo1, hi1 = min(lo1, stencil[s, 1]), max(hi1, stencil[s, 1])
         lo2, hi2 = min(lo2, stencil[s, 2]), max(hi2, stencil[s, 2])
-    e0 = np.empty(hi0 - lo0 + 1)
-    e1 = np.empty(hi1 - lo1 + 1)
-    e2 = np.empty(hi2 - lo2 + 1)
-    kk = np.empty(hi2 - lo2 + 1, dtype=np.int64)
+    if max(hi0 - lo0, max(hi1 - lo1, hi2 - lo2)) < STENCIL_SPAN:     # (every map's so far: 6 an axis)
+        e0, e1, e2 = floats(STENCIL_SPAN), floats(STENCIL_SPAN), \
+            floats(STENCIL_SPAN)
+        kk = scratch(STENCIL_SPAN, np.int64)
+    else:
+        e0, e1, e2 = np.empty(hi0 - lo0 + 1), np.empty(hi1 - lo1 + 1), np.empty(hi2 - lo2 + 1)
+        kk = np.empty(hi2 - lo2 + 1, dtype=np.int64)
     for o in range(lo0, hi0 + 1):
         i = b0 + o
         dx = origin[0] + i * step[0] - X[0]

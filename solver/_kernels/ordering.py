@@ -13,6 +13,7 @@ from numba import njit
 
 from .kinematics import det_sign, elbows
 from .layout import RULE_ASPECT, RULE_LITERAL, RULE_REAL_X, RULE_REAL_Y
+from .scratch import scratch, scratch2
 
 
 @njit(cache=True)
@@ -48,18 +49,19 @@ def before(out, isreal, a, b, rule):
     return ia < ib
 
 
-@njit(cache=True)
-def aspect_order(out, isreal, order, D, b):
+@njit(cache=False)
+def aspect_order(out, isreal, order, D, b, res):
     """Rule 'aspect': slots 1-3 real solutions with det J >= 0, slots 4-6 those with det J < 0,
     each by phi; complex solutions (by Re phi, Im phi) fill the free slots, first class first.
 
     ``order`` arrives sorted by the real-phi key (real by phi, then complex).  Real solutions
     are born and die in pairs of opposite det J sign, so each class holds at most three;
     should a class overflow (only at an exactly singular input) the slots fill in sequence.
+    The order is written into ``res`` (6,) int64.
     """
-    pos = np.empty(6, dtype=np.int64)
-    neg = np.empty(6, dtype=np.int64)
-    cpx = np.empty(6, dtype=np.int64)
+    pos = scratch(6, np.int64)
+    neg = scratch(6, np.int64)
+    cpx = scratch(6, np.int64)
     npos, nneg, ncpx = 0, 0, 0
     for i in range(6):
         k = order[i]
@@ -73,7 +75,6 @@ def aspect_order(out, isreal, order, D, b):
         else:
             cpx[ncpx] = k
             ncpx += 1
-    res = np.empty(6, dtype=np.int64)
     if npos > 3 or nneg > 3:
         n = 0
         for i in range(npos):
@@ -85,7 +86,7 @@ def aspect_order(out, isreal, order, D, b):
         for i in range(ncpx):
             res[n] = cpx[i]
             n += 1
-        return res
+        return
     c = 0
     for i in range(3):
         if i < npos:
@@ -99,21 +100,24 @@ def aspect_order(out, isreal, order, D, b):
         else:
             res[3 + i] = cpx[c]
             c += 1
-    return res
 
 
 @njit(cache=True)
 def number_solutions(out, isreal, rule, D, b, poses, real):
     """Number the solutions ``out`` (6, 3), ``isreal`` (6,) of the joints with elbows ``D`` by
     ``rule``: solution ``k + 1`` goes to ``poses[k]``, ``real[k]``."""
-    order = np.arange(6)
+    order = scratch(6, np.int64)
+    for i in range(6):
+        order[i] = i
     for i in range(1, 6):                      # insertion sort by the rule's key (stable)
         j = i
         while j > 0 and before(out, isreal, order[j], order[j - 1], rule):
             order[j], order[j - 1] = order[j - 1], order[j]
             j -= 1
     if rule == RULE_ASPECT:
-        order = aspect_order(out, isreal, order, D, b)
+        by_aspect = scratch(6, np.int64)
+        aspect_order(out, isreal, order, D, b, by_aspect)
+        order[:] = by_aspect
     for i in range(6):
         for c in range(3):
             poses[i, c] = out[order[i], c]
@@ -123,7 +127,7 @@ def number_solutions(out, isreal, rule, D, b, poses, real):
 @njit(cache=True)
 def number_batch(poses, real, rule, q, M, l1, b, out_poses, out_real):
     """:func:`number_solutions` of solution sets ``poses`` (N, 6, 3), ``real`` (N, 6) of joints ``q`` (N, 3)."""
-    D = np.empty((3, 2))
+    D = scratch2(3, 2, np.float64)
     for n in range(poses.shape[0]):
         elbows(q[n], M, l1, D)
         number_solutions(poses[n], real[n], rule, D, b, out_poses[n], out_real[n])

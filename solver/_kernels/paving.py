@@ -26,6 +26,7 @@ from .gates import reacquire_region
 from .kinematics import geometry
 from .layout import (PARAM_JOINT_TOL, PARAM_POSTURE_BITS, PARAM_REACQUIRE, PARAM_ROOT, PARAM_SPEED, PAVE_BOXES,
                      STATE_ANCHOR_AGE, STATE_N_PAVE, STATE_PAVE)
+from .scratch import floats
 
 #: The branch and bound keeps pose boxes this fraction of the speed bound's reach per step.
 REGION_RESOLUTION = 0.25
@@ -78,7 +79,8 @@ def preimage_paving(q, eps, posture_bits, roots, n_roots, res, max_boxes, M, l1,
     rows), 0 when none is kept (a sensor off by more than ``eps``), -1 when ``max_boxes`` or the
     time to the ``deadline`` ran out.
     """
-    root = roots[0].copy()
+    root = floats(6)
+    root[:] = roots[0]
     for r in range(1, n_roots):
         for k in range(0, 6, 2):
             root[k], root[k + 1] = min(root[k], roots[r, k]), max(root[k + 1], roots[r, k + 1])
@@ -91,9 +93,10 @@ def preimage_paving(q, eps, posture_bits, roots, n_roots, res, max_boxes, M, l1,
     stack = np.empty((PAVE_STACK, 6))
     stack[0, :] = root
     top, seen = 1, 0
+    box = floats(6)
     while top > 0:
         top -= 1
-        box = stack[top].copy()
+        box[:] = stack[top]
         seen += 1
         if seen > max_boxes or expired(deadline):
             return -1
@@ -130,7 +133,7 @@ def region_step(state, qu, params, model_pack, out, out_pave, deadline=0.0):
     n_roots = grown_paving(state, params, roots)
     if n_roots == 0:
         return
-    res = np.empty(2)
+    res = floats(2)
     res[0] = max(REGION_RESOLUTION * params[PARAM_SPEED] * age, 1e-7)
     res[1] = max(REGION_RESOLUTION * params[PARAM_SPEED + 1] * age, 1e-7)
     M, l1, l2sq, b = geometry(model_pack)

@@ -37,6 +37,7 @@ from .kinematics import geometry
 from .krawczyk import PAD, TWO_PI
 from .layout import PARAM_JOINT_TOL, PARAM_POSTURE_BITS, PARAM_REACQUIRE
 from .linalg import turns_to, wrap
+from .scratch import floats, scratch
 from .tracker_packs import STEP_QU
 from .tube import TUBE_K, TUBE_Q, TUBE_SIZE, TUBE_T, TUBE_X, predictor, spread, tube_test
 from .tube_chain import MAX_COVER, pose_bound
@@ -90,8 +91,9 @@ def region_choice(chosen, poses, real, params, state, qu, model_pack):
     outside the pose box that holds the robot (:func:`.gates.reacquire_region`) or in another
     posture; then the one real solution (``poses`` (6, 3) complex, ``real`` (6,)) inside it in the
     tracker's posture, if there is exactly one (:func:`reacquire_target`)."""
-    Xc, region = np.empty(3), np.empty(6)
-    keep = np.zeros(6, dtype=np.bool_)
+    Xc, region = floats(3), floats(6)
+    keep = scratch(6, np.bool_)
+    keep[:] = False
     target = reacquire_target(chosen, False, keep, poses, real, params, state, qu, model_pack, Xc, region)
     return chosen if target < 0 else target
 
@@ -105,7 +107,7 @@ def reacquired(chosen, certified, state, work, poses, real, params, model_pack, 
     axis-aligned Krawczyk box whose tube's hull it holds (:func:`box_reacquire`).  On success
     ``keep`` (6,) marks the solution alone, ``new_cands[0]`` holds it and ``tubes`` (MAX_COVER,
     TUBE_SIZE) its cover; returns the number of the cover's tubes (0: not re-acquired)."""
-    region, Xc = np.empty(6), np.empty(3)
+    region, Xc = floats(6), floats(3)
     qu, tol = work[STEP_QU:STEP_QU + 3], params[PARAM_JOINT_TOL]
     target = reacquire_target(chosen, certified, keep, poses, real, params, state, qu, model_pack, Xc, region)
     if target < 0:
@@ -121,7 +123,10 @@ def reacquired(chosen, certified, state, work, poses, real, params, model_pack, 
     if n == 0:
         if expired(deadline):
             return 0
-        if not (tube_test(Xc, qu, np.full(3, tol), np.zeros(3), M, l1, l2sq, b, tubes[0]) and
+        tq, zero = floats(3), floats(3)
+        tq[:] = tol
+        zero[:] = 0.0
+        if not (tube_test(Xc, qu, tq, zero, M, l1, l2sq, b, tubes[0]) and
                 box_reacquire(Xc, qu, tol, posture, region, int(params[PARAM_REACQUIRE]), model_pack, tubes[0],
                               deadline)):
             return 0
@@ -143,7 +148,7 @@ def eliminant_reacquired(chosen, certified, state, work, poses, real, params, mo
     closes.  On success ``keep`` (6,) marks the solution alone, ``new_cands[0]`` holds it, ``bound``
     (3,) the half-widths (m, m, rad) of a box about it holding the robot's pose (the eliminant's box
     cut to the region); returns True."""
-    region, Xc = np.empty(6), np.empty(3)
+    region, Xc = floats(6), floats(3)
     qu, tol = work[STEP_QU:STEP_QU + 3], params[PARAM_JOINT_TOL]
     target = reacquire_target(chosen, certified, keep, poses, real, params, state, qu, model_pack, Xc, region)
     if target < 0:
@@ -153,13 +158,13 @@ def eliminant_reacquired(chosen, certified, state, work, poses, real, params, mo
     if not phi - plo < TWO_PI - 1e-9:             # no bound on phi: a whole turn, the posture rules out the rest
         plo, phi = Xc[2] - np.pi, Xc[2] + np.pi
     M, l1, l2sq, b = geometry(model_pack)
-    box, part = np.empty(6), np.empty(6)
+    box, part = floats(6), floats(6)
     ok = False
     for n in (1, 2):
-        t = np.empty(3)                           # the parts' half-widths, padded for the rounding of their centres
+        t = floats(3)                             # the parts' half-widths, padded for the rounding of their centres
         for j in range(3):
             t[j] = tol / n + 4.0 * EPS * (abs(qu[j]) + tol)
-        qc = np.empty(3)
+        qc = floats(3)
         ok = True
         for i in range(n ** 3):
             for j in range(3):
@@ -196,7 +201,7 @@ def eliminant_reacquired(chosen, certified, state, work, poses, real, params, mo
 def box_reacquire(Xc, qu, tol, posture, region, max_boxes, model_pack, tube, deadline=0.0):
     """Re-acquisition by an axis-aligned Krawczyk box (:func:`.exclusion.reacquire`) about ``Xc``; the
     ``tube`` takes over when its hull lies inside that box."""
-    box = np.empty(6)
+    box = floats(6)
     return reacquire(Xc, qu, tol, posture, region, max_boxes, model_pack, box, deadline) and hull_inside(tube, tol, box)
 
 
@@ -226,7 +231,7 @@ def reacquired_anytime(chosen, certified, state, work, poses, real, params, mode
         anytime[ANY_R_ON] = 0.0
     target = -1
     if anytime[ANY_R_ON] <= 0.0:
-        Xc, region = np.empty(3), np.empty(6)
+        Xc, region = floats(3), floats(6)
         target = reacquire_target(chosen, certified, keep, poses, real, params, state, qu, model_pack, Xc, region)
         if target < 0:
             return 0
@@ -266,13 +271,21 @@ def cover_solution(tubes, n, qu, tol, poses, real, bound=None):
     The solutions are tried nearest first to the first tube's predictor at ``qu`` (the cover holds one
     solution, so the order changes no answer; it saves the other solutions' bounds, each as dear as
     the one kept)."""
-    Xr, h, p = np.empty(3), np.empty(3), np.empty(3)
+    Xr, h, p = floats(3), floats(3), floats(3)
     predictor(tubes[0], qu, p)
-    dist = np.full(6, np.inf)
+    dist = floats(6)
+    dist[:] = np.inf
     for k in range(6):
         if real[k]:
             dist[k] = abs(poses[k, 0].real - p[0]) + abs(poses[k, 1].real - p[1]) + abs(wrap(poses[k, 2].real - p[2]))
-    for k in np.argsort(dist):
+    order = scratch(6, np.int64)                  # by distance (a stable sort, as numpy's argsort of six)
+    for k in range(6):
+        j = k
+        while j > 0 and dist[order[j - 1]] > dist[k]:
+            order[j] = order[j - 1]
+            j -= 1
+        order[j] = k
+    for k in order:
         if not real[k]:
             break
         for i in range(3):
@@ -312,18 +325,21 @@ def reacquire_on(anytime, tol, posture, max_boxes, deadline, model_pack):
     if expired(deadline):
         return R_PENDING, 0
     M, l1, l2sq, b = geometry(model_pack)
-    Xc = anytime[ANY_R_X:ANY_R_X + 3].copy()
-    qu = anytime[ANY_R_PATH:ANY_R_PATH + 3].copy()
-    region = anytime[ANY_R_REGION:ANY_R_REGION + 6].copy()
+    Xc, qu, region = floats(3), floats(3), floats(6)      # (copies: the pack moves on below)
+    Xc[:] = anytime[ANY_R_X:ANY_R_X + 3]
+    qu[:] = anytime[ANY_R_PATH:ANY_R_PATH + 3]
+    region[:] = anytime[ANY_R_REGION:ANY_R_REGION + 6]
     tubes = anytime[ANY_R_TUBES:ANY_R_TUBES + MAX_COVER * TUBE_SIZE].reshape((MAX_COVER, TUBE_SIZE))
     stack = anytime[ANY_R_STACK:ANY_R_STACK + 6 * PREIMAGE_STACK].reshape((PREIMAGE_STACK, 6))
     prog = anytime[ANY_R_PROG:ANY_R_PROG + 2]
-    zero, tq = np.zeros(3), np.full(3, tol)
+    zero, tq = floats(3), floats(3)
+    zero[:] = 0.0
+    tq[:] = tol
     while int(anytime[ANY_R_ON]) <= REACQUIRE_COVERS:
         attempt = int(anytime[ANY_R_ON])
         n = int(anytime[ANY_R_N])
         if n == 0:
-            point = np.empty(TUBE_SIZE)
+            point = floats(TUBE_SIZE)
             if not tube_test(Xc, qu, zero, zero, M, l1, l2sq, b, point):
                 next_attempt(anytime, REACQUIRE_COVERS + 1)     # no cover about Xc: the Krawczyk box
                 continue
@@ -349,7 +365,7 @@ def reacquire_on(anytime, tol, posture, max_boxes, deadline, model_pack):
             anytime[ANY_R_ON] = 0.0
             return R_DONE, n
         next_attempt(anytime, attempt + 1)
-    box = np.empty(6)                                   # the Krawczyk box, its tube's hull inside it
+    box = floats(6)                                     # the Krawczyk box, its tube's hull inside it
     if not (tube_test(Xc, qu, tq, zero, M, l1, l2sq, b, tubes[0])
             and reacquire_box(Xc, qu, tol, posture, region, model_pack, box) and hull_inside(tubes[0], tol, box)):
         anytime[ANY_R_ON] = 0.0

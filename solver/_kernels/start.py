@@ -20,7 +20,6 @@ certain, with the tube as its first.
 """
 from __future__ import annotations
 
-import numpy as np
 from numba import njit
 
 from .reacquisition import hull_inside
@@ -28,6 +27,7 @@ from .exclusion import EXCLUSION_COVERS, posture_preimage_in, tube_exclusion
 from .kinematics import geometry
 from .krawczyk import W_SIZE, krawczyk
 from .linalg import wrap
+from .scratch import floats
 from .tube import TUBE_K, TUBE_X, spread, tube_test
 
 #: Codes of :func:`certify_start`.
@@ -42,15 +42,17 @@ def certify_start(X0, r0, Xs, q0, tol, max_boxes, model_pack, tubes):
     singularity within the joint box, or START_NOT_UNIQUE: another pose of the start region may
     reach the joints; the number of tubes)."""
     M, l1, l2sq, b = geometry(model_pack)
-    t = np.full(3, tol)
-    region = np.empty(6)
+    t = floats(3)
+    t[:] = tol
+    region = floats(6)
     for r in range(3):
         region[2 * r], region[2 * r + 1] = X0[r] - r0[r], X0[r] + r0[r]
-    whole = tube_test(Xs, q0, t, np.zeros(3), M, l1, l2sq, b, tubes[0])
-    w = np.empty(W_SIZE)
-    none = np.zeros(3)
-    box = np.empty(6)
-    rho = np.empty(3)
+    none = floats(3)
+    none[:] = 0.0
+    whole = tube_test(Xs, q0, t, none, M, l1, l2sq, b, tubes[0])
+    w = floats(W_SIZE)
+    box = floats(6)
+    rho = floats(3)
     if whole:                                             # one Krawczyk box holds R and the needle
         c = tubes[0, TUBE_X:TUBE_X + 3].copy()
         for r in range(3):
@@ -67,7 +69,7 @@ def certify_start(X0, r0, Xs, q0, tol, max_boxes, model_pack, tubes):
         n = tube_exclusion(Xs, q0, tol, 0, 8, region, max_boxes, attempt, M, l1, l2sq, b, tubes)
         if n > 0:
             return START_PROVED, n
-    if not (whole and tube_test(Xs, q0, t, np.zeros(3), M, l1, l2sq, b, tubes[0])):
+    if not (whole and tube_test(Xs, q0, t, none, M, l1, l2sq, b, tubes[0])):
         return START_NO_TUBE, 0
     c = tubes[0, TUBE_X:TUBE_X + 3].copy()
     for _ in range(40):                                   # the largest box about Xs that Krawczyk proves

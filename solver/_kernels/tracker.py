@@ -45,6 +45,7 @@ from .layout import (F_D_BEST, F_D_SECOND, F_DQ, F_COND, F_INNOV, I_AMBIGUOUS, I
                      TRUST_LOST, TRUST_POSSIBLE)
 from .linalg import hadamard, wrap
 from .maptensor import near_mask_one
+from .scratch import floats, scratch, scratch2
 from .tracker_packs import STEP_DQ, STEP_DQN, STEP_JUMP, STEP_QU, STEP_SIZE, STEP_X_LIN
 
 #: Before the speed gate holds the pose or takes another solution (default mode, a trusted sample, one
@@ -68,15 +69,17 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
     walk of the tube chain, whether the deadline cut the step).  The phases: see the module
     docstring.
     """
-    work = step_pack(q, state, params, out_real, out_int)
+    work = floats(STEP_SIZE)
+    step_pack(q, state, params, out_real, out_int, work)
     anytime[ANY_CUT] = 0.0
     refused, untrusted = gate_phase(state, work, params, model_pack, out_real, out_int)
     if refused and not (params[PARAM_SPEED] > 0.0 and math.isfinite(state[STATE_STEP_DT])):
         refuse(state, out_real, out_int)
         return
-    poses = np.empty((6, 3), dtype=np.complex128)
-    real = np.empty(6, dtype=np.bool_)
-    near_prev = np.zeros(7, dtype=np.bool_)
+    poses = scratch2(6, 3, np.complex128)
+    real = scratch(6, np.bool_)
+    near_prev = scratch(7, np.bool_)
+    near_prev[:] = False
     n_real, n_near, single = solve_phase(q, rule, state, work, model_pack, sample_to_sextic, labels, map_pack,
                                          stencil, poses, real, near_prev, out_int)
     if refused:
@@ -115,8 +118,8 @@ def tracker_step(mode, rule, q, state, model_pack, sample_to_sextic, labels, map
 
 
 @njit(cache=False)
-def step_pack(q, state, params, out_real, out_int):
-    """The step pack (STEP_SIZE,, :mod:`.tracker_packs`) of joints ``q`` (3,): the joint step, its
+def step_pack(q, state, params, out_real, out_int, work):
+    """The step pack ``work`` (STEP_SIZE,, :mod:`.tracker_packs`) of joints ``q`` (3,): the joint step, its
     size, the unwrapped joints and the jump flag (the predictions are filled by the predict
     phase); the result pack's info fields zeroed."""
     for i in range(INFO_I_SIZE):
@@ -125,7 +128,6 @@ def step_pack(q, state, params, out_real, out_int):
         out_real[OUT_INFO + i] = 0.0
     for i in range(3):
         out_real[OUT_BOUND + i] = np.inf
-    work = np.empty(STEP_SIZE)
     qp = state[STATE_Q:STATE_Q + 3]
     dqn = joint_step(q, qp, work[STEP_DQ:STEP_DQ + 3])
     for i in range(3):
@@ -133,7 +135,6 @@ def step_pack(q, state, params, out_real, out_int):
     dq_scale = state[STATE_DQ_SCALE]
     work[STEP_DQN] = dqn
     work[STEP_JUMP] = 1.0 if dq_scale > 0.0 and dqn > params[PARAM_JUMP] * dq_scale else 0.0
-    return work
 
 
 @njit(cache=False)
@@ -160,7 +161,8 @@ def gate_phase(state, work, params, model_pack, out_real, out_int):
     any other."""
     Xp, qp, dq = state[STATE_X:STATE_X + 3], state[STATE_Q:STATE_Q + 3], work[STEP_DQ:STEP_DQ + 3]
     ext_scale = state[STATE_EXT_SCALE]
-    innov = np.zeros(3)
+    innov = floats(3)
+    innov[:] = 0.0
     if state[STATE_HAVE_Q2] > 0.0:
         for i in range(3):
             innov[i] = dq[i] - ext_scale * wrap(qp[i] - state[STATE_Q2 + i])
@@ -223,7 +225,7 @@ def margins(mode, chosen, poses, real, work, params, map_pack, out_real):
     the nearest other real solution (F_D_BEST, F_D_SECOND).  Returns whether the choice is
     ambiguous for it (default mode: d_best > ambiguity_ratio d_second; or a jump)."""
     w, X_pred = map_pack[MAP_WEIGHTS:MAP_WEIGHTS + 3], out_real[OUT_X_PRED:OUT_X_PRED + 3]
-    Xr = np.empty(3)
+    Xr = floats(3)
     for i in range(3):
         Xr[i] = poses[chosen, i].real
     d_best = wdist(Xr, X_pred, w)
@@ -257,7 +259,7 @@ def speed_gate_phase(mode, chosen, linked, untrusted, state, work, poses, real, 
     taken = speed_gate(poses, real, chosen, state[STATE_X:STATE_X + 3], params, step_dt)
     if taken != chosen and mode != MODE_PAPER and not untrusted and state[STATE_EXT_SCALE] <= LINK_GAP and \
             state[STATE_N_CAND] == 1.0:
-        Xr = np.empty(3)
+        Xr = floats(3)
         for i in range(3):
             Xr[i] = poses[chosen, i].real
         if comes_from(Xr, work[STEP_QU:STEP_QU + 3], work[STEP_DQ:STEP_DQ + 3],
@@ -291,8 +293,8 @@ def publish(chosen, ambiguous, poses, work, params, model_pack, out_real, out_in
     X = out_real[OUT_X:OUT_X + 3]
     for i in range(3):
         X[i] = poses[chosen, i].real
-    J = np.empty((3, 3))
-    kd = np.empty(3)
+    J = scratch2(3, 3, np.float64)
+    kd = floats(3)
     jacobian(X, work[STEP_QU:STEP_QU + 3], M, l1, l2sq, b, J, kd)
     cond = hadamard(J)
     out_real[OUT_INFO + F_COND] = cond

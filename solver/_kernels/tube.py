@@ -45,6 +45,7 @@ from numba import njit
 from .kinematics import leg_slack
 from .krawczyk import PAD, W_SIZE, newton_on_path
 from .linalg import inverse3, wrap
+from .scratch import floats, scratch2, scratch3
 
 # tube pack fields
 TUBE_X = 0            # (3,) centre pose x~ (m, m, rad)
@@ -104,7 +105,11 @@ def tube_test(xg, qc, t, rho_min, M, l1, l2sq, b, tube):
     one solution lies in the tube, within ``kappa`` of ``x~ + S (q - q~)``.  (:func:`slab_test`
     with ``V = I``.)
     """
-    return slab_test(xg, qc, np.eye(3), t, t, rho_min, M, l1, l2sq, b, tube)
+    eye = scratch2(3, 3, np.float64)
+    for i in range(3):
+        for j in range(3):
+            eye[i, j] = 1.0 if i == j else 0.0
+    return slab_test(xg, qc, eye, t, t, rho_min, M, l1, l2sq, b, tube)
 
 
 @njit(cache=True)
@@ -119,24 +124,26 @@ def slab_test(xg, qc, V, tw, tq, rho_min, M, l1, l2sq, b, tube):
     ``t`` (TUBE_V, TUBE_W, TUBE_T).  Writes ``x~``, ``S`` and ``q~`` into the pack even when the test
     fails (once Newton converged): a linear predictor.
     """
-    t = np.empty(3)
+    t = floats(3)
     for i in range(3):
         t[i] = min((abs(V[i, 0]) * tw[0] + abs(V[i, 1]) * tw[1] + abs(V[i, 2]) * tw[2]) * (1.0 + 1e-15), tq[i])
-    w = np.empty(W_SIZE)
-    none = np.zeros(3)
-    x = xg.copy()
+    w = floats(W_SIZE)
+    none = floats(3)
+    none[:] = 0.0
+    x = floats(3)
+    x[:] = xg
     if not newton_on_path(x, qc, none, none, 0.0, M, l1, b, l2sq, w, 8) < 1e-11:
         return False
     c, s = math.cos(x[2]), math.sin(x[2])
-    e = np.empty((3, 2))
-    wv = np.empty((3, 2))
-    J = np.empty((3, 3))
-    k = np.empty(3)
-    F = np.empty(3)
-    eu = np.empty((3, 2))
-    cn = np.empty(3)
-    en = np.empty(3)
-    fscale = np.empty(3)
+    e = scratch2(3, 2, np.float64)
+    wv = scratch2(3, 2, np.float64)
+    J = scratch2(3, 3, np.float64)
+    k = floats(3)
+    F = floats(3)
+    eu = scratch2(3, 2, np.float64)
+    cn = floats(3)
+    en = floats(3)
+    fscale = floats(3)
     for i in range(3):
         rcx, rcy = c * b[i, 0] - s * b[i, 1], s * b[i, 0] + c * b[i, 1]
         wv[i, 0], wv[i, 1] = -rcy, rcx
@@ -154,21 +161,24 @@ def slab_test(xg, qc, V, tw, tq, rho_min, M, l1, l2sq, b, tube):
             k[i] -= 2.0 * qc[i]
         cn[i] = norm_up(b[i, 0], b[i, 1])
         en[i] = norm_up(e[i, 0], e[i, 1])
-    C = np.empty((3, 3))
+    C = scratch2(3, 3, np.float64)
     if not inverse3(J, C):
         return False
-    S = np.empty((3, 3))
+    S = scratch2(3, 3, np.float64)
     for r in range(3):
         for j in range(3):
             S[r, j] = -C[r, j] * k[j]
     tube[TUBE_X:TUBE_X + 3] = x
     tube[TUBE_S:TUBE_S + 9] = S.ravel()
     tube[TUBE_Q:TUBE_Q + 3] = qc
-    aC = np.abs(C)
+    aC = scratch2(3, 3, np.float64)
+    for r in range(3):
+        for j in range(3):
+            aC[r, j] = abs(C[r, j])
     # |I - C J~| and N = J~ S + K~ with their rounding pads
-    M0 = np.empty((3, 3))
-    sN = np.empty((3, 3))
-    pN = np.empty((3, 3))
+    M0 = scratch2(3, 3, np.float64)
+    sN = scratch2(3, 3, np.float64)
+    pN = scratch2(3, 3, np.float64)
     for r in range(3):
         for j in range(3):
             acc, mag = 0.0, 0.0
@@ -184,7 +194,7 @@ def slab_test(xg, qc, V, tw, tq, rho_min, M, l1, l2sq, b, tube):
             sN[r, j] = acc
             pN[r, j] = PAD * (mag + abs(k[r]) + 1.0)
     # |N dq| over the joints (the parameter term |C| |N dq| below): over w or over the box
-    nd = np.empty(3)
+    nd = floats(3)
     for r in range(3):
         byw, byq = 0.0, 0.0
         for j in range(3):
@@ -196,17 +206,18 @@ def slab_test(xg, qc, V, tw, tq, rho_min, M, l1, l2sq, b, tube):
             byq += (abs(sN[r, j]) + pN[r, j]) * t[j]
         nd[r] = min(byw, byq) * (1.0 + 1e-12)
     # G_i = H_i S - l1 E u e_i^T (2 x 3 per leg) and gamma_i = e . E w = -(e . R c)
-    G = np.empty((3, 2, 3))
-    gam = np.empty(3)
+    G = scratch3(3, 2, 3, np.float64)
+    gam = floats(3)
     for i in range(3):
         for m in range(3):
             G[i, 0, m] = S[0, m] + wv[i, 0] * S[2, m] - (l1[i] * eu[i, 0] if m == i else 0.0)
             G[i, 1, m] = S[1, m] + wv[i, 1] * S[2, m] - (l1[i] * eu[i, 1] if m == i else 0.0)
         gam[i] = -(e[i, 0] * wv[i, 1] - e[i, 1] * wv[i, 0])
     # the affine parts of C (J - J~): C A_k t_k summed, and C B_j (per j)
-    MA = np.zeros((3, 3))
-    A = np.empty((3, 3))
-    CA = np.empty((3, 3, 3))
+    MA = scratch2(3, 3, np.float64)
+    MA[:] = 0.0
+    A = scratch2(3, 3, np.float64)
+    CA = scratch3(3, 3, 3, np.float64)
     for m in range(3):
         for i in range(3):
             A[i, 0] = 2.0 * G[i, 0, m]
@@ -224,7 +235,7 @@ def slab_test(xg, qc, V, tw, tq, rho_min, M, l1, l2sq, b, tube):
                 byw += (abs(acc) + PAD * mag) * tw[n]
                 byq += abs(CA[n, r, j]) * (1.0 + PAD) * t[n]
             MA[r, j] = min(byw, byq)
-    CB = np.empty((3, 3, 3))
+    CB = scratch3(3, 3, 3, np.float64)
     for m in range(3):
         for i in range(3):
             hx = 1.0 if m == 0 else (0.0 if m == 1 else wv[i, 0])
@@ -237,8 +248,8 @@ def slab_test(xg, qc, V, tw, tq, rho_min, M, l1, l2sq, b, tube):
                 CB[m, r, j] = abs(C[r, 0] * A[0, j] + C[r, 1] * A[1, j] + C[r, 2] * A[2, j])
     # the parameter term: |C F~| + |C| beta + |C N| t
     phi0 = lin_bound2(S[2, 0], S[2, 1], S[2, 2], V, tw, t)
-    gt = np.empty((3, 2))
-    beta = np.empty(3)
+    gt = scratch2(3, 2, np.float64)
+    beta = floats(3)
     for i in range(3):
         for r in range(2):
             gt[i, r] = lin_bound2(G[i, r, 0], G[i, r, 1], G[i, r, 2], V, tw, t)
@@ -247,18 +258,18 @@ def slab_test(xg, qc, V, tw, tq, rho_min, M, l1, l2sq, b, tube):
         if l2sq[i] < 0.0:
             beta[i] += t[i] * t[i]
         beta[i] += leg_slack(l2sq, i)          # the robot as built: F_i within sigma_i of 0 at its pose
-    a = np.empty(3)
+    a = floats(3)
     for r in range(3):
         acc = abs(C[r, 0] * F[0] + C[r, 1] * F[1] + C[r, 2] * F[2])
         for j in range(3):
             acc += aC[r, j] * (beta[j] + nd[j])
         a[r] = acc * (1.0 + 1e-12)
-    rho = np.empty(3)
+    rho = floats(3)
     for r in range(3):
         rho[r] = max(rho_min[r], 2.0 * a[r] + 1e-15)
-    kap = np.empty(3)
-    Mt = np.empty((3, 3))
-    rem = np.empty((3, 3))
+    kap = floats(3)
+    Mt = scratch2(3, 3, np.float64)
+    rem = scratch2(3, 3, np.float64)
     last = np.inf
     for _ in range(ROUNDS):
         phi = phi0 + rho[2]

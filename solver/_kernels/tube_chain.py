@@ -23,6 +23,7 @@ from numba import njit
 from .clock import expired
 from .krawczyk import PAD
 from .linalg import wrap
+from .scratch import floats, scratch2
 from .handoff import tested_takeover
 from .tube import (MATCH_PAD, SLACK, TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_T, TUBE_V, TUBE_W, TUBE_X,
                    lin_bound, predictor)
@@ -51,9 +52,12 @@ def cover_box(pieces, n, guess, qc, t, parts, M, l1, l2sq, b, deadline=0.0, k0=0
     ``deadline`` (:mod:`.clock`): ``-2 - k`` when it passed before part ``k`` (the parts before it are
     ``pieces[n:n + k]``, also when its hand-offs were cut); a cover cut there goes on from part ``k0``
     (that part runs to its end, whatever the deadline: each call makes progress)."""
-    q, h, xg = np.empty(3), np.empty(3), np.empty(3)
-    new = np.empty(TUBE_SIZE)
-    eye = np.eye(3)
+    q, h, xg = floats(3), floats(3), floats(3)
+    new = floats(TUBE_SIZE)
+    eye = scratch2(3, 3, np.float64)
+    for i in range(3):
+        for j in range(3):
+            eye[i, j] = 1.0 if i == j else 0.0
     m = n + k0
     for k in range(k0, parts ** 3):
         if m >= pieces.shape[0]:
@@ -109,13 +113,13 @@ def slab_cover(pieces, n, guess, qc, t, slabs, V, M, l1, l2sq, b, deadline=0.0, 
     (:func:`.tube.slab_test`), appended to ``pieces`` after its first ``n`` and each taking over
     from every earlier tube it may meet.  Returns the new number of tubes, or -1; with a ``deadline``,
     ``-2 - k`` as :func:`cover_box` (and from slab ``k0`` on)."""
-    tw = np.empty(3)
+    tw = floats(3)
     for j in range(3):                                  # the box in the frame: |w_j| <= sum_i |V_ij| t_i
         tw[j] = (abs(V[0, j]) * t[0] + abs(V[1, j]) * t[1] + abs(V[2, j]) * t[2]) * (1.0 + 1e-12)
     width = tw[0]
     tw[0] = width / slabs
-    q, xg, tq = np.empty(3), np.empty(3), np.empty(3)
-    new = np.empty(TUBE_SIZE)
+    q, xg, tq = floats(3), floats(3), floats(3)
+    new = floats(TUBE_SIZE)
     m = n + k0
     for k in range(k0, slabs):
         if m >= pieces.shape[0]:
@@ -151,8 +155,11 @@ def cover(pieces, n, guess, qc, t, M, l1, l2sq, b, deadline=0.0, stages=COVER_AL
     if m > 0 or expired(deadline) or stages == COVER_ONE:
         return m, tests
     if n < pieces.shape[0] and pieces[n, TUBE_S] == pieces[n, TUBE_S]:   # the failed test left S
-        V = np.empty((3, 3))
-        S = pieces[n, TUBE_S:TUBE_S + 9].reshape((3, 3)).copy()
+        V = scratch2(3, 3, np.float64)
+        S = scratch2(3, 3, np.float64)
+        for i in range(3):
+            for j in range(3):
+                S[i, j] = pieces[n, TUBE_S + 3 * i + j]
         needle_frame(S, V)
         for slabs in SLABS:
             tests += slabs
@@ -206,7 +213,7 @@ def tube_chain(old, n_old, qp, dq, tol, max_tests, M, l1, l2sq, b, out):
         for i in range(3):                             # the old tubes' joints next to qp
             pieces[j, TUBE_Q + i] = qp[i] + wrap(old[j, TUBE_Q + i] - qp[i])
     n = n_old
-    qc, t, half = np.empty(3), np.empty(3), np.empty(3)
+    qc, t, half = floats(3), floats(3), floats(3)
     s, step = 0.0, 1.0
     tests = 0
     last = 0                                           # where the last piece's cover starts
@@ -263,8 +270,12 @@ def refine(out, pieces, n, qc, t, M, l1, l2sq, b):
     """Tighten the single tube ``out[0]`` of the reading's box ``qc +- t``: tubes of the same box, each
     taking over from the last (kappa shrinks with rho^2), while kappa shrinks.  Returns the tests."""
     tests = 0
-    xg = np.empty(3)
-    new = np.empty(TUBE_SIZE)
+    xg = floats(3)
+    new = floats(TUBE_SIZE)
+    eye = scratch2(3, 3, np.float64)
+    for i in range(3):
+        for j in range(3):
+            eye[i, j] = 1.0 if i == j else 0.0
     if n >= pieces.shape[0] or at_rounding(out[0], t):
         return 0
     for _ in range(REFINE):
@@ -274,7 +285,7 @@ def refine(out, pieces, n, qc, t, M, l1, l2sq, b):
         predictor(out[0], qc, xg)
         tests += 1
         pieces[n, :] = out[0]
-        if not tested_takeover(pieces[n:n + 1], 1, xg, qc, np.eye(3), t, t, M, l1, l2sq, b, new):
+        if not tested_takeover(pieces[n:n + 1], 1, xg, qc, eye, t, t, M, l1, l2sq, b, new):
             break
         shrink = max(new[TUBE_K] / out[0, TUBE_K], max(new[TUBE_K + 1] / out[0, TUBE_K + 1],
                                                        new[TUBE_K + 2] / out[0, TUBE_K + 2]))
@@ -292,8 +303,8 @@ def pose_bound(tubes, n, q, tol, X, out):
     ``|S| h + |X - x~ - S (c - q~)| + kappa``.  Returns whether ``X`` lies, up to
     :data:`MATCH_PAD`, in the tube of a joint box holding ``q`` (a DK solution there is the
     cover's, up to its own rounding).  The bound holds for any ``X``."""
-    p, c, h, tw = np.empty(3), np.empty(3), np.empty(3), np.empty(3)
-    V = np.empty((3, 3))
+    p, c, h, tw = floats(3), floats(3), floats(3), floats(3)
+    V = scratch2(3, 3, np.float64)
     inside = False
     for r in range(3):
         out[r] = 0.0
