@@ -1,9 +1,9 @@
 """Scratch arrays in the calling kernel's stack frame: ``np.empty`` without the heap.
 
 A kernel's small working arrays (a 3x3 system, the six roots, a candidate mask) cost a heap
-allocation and a free each through numba's runtime, about 25 ns a pair (``bench/profile_step.py``'s
-reading in docs/benchmarks.md counts them: 189 a certified step and 15 a Newton step before this
-module, a third of the one's time and half of the other's).  :func:`scratch` gives the same arrays in
+allocation and a free each through numba's runtime, about 25 ns a pair: 189 a certified step and 15 a
+Newton step before this module (numba's ``NUMBA_NRT_STATS`` counts, ``tests/test_scratch.py``), a third
+of the one's kernel time and a third of the other's (docs/benchmarks.md, section step).  :func:`scratch` gives the same arrays in
 the stack frame of the function that calls it: one ``alloca`` in that function's entry block, taken
 once per call of it however often a loop in it asks, given back when it returns.
 
