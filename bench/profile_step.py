@@ -33,6 +33,7 @@ from solver._kernels.layout import OUT_X, OUT_X_PRED, STATUS_UNREACHABLE
 from solver._kernels.stepper import advance_state, load_walk, pack_state
 from solver._kernels.tracker import (gate_phase, hold, margins, publish as publish_phase, solve_phase,
                                      speed_gate_phase, step_pack)
+from solver._kernels.scratch import floats, scratch, scratch2
 from solver._kernels.tracker_packs import STEP_SIZE, STEP_X_LIN
 
 PHASES = ("pack", "gate", "solve", "predict", "choose", "certify", "finish", "advance")
@@ -47,16 +48,17 @@ def timed_step(mode, rule, q, a, pk, model_pack, sample_to_sextic, labels, map_p
     pack_state(a, math.nan, pk)
     load_walk(a, anytime, 0.0)
     c1 = cycles()
-    work = np.empty(STEP_SIZE)
+    work = floats(STEP_SIZE)                   # (the step's arrays on the stack, as tracker_step's)
     step_pack(q, pk, params, out_real, out_int, work)
     anytime[ANY_CUT] = 0.0
     refused, untrusted = gate_phase(pk, work, params, model_pack, out_real, out_int)
     if refused:
         return False
     c2 = cycles()
-    poses = np.empty((6, 3), dtype=np.complex128)
-    real = np.empty(6, dtype=np.bool_)
-    near_prev = np.zeros(7, dtype=np.bool_)
+    poses = scratch2(6, 3, np.complex128)
+    real = scratch(6, np.bool_)
+    near_prev = scratch(7, np.bool_)
+    near_prev[:] = False
     n_real, n_near, single = solve_phase(q, rule, pk, work, model_pack, sample_to_sextic, labels, map_pack, stencil,
                                          poses, real, near_prev, out_int)
     c3 = cycles()

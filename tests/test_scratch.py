@@ -8,7 +8,7 @@ from numba import njit
 from numba.core.errors import TypingError
 
 from host_support import run_python
-from solver._kernels.scratch import floats, scratch, scratch2, scratch3
+from solver._kernels.scratch import MAX_BYTES, floats, scratch, scratch2, scratch3
 
 SIX = 6
 
@@ -52,8 +52,28 @@ def test_a_size_that_is_not_a_constant_is_refused_at_compile_time():
     def runtime_size(n):
         return scratch(n, np.float64).shape[0]
 
-    with pytest.raises(TypingError, match="scratch"):
+    with pytest.raises(TypingError, match="compile-time constant"):
         runtime_size(3)
+
+
+def test_an_empty_or_a_large_stack_array_is_refused_at_compile_time():
+    @njit(cache=False)
+    def empty():
+        return scratch(0, np.float64).shape[0]
+
+    @njit(cache=False)
+    def large():                                # 4104 bytes: over MAX_BYTES (4096)
+        return scratch2(27, 19, np.float64).shape[0]
+
+    @njit(cache=False)
+    def largest():                              # 4096 bytes of bools: the most allowed
+        return scratch(MAX_BYTES, np.bool_).shape[0]
+
+    with pytest.raises(TypingError, match="positive size"):
+        empty()
+    with pytest.raises(TypingError, match="at most 4096 bytes"):
+        large()
+    assert largest() == MAX_BYTES
 
 
 _ALLOCATIONS = """
@@ -121,7 +141,7 @@ print("ok")
 
 def test_a_step_runs_on_a_32_kib_thread_stack():
     """A host calls the FMU's step on its own threads, whose stacks may be small: the kernels' stack arrays
-    (a few hundred bytes a frame) leave a whole stream, exact or measured, within the smallest thread
+    (at most about 2.3 kB a kernel, the tube test's) leave a whole stream, exact or measured, within the smallest thread
     stack Python makes; the poses are the main thread's.  (Run in a child: an overflow is a crash.)"""
     proc = run_python(_SMALL_STACK)
     assert proc.returncode == 0 and proc.stdout.strip().endswith("ok"), proc.stderr[-2000:]

@@ -263,6 +263,12 @@ def reacquired_anytime(chosen, certified, state, work, poses, real, params, mode
 
 
 @njit(cache=False)
+def sorts_before(a, b):
+    """``a`` comes before ``b`` in an ascending sort with NaN last (numba's and numpy's order)."""
+    return a < b or (b != b and a == a)
+
+
+@njit(cache=False)
 def cover_solution(tubes, n, qu, tol, poses, real, bound=None):
     """The index of the real DK solution (``poses`` (6, 3) complex, ``real`` (6,)) that is the solution
     of the cover ``tubes[:n]`` at the reading ``qu`` (3,), or -1; its :func:`.tube_chain.pose_bound`
@@ -278,10 +284,10 @@ def cover_solution(tubes, n, qu, tol, poses, real, bound=None):
     for k in range(6):
         if real[k]:
             dist[k] = abs(poses[k, 0].real - p[0]) + abs(poses[k, 1].real - p[1]) + abs(wrap(poses[k, 2].real - p[2]))
-    order = scratch(6, np.int64)                  # by distance (a stable sort, as numpy's argsort of six)
+    order = scratch(6, np.int64)                  # by distance (a stable sort, NaN last: numba's argsort of six)
     for k in range(6):
         j = k
-        while j > 0 and dist[order[j - 1]] > dist[k]:
+        while j > 0 and sorts_before(dist[k], dist[order[j - 1]]):
             order[j] = order[j - 1]
             j -= 1
         order[j] = k

@@ -2,10 +2,11 @@
 
 A kernel's small working arrays (a 3x3 system, the six roots, a candidate mask) cost a heap
 allocation and a free each through numba's runtime, about 25 ns a pair: 189 a certified step and 15 a
-Newton step before this module (numba's ``NUMBA_NRT_STATS`` counts, ``tests/test_scratch.py``), a third
-of the one's kernel time and a third of the other's (docs/benchmarks.md, section step).  :func:`scratch` gives the same arrays in
-the stack frame of the function that calls it: one ``alloca`` in that function's entry block, taken
-once per call of it however often a loop in it asks, given back when it returns.
+Newton step before this module (numba's ``NUMBA_NRT_STATS`` counts, ``tests/test_scratch.py``), a
+third of the one's kernel time and a third of the other's (docs/benchmarks.md, section step).
+:func:`scratch` gives the same arrays in the stack frame of the function that calls it: one
+``alloca`` in that function's entry block, taken once per call of it however often a loop in it
+asks, given back when it returns.
 
 Rules, as for any stack memory:
 
@@ -14,7 +15,12 @@ Rules, as for any stack memory:
 - its content is undefined, as ``np.empty``'s: write before reading (fill it where ``np.zeros`` or
   ``np.full`` stood);
 - its shape is made of compile-time constants (literals or module constants), so a frame's size is
-  known: every use is a few hundred bytes at most, far below any host thread's stack.
+  known, and one array is at most :data:`MAX_BYTES` (refused at compile time above).  The largest
+  kernel frame is the tube test's (:func:`.tube.slab_test`, about 2.3 kB of arrays); with the callees
+  LLVM inlines, a whole step runs on a 32 KiB thread stack (``tests/test_scratch.py``), the smallest
+  Python makes.  Larger work arrays (the tube chain's 58 kB table of pieces) stay on the heap.
+
+(numba's ``cgutils.alloca_once`` zeroes the first element where it allocates; the rest is undefined.)
 """
 from __future__ import annotations
 
@@ -23,8 +29,12 @@ from numba.core import cgutils
 from numba.core.errors import TypingError
 from numba.extending import intrinsic
 from numba.np.arrayobj import make_array, populate_array
+from numba.np.numpy_support import as_dtype
 
-__all__ = ["floats", "scratch", "scratch2", "scratch3"]
+__all__ = ["floats", "scratch", "scratch2", "scratch3", "MAX_BYTES"]
+
+#: The largest stack array (bytes): larger ones belong on the heap (a host thread's stack may be small).
+MAX_BYTES = 4096
 
 
 def _constant(name, value) -> int:
@@ -48,8 +58,8 @@ def _stack_array(context, builder, arrty, shape):
     size = 1
     for s in shape:
         size *= s
-    data = cgutils.alloca_once(builder, item, size=context.get_constant(types.intp, size))
     itemsize = context.get_abi_sizeof(item)
+    data = cgutils.alloca_once(builder, item, size=context.get_constant(types.intp, size))
     strides, stride = [], itemsize
     for s in reversed(shape):
         strides.insert(0, stride)
@@ -65,6 +75,12 @@ def _typed(sizes, dtype, args):
     """The signature (an array of ``dtype`` and the constant ``sizes``' shape, of the intrinsic's ``args``)
     and the codegen of a stack array."""
     shape = tuple(_constant(name, value) for name, value in sizes)
+    size = as_dtype(dtype).itemsize
+    for s in shape:
+        size *= s
+    if size > MAX_BYTES:
+        raise TypingError(f"scratch: expected at most {MAX_BYTES} bytes on the stack, got {shape} of {dtype} "
+                          f"({size} bytes): allocate it on the heap (np.empty)")
     arrty = types.Array(dtype, len(shape), "C")
 
     def codegen(context, builder, signature, args):
