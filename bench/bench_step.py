@@ -140,10 +140,17 @@ def main(argv=None) -> None:
             "kernels, median of the passes.")
     publish("step", body, note=note, command=" ".join(["python bench/bench_step.py", *(argv or sys.argv[1:])]),
             headline=[("tracker step from Python / its compiled kernel, default mode", f"{ratios['tracker'][0]:.2f}x",
-                       "<= 1.3x"),
-                      ("Newton step from Python / its compiled kernel", f"{ratios['newton'][0]:.2f}x", "<= 3x"),
+                       _target(ratios["tracker"][0], 1.3)),
+                      ("Newton step from Python / its compiled kernel", f"{ratios['newton'][0]:.2f}x",
+                       _target(ratios["newton"][0], 3.0)),
                       ("`track` over a stream / its kernels' sum: tracker, Newton",
-                       f"{ratios['tracker'][1]:.3f}x, {ratios['newton'][1]:.3f}x", "<= 1.05x")])
+                       f"{ratios['tracker'][1]:.3f}x, {ratios['newton'][1]:.3f}x",
+                       _target(max(ratios["tracker"][1], ratios["newton"][1]), 1.05))])
+
+
+def _target(ratio: float, most: float) -> str:
+    """A headline row's target column: ``<= most`` and whether ``ratio`` meets it."""
+    return f"<= {most:g}x" + ("" if ratio <= most else " (not met)")
 
 
 if __name__ == "__main__":
