@@ -35,7 +35,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from report import publish, table
+from report import publish, table, target
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the issue's targets (s): the first result, the longest silence, the test command cold and warm
@@ -100,12 +100,12 @@ def main(argv=None) -> None:
         print("again (warm caches):", flush=True)
         warm, _, code, _ = timed_run([sys.executable, "-m", "cosim"], clone, env, echo=False)
         rows = [("`python -m cosim`, first run (fresh clone, empty caches): to the first result",
-                 f"{cold:.0f} s", f"<= {FIRST_RESULT:.0f} s" + ("" if cold <= FIRST_RESULT else " (not met)")),
+                 f"{cold:.0f} s", target(f"<= {FIRST_RESULT:.0f} s", cold <= FIRST_RESULT)),
                 ("the same: longest silence on stderr", f"{silence:.1f} s",
-                 f"<= {SILENCE:.0f} s" + ("" if silence <= SILENCE else " (not met)")),
+                 target(f"<= {SILENCE:.0f} s", silence <= SILENCE)),
                 ("`python -m cosim` again (warm caches)", f"{warm:.1f} s", "")]
         if args.tests:
-            for label, target in (("cold", TESTS_COLD), ("warm", TESTS_WARM)):
+            for label, limit in (("cold", TESTS_COLD), ("warm", TESTS_WARM)):
                 print(f"python -m pytest -q -n 2 ({label}):", flush=True)
                 log = work / f"pytest-{label}.txt"
                 t, _, code, _ = timed_run([sys.executable, "-m", "pytest", "-q", "-n", "2", "-p", "no:cacheprovider",
@@ -113,7 +113,7 @@ def main(argv=None) -> None:
                                           echo=False, stdout=log)
                 print(f"  {t / 60:.1f} min, exit {code}: " + log.read_text().strip().splitlines()[-1], flush=True)
                 rows.append((f"the README's test command, {label} (exit {code})", f"{t / 60:.1f} min",
-                             f"<= {target / 60:.0f} min" + ("" if t <= target else " (not met)")))
+                             target(f"<= {limit / 60:.0f} min", t <= limit)))
         body = table(["what", "measured", "target"], rows)
         print(body)
         note = (f"A fresh `git clone` of {head}, this interpreter and its installed dependencies, caches empty "

@@ -349,7 +349,7 @@ def _write_csv(rows, path: Path) -> None:
 
 def _report(rows, grades, secs, n_paths, elapsed, per_path, names, speed_text):
     """The totals per sensor and method and the step times into docs/benchmarks.md (bench/report.py)."""
-    from report import publish, table
+    from report import publish, table, target
     lines = []
     for gname, tot in rows.items():
         for m, t in tot.items():
@@ -390,24 +390,24 @@ def _report(rows, grades, secs, n_paths, elapsed, per_path, names, speed_text):
             headline.append((f"realistic encoders ({', '.join(real)}): false alarms; longest uncertain run",
                              ", ".join(f"{pct[g]:.2f} %" for g in real) + "; "
                              + ", ".join(str(rows[g]["default"]["run"]) for g in real) + " steps",
-                             "<= 1 %, <= 50 steps" + ("" if ok else " (not met)")))
+                             target("<= 1 %, <= 50 steps", ok)))
         if harsh:
             ok = all(pct[g] <= floor[g] + 3.0 for g in harsh)
             headline.append((f"harsh encoders ({', '.join(harsh)}): false alarms (fold floor)",
                              ", ".join(f"{pct[g]:.1f} % ({floor[g]:.1f} %)" for g in harsh),
-                             "<= floor + 3 points" + ("" if ok else " (not met)")))
+                             target("<= floor + 3 points", ok)))
         if "bare" in {m for g in rows for m in rows[g]}:
             bare = [g for g in rows if "bare" in rows[g]]
             share = [100 * rows[g]["bare"]["alarms"] / max(rows[g]["bare"]["counted"], 1) for g in bare]
             headline.append((f"default-constructed tracker ({', '.join(bare)}): false alarms",
                              ", ".join(f"{s:.2f} %" for s in share),
-                             "<= 1 %" + ("" if max(share) <= 1.0 else " (not met)")))
+                             target("<= 1 %", max(share) <= 1.0)))
         headline.append(("pose bound holds (certain steps, sensor within its tolerance)",
-                         f"{checked - broken:,} of {checked:,}", "100 %" + ("" if broken == 0 else " (not met)")))
+                         f"{checked - broken:,} of {checked:,}", target("100 %", broken == 0)))
         if worse:
             headline.append(("the same: paths where the default mode errs more often than Newton",
                              ", ".join(f"{g} {len(worse[g])}" for g in noisy if g in worse) + f" of {n_paths}",
-                             "0 (not met)" if any(worse[g] for g in noisy if g in worse) else "0"))
+                             target("0", not any(worse[g] for g in noisy if g in worse))))
     publish("sensors", counts + "\n\n" + steps, headline=headline,
             note=f"{n_paths} paths at 1 kHz, {elapsed:.0f} s. Errors: the real DK solution of the measured joints "
                  "nearest the noise-free pose is the truth, counted where the second nearest is at least 3x farther. "

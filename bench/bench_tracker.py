@@ -236,13 +236,9 @@ def _report(suites, all_tot, names, times, args, robot=None):
                  "right and not `certain`, share of the steps. Per-path counts: `results/tracker_suite.csv`.")
 
 
-def _verdict(met: bool) -> str:
-    """What a headline row's target column adds: nothing when met, " (not met)" otherwise."""
-    return "" if met else " (not met)"
-
-
 def _headline(suites, all_tot, names, ratio):
     """The tracker's rows of the README's headline table: default mode against the best baseline."""
+    from report import target
     tot = {n: [sum(t[n][i] for t in all_tot.values()) for i in range(5)] for n in names}
     base = [n for n in names if n not in ("default", "paper")]
     best = min(base, key=lambda n: tot[n][1])
@@ -255,7 +251,7 @@ def _headline(suites, all_tot, names, ratio):
              f"{silent} / {tot['paper'][2]}", "0"),
             ("tracker, default mode: false alarms (right, not `certain`)", f"{100 * alarms / n_steps:.2f} % of steps",
              "<= 3 %"),
-            ("tracker step, default mode / Newton, medians", f"{ratio:.2f}x", "<= 3x" + _verdict(ratio <= 3.0))]
+            ("tracker step, default mode / Newton, medians", f"{ratio:.2f}x", target("<= 3x", ratio <= 3.0))]
 
 
 def plot(suite, table, names, path, rule):

@@ -29,7 +29,7 @@ import sys
 from pathlib import Path
 
 __all__ = ["PAGE", "README", "HEADLINE", "SECTIONS", "table", "provenance", "render_section", "replace_section",
-           "headline_table", "publish", "ReportError"]
+           "headline_table", "publish", "target", "ReportError"]
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "benchmarks.md"
@@ -38,6 +38,11 @@ HEADLINE = ROOT / "docs" / "headline.json"
 #: The order of the sections in the README's headline table (others follow, by name).
 SECTIONS = ("first_run", "dk", "maptensor", "tracker", "step", "sensors", "rpr", "fmu", "c_host", "cosim", "master", "batch", "dynamics", "rules")
 _NAME = re.compile(r"^[a-z0-9][a-z0-9_-]*$")
+
+
+def target(text: str, met: bool) -> str:
+    """A headline row's target column: ``text``, and " (not met)" after it when the measurement misses it."""
+    return text if met else text + " (not met)"
 
 
 class ReportError(ValueError):

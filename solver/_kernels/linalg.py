@@ -1,5 +1,6 @@
 """Scalar helpers of every kernel (the solver's and the dynamics'): the one angle wrap and the one
-family of 3x3 linear algebra, by cofactors (determinant, Cramer's rule, the adjugate inverse)."""
+family of 3x3 linear algebra, by cofactors (determinant, Cramer's rule, the adjugate inverse), and
+the identity written into a caller's array."""
 from __future__ import annotations
 
 import math
@@ -11,6 +12,14 @@ from numba import njit
 def wrap(a):
     """An angle wrapped to (-pi, pi] (as :func:`solver.wrap_angle`)."""
     return math.pi - ((math.pi - a) % (2.0 * math.pi)) + 0.0
+
+
+@njit(cache=False)
+def identity3(out):
+    """The 3x3 identity into ``out`` (3, 3) (a caller's array, often on its stack: :mod:`.scratch`)."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = 1.0 if i == j else 0.0
 
 
 @njit(cache=True)

@@ -44,7 +44,7 @@ from numba import njit
 
 from .kinematics import leg_slack
 from .krawczyk import PAD, W_SIZE, newton_on_path
-from .linalg import inverse3, wrap
+from .linalg import identity3, inverse3, wrap
 from .scratch import floats, scratch2, scratch3
 
 # tube pack fields
@@ -106,9 +106,7 @@ def tube_test(xg, qc, t, rho_min, M, l1, l2sq, b, tube):
     with ``V = I``.)
     """
     eye = scratch2(3, 3, np.float64)
-    for i in range(3):
-        for j in range(3):
-            eye[i, j] = 1.0 if i == j else 0.0
+    identity3(eye)
     return slab_test(xg, qc, eye, t, t, rho_min, M, l1, l2sq, b, tube)
 
 

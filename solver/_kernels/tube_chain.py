@@ -22,7 +22,7 @@ from numba import njit
 
 from .clock import expired
 from .krawczyk import PAD
-from .linalg import wrap
+from .linalg import identity3, wrap
 from .scratch import floats, scratch2
 from .handoff import tested_takeover
 from .tube import (MATCH_PAD, SLACK, TUBE_K, TUBE_Q, TUBE_R, TUBE_S, TUBE_SIZE, TUBE_T, TUBE_V, TUBE_W, TUBE_X,
@@ -55,9 +55,7 @@ def cover_box(pieces, n, guess, qc, t, parts, M, l1, l2sq, b, deadline=0.0, k0=0
     q, h, xg = floats(3), floats(3), floats(3)
     new = floats(TUBE_SIZE)
     eye = scratch2(3, 3, np.float64)
-    for i in range(3):
-        for j in range(3):
-            eye[i, j] = 1.0 if i == j else 0.0
+    identity3(eye)
     m = n + k0
     for k in range(k0, parts ** 3):
         if m >= pieces.shape[0]:
@@ -273,9 +271,7 @@ def refine(out, pieces, n, qc, t, M, l1, l2sq, b):
     xg = floats(3)
     new = floats(TUBE_SIZE)
     eye = scratch2(3, 3, np.float64)
-    for i in range(3):
-        for j in range(3):
-            eye[i, j] = 1.0 if i == j else 0.0
+    identity3(eye)
     if n >= pieces.shape[0] or at_rounding(out[0], t):
         return 0
     for _ in range(REFINE):
