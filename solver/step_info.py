@@ -5,18 +5,17 @@ the tracker's data is :mod:`solver.tracker_state`.
 """
 from __future__ import annotations
 
-from operator import itemgetter
 from typing import NamedTuple
 
 import numpy as np
 
 from ._kernels import layout as _lay
 from ._kernels.layout import (F_COND, F_D_BEST, F_D_SECOND, I_AMBIGUOUS, I_CERTAIN, I_CERTIFICATE, I_JUMP, I_LABEL,
-                              I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, I_TRUST, INFO_F_SIZE, OUT_BOUND, OUT_INFO,
-                              OUT_X, TB_AMBIGUOUS, TB_CERTAIN, TB_JUMP, TB_NEAR_BORDER, TB_OUT_OF_BUDGET, TF_BOUND,
-                              TF_COND, TF_D_BEST, TF_D_SECOND, TF_SECONDS, TF_X, TF_X_PRED, TI_CERTIFICATE, TI_LABEL,
-                              TI_N_CAND, TI_N_REAL, TI_SINCE, TI_STATUS, TI_TRUST, TRACK_BOOLS, TRACK_FLOATS,
-                              TRACK_INTS, TRUST, TRUST_LOST)
+                              I_N_CAND, I_N_REAL, I_NEAR_BORDER, I_STATUS, I_TRUST, INFO_F_SIZE, INFO_I_SIZE,
+                              OUT_BOUND, OUT_INFO, OUT_X, TB_AMBIGUOUS, TB_CERTAIN, TB_JUMP, TB_NEAR_BORDER,
+                              TB_OUT_OF_BUDGET, TF_BOUND, TF_COND, TF_D_BEST, TF_D_SECOND, TF_SECONDS, TF_X, TF_X_PRED,
+                              TI_CERTIFICATE, TI_LABEL, TI_N_CAND, TI_N_REAL, TI_SINCE, TI_STATUS, TI_TRUST,
+                              TRACK_BOOLS, TRACK_FLOATS, TRACK_INTS, TRUST, TRUST_LOST)
 
 __all__ = ["StepInfo", "TrackResult", "result_views", "track_blocks", "STATUS", "CERTIFICATES", "TRUST", "NO_BOUND",
            "STEP_FIELDS"]
@@ -34,11 +33,6 @@ NO_BOUND.flags.writeable = False
 
 #: The pose, X_pred and bound in the copy of :meth:`StepInfo.from_views` (``head``: ``OUT_X`` to the bound)
 _BOUND = slice(OUT_BOUND - OUT_X, OUT_BOUND - OUT_X + 3)
-#: :meth:`StepInfo.from_views` reads the result pack's fields it reports in one C call each (a dozen lookups
-#: of the ``I_*``, ``F_*`` names and list indexings were 0.3 us of a step)
-_INTS = itemgetter(I_LABEL, I_NEAR_BORDER, I_N_REAL, I_AMBIGUOUS, I_STATUS, I_JUMP, I_CERTAIN, I_CERTIFICATE, I_N_CAND,
-                   I_TRUST)
-_FLOATS = itemgetter(F_COND, F_D_BEST, F_D_SECOND)
 _new = tuple.__new__
 
 
@@ -129,11 +123,12 @@ class StepInfo(NamedTuple):
     @classmethod
     def from_views(cls, views: tuple, uncertain_since: int):
         """:meth:`pose_and_info` from the :func:`result_views` of the result pack (the step's hot path: a
-        tracker makes the views once, a step pays one copy, two or three slices, two ``tolist`` and two
-        ``itemgetter`` calls); the pose, ``X_pred`` and the bound are views of the one copy."""
+        tracker makes the views once, a step pays one copy, two or three slices and two ``tolist``); the
+        pose, ``X_pred`` and the bound are views of the one copy."""
         head, floats, ints = views
-        label, near, n_real, ambiguous, status, jump, certain, certificate, n_cand, trust = _INTS(ints.tolist())
-        cond, d_best, d_second = _FLOATS(floats.tolist())
+        # the packs' fields unpacked in their layout's order (asserted below): no lookups, no indexing
+        label, near, n_real, ambiguous, status, jump, _, certain, certificate, n_cand, _, trust = ints.tolist()
+        d_best, d_second, _, cond, _, _ = floats.tolist()
         xx = head.copy()                                    # one copy for the pose, X_pred and the bound
         certain = certain != 0
         return xx[:3], _new(cls, (label, near != 0, xx[3:6], n_real, cond, ambiguous != 0, status, jump != 0, d_best,
@@ -227,6 +222,10 @@ _TRIPLE_NAMES = ("X", "X_pred", "pose_bound")
 _FLOAT_NAMES = ("cond", "d_best", "d_second", "seconds")
 _INT_NAMES = ("label", "n_real", "status", "certificate", "n_candidates", "uncertain_since", "trust")
 _BOOL_NAMES = ("near_border", "ambiguous", "jump", "certain", "out_of_budget")
+# StepInfo.from_views unpacks the info packs whole, in this order
+assert (I_LABEL, I_NEAR_BORDER, I_N_REAL, I_AMBIGUOUS, I_STATUS, I_JUMP, I_CERTAIN, I_CERTIFICATE, I_N_CAND,
+        I_TRUST, INFO_I_SIZE) == (0, 1, 2, 3, 4, 5, 7, 8, 9, 11, 12)
+assert (F_D_BEST, F_D_SECOND, F_COND, INFO_F_SIZE) == (0, 1, 3, 6)
 assert (TF_X, TF_X_PRED, TF_BOUND, TF_COND, TF_D_BEST, TF_D_SECOND, TF_SECONDS) == (0, 3, 6, 9, 10, 11, 12)
 assert (TI_LABEL, TI_N_REAL, TI_STATUS, TI_CERTIFICATE, TI_N_CAND, TI_SINCE, TI_TRUST) == tuple(range(7))
 assert (TB_NEAR_BORDER, TB_AMBIGUOUS, TB_JUMP, TB_CERTAIN, TB_OUT_OF_BUDGET) == tuple(range(5))

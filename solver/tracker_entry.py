@@ -1,11 +1,12 @@
 """The tracker's step through its compiled C entry point (:mod:`solver._kernels.c_entry`): the mixin
 :class:`CEntry` of :class:`solver.Tracker`.
 
-Every step of a tracker is one call of the same machine code: in process through ctypes (the joints
-written into the tracker's scalars ``io``, the time step and the deadline passed as the call's two
-doubles: one call of four scalars instead of a 17-argument numba dispatch), a whole stream of
-:meth:`solver.Tracker.track` in one call, and from a C caller (the DK FMU's loader) directly, on the
-same flat state.  The table that the entry
+Every step of a tracker is one call of the same machine code: in process through
+:func:`solver._kernels.entry_call.call_entry` (the joints written into the tracker's scalars ``io``,
+the time step and the deadline passed as the call's two doubles: one numba dispatch of five scalars
+instead of a 17-argument one, 0.3 us quicker than ctypes), a whole stream of
+:meth:`solver.Tracker.track` in one call through ctypes, and from a C caller (the DK FMU's loader)
+directly, on the same flat state.  Both Python calls release the GIL.  The table that the entry
 point reads holds the addresses of the tracker's arrays, which live as long as the tracker.
 """
 from __future__ import annotations
@@ -16,6 +17,7 @@ from ._kernels.anytime import ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON
 from ._kernels.c_entry import (ADVANCE_OFFSET, CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_BUDGET, IO_DEADLINE, IO_DONE,
                                IO_SIZE, entry, make_table, set_rows)
 from ._kernels.clock import cycles_per_second
+from ._kernels.entry_call import call_entry
 from .tracker_state import TrackerError
 from ._kernels.state_layout import STATE_FLOATS
 
@@ -34,7 +36,8 @@ class CEntry:
             map=self._map_pack, stencil=self._stencil, params=self._params, out_real=self._out_real,
             out_int=self._out_int, anytime=self._anytime, io=self._io))
         self._table_address = self._table.ctypes.data
-        self._call = None                       # entry().ctypes, on the first step
+        self._call = None                       # entry().ctypes, for a stream (made with _fn on the first step)
+        self._fn = 0                            # entry().address: a step's call (entry_call.call_entry)
 
     def _kernel(self, q, deadline):
         anytime, walk = self._anytime, self.state.walk
@@ -45,13 +48,13 @@ class CEntry:
         anytime[ANY_DEADLINE] = deadline
         self._q_in[...] = q
         self._io[IO_DEADLINE] = deadline
-        (self._call or self._entry())(self._table_address, CMD_PACKED, 0.0, 0.0)
+        call_entry(self._fn or self._entry(), self._table_address, CMD_PACKED, 0.0, 0.0)
         if self._io[IO_DONE] != 1.0:
             self._failed()
 
     def _advance(self, q, dt, deadline, a):
         self._q_in[...] = q
-        r = (self._call or self._entry())(self._table_address, CMD_ADVANCE, dt, deadline)
+        r = call_entry(self._fn or self._entry(), self._table_address, CMD_ADVANCE, dt, deadline)
         if r <= 0:                              # 0: a kernel raised (the cfunc's answer then)
             self._failed()
         return r - ADVANCE_OFFSET
@@ -61,7 +64,9 @@ class CEntry:
         tracker's step budget (none without one).  The call releases the GIL: another thread may run
         meanwhile, but not on this tracker (a tracker is one thread's)."""
         self._io[IO_BUDGET] = 0.0 if self.step_budget is None else self.step_budget * cycles_per_second()
-        steps = (self._call or self._entry())(table.ctypes.data, CMD_TRACK, 0.0, 0.0)
+        if self._call is None:
+            self._entry()
+        steps = self._call(table.ctypes.data, CMD_TRACK, 0.0, 0.0)
         if self._io[IO_DONE] != 1.0:
             self._failed()
         return steps
@@ -85,7 +90,7 @@ class CEntry:
         set_rows(table, dict(backup=self._backup, real=real, integer=integer, boolean=boolean, slots=slots))
         if self._call is None:
             self._entry()
-        return entry().address, table
+        return self._fn, table
 
     @property
     def c_io(self) -> np.ndarray:
@@ -99,7 +104,10 @@ class CEntry:
         self._flat_state()
         return True
 
-    def _entry(self):
-        """The C entry point (:func:`solver._kernels.c_entry.entry`) as a ctypes function, loaded once."""
-        self._call = entry().ctypes
-        return self._call
+    def _entry(self) -> int:
+        """Load the C entry point (:func:`solver._kernels.c_entry.entry`) once: its address ``_fn``, which a
+        step calls through :func:`solver._kernels.entry_call.call_entry` (one numba dispatch), and its
+        ctypes function ``_call``, which a stream calls; returns the address."""
+        f = entry()
+        self._call, self._fn = f.ctypes, f.address
+        return self._fn

@@ -77,8 +77,9 @@ class _TrackerBase:
 
     #: What a copy (pickle, deepcopy) makes anew instead of copying: the result views and the compiled
     #: entry's table, its address, the joints' view into ``io`` (they look into this tracker's own arrays),
-    #: the entry's ctypes function and the C caller's backup (:mod:`solver.tracker_entry`).
-    _REMADE = ("_views", "_table", "_table_address", "_q_in", "_call", "_backup")
+    #: the entry's ctypes function and address (a process's own) and the C caller's backup
+    #: (:mod:`solver.tracker_entry`).
+    _REMADE = ("_views", "_table", "_table_address", "_q_in", "_call", "_fn", "_backup")
 
     def __getstate__(self):
         return {k: v for k, v in self.__dict__.items() if k not in self._REMADE}
