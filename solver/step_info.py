@@ -38,8 +38,8 @@ _new = tuple.__new__
 
 def result_views(out_real: np.ndarray, out_int: np.ndarray) -> tuple:
     """The views of a result pack a step's :class:`StepInfo` is read from: ``out_real`` from the pose to the
-    pose bound (33,), its info floats (INFO_F_SIZE,), and ``out_int`` (INFO_I_SIZE,) int64."""
-    return out_real[OUT_X:OUT_BOUND + 3], out_real[OUT_INFO:OUT_INFO + INFO_F_SIZE], out_int
+    pose bound (33,), its info floats (INFO_F_SIZE,), and ``out_int``'s first INFO_I_SIZE int64."""
+    return out_real[OUT_X:OUT_BOUND + 3], out_real[OUT_INFO:OUT_INFO + INFO_F_SIZE], out_int[:INFO_I_SIZE]
 
 
 class StepInfo(NamedTuple):

@@ -17,7 +17,7 @@ from ._kernels.anytime import ANY_DEADLINE, ANY_K_ON, ANY_N, ANY_R_ON
 from ._kernels.c_entry import (ADVANCE_OFFSET, CMD_ADVANCE, CMD_PACKED, CMD_TRACK, IO_BUDGET, IO_DEADLINE, IO_DONE,
                                IO_SIZE, entry, make_table, set_rows)
 from ._kernels.clock import cycles_per_second
-from ._kernels.entry_call import call_entry
+from ._kernels.entry_call import SIGNATURE, call_entry
 from .tracker_state import TrackerError
 from ._kernels.state_layout import STATE_FLOATS
 
@@ -106,8 +106,10 @@ class CEntry:
 
     def _entry(self) -> int:
         """Load the C entry point (:func:`solver._kernels.c_entry.entry`) once: its address ``_fn``, which a
-        step calls through :func:`solver._kernels.entry_call.call_entry` (one numba dispatch), and its
-        ctypes function ``_call``, which a stream calls; returns the address."""
+        step calls through :func:`solver._kernels.entry_call.call_entry` (one numba dispatch, compiled or
+        loaded here, where a DK FMU's lane connects: its build ships it), and its ctypes function
+        ``_call``, which a stream calls; returns the address."""
         f = entry()
+        call_entry.compile(SIGNATURE.args)      # loaded from the cache (an FMU's shipped kernels) once built
         self._call, self._fn = f.ctypes, f.address
         return self._fn

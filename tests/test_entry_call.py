@@ -5,9 +5,13 @@ from __future__ import annotations
 
 import copy
 import ctypes
+import sys
+import threading
 
 import numpy as np
+import pytest
 from numba import carray, cfunc, types
+from numba.core.errors import TypingError
 
 from solver import Manipulator, Tracker, cached_map, circle_path, ik
 from solver._kernels.c_entry import ADVANCE_OFFSET, CMD_ADVANCE
@@ -34,6 +38,14 @@ def _gil_state(table, cmd, t, h):
     return _gil_held()
 
 
+@cfunc(_SIG)
+def _raises(table, cmd, t, h):
+    """A kernel that raises (numba prints the error and the C function answers 0)."""
+    if cmd > 0:
+        raise ValueError("a kernel raised")
+    return 5
+
+
 def test_call_entry_hands_its_arguments_to_the_c_function_in_order_and_returns_its_answer():
     table = np.array([7, 0, 0, 0], dtype=np.int64)
     r = call_entry(_echo.address, table.ctypes.data, 3, 0.25, 1.5)
@@ -47,6 +59,25 @@ def test_call_entry_releases_the_gil_around_the_call_as_ctypes_does():
     assert _gil_held() == 1                                 # here, in Python, we hold it
     assert call_entry(_gil_state.address, 0, 0, 0.0, 0.0) == 0
     assert _gil_state.ctypes(None, 0, 0.0, 0.0) == 0
+
+
+def test_call_entry_has_one_signature_other_argument_types_are_refused_not_compiled():
+    table = np.zeros(4, dtype=np.int64)
+    with pytest.raises(TypingError, match="expected \\(int64, int64, int64, float64, float64\\)"):
+        call_entry(_echo.address, table.ctypes.data, 3, 1, 0.0)          # an int for t
+    assert len(call_entry.signatures) == 1
+
+
+def test_a_kernel_that_raises_inside_the_call_answers_0_from_a_worker_thread_and_python_lives_on(monkeypatch):
+    seen = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: seen.append(u.exc_value))   # where numba reports it
+    answers = []
+    worker = threading.Thread(target=lambda: answers.append(
+        (call_entry(_raises.address, 0, 1, 0.0, 0.0), call_entry(_raises.address, 0, 0, 0.0, 0.0))))
+    worker.start()
+    worker.join()
+    assert answers == [(0, 5)]                              # the error's answer, then a normal call
+    assert [str(e) for e in seen] == ["a kernel raised"]    # reported, the GIL taken back to do so
 
 
 def test_a_tracker_step_through_call_entry_is_the_step_through_ctypes_bit_for_bit():

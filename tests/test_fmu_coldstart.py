@@ -145,6 +145,16 @@ def test_first_steps_compile_nothing_in_a_fresh_read_only_folder(fmus, tmp_path,
         assert report["solver"].startswith(str(tmp_path / "extracted"))
 
 
+def test_the_dk_fmus_python_path_compiles_nothing_either(fmus, tmp_path):
+    """Without the loader's fast lane every doStep is the slave's Python step (what the lane hands back
+    when a step is not routine: unreachable, singular, refused), which calls the tracker's entry point
+    through :func:`solver._kernels.entry_call.call_entry`: the FMU ships that too."""
+    report, caches = _cold(fmus["RRRDirectKinematics"], tmp_path, {"RRR_DK_FAST_LANE": "0"})
+    assert report["error"] is None and len(report["outputs"]) == 10, report["stderr"][-2000:]
+    assert report["compiled"] == [], report["compiled"]
+    assert _written(caches, tmp_path / "extracted") == []
+
+
 def test_another_cpu_and_an_unwritable_cache_still_load_the_shipped_kernels(fmus, tmp_path):
     """A process whose CPU is not this one's (another name in numba's key) and whose cache root
     cannot be created (under a file) still loads every kernel from the FMU."""

@@ -8,8 +8,8 @@ the rows ``T_*``), so the same machine code serves
   ``t`` s after the last sample (NaN: unknown), deadline ``h`` (cycles; 0: none), both also left in
   ``io[IO_DT]``, ``io[IO_DEADLINE]``; returns the step's ``uncertain_since`` (or
   :data:`.stepper.NOT_FINITE`) plus :data:`ADVANCE_OFFSET`, so that a kernel that raised (0) needs no
-  read of ``io[IO_DONE]``.  What :meth:`solver.Tracker.step` calls (through ctypes: one call of
-  four scalars instead of a 17-argument numba dispatch);
+  read of ``io[IO_DONE]``.  What :meth:`solver.Tracker.step` calls (through
+  :func:`.entry_call.call_entry`: one numba dispatch of five scalars instead of a 17-argument one);
 - :data:`CMD_PACKED`: the step of a caller that wrote the state and anytime packs itself (the
   TrackerState path, :meth:`solver.TrackerState.pack`);
 - :data:`CMD_TRACK`: a whole stream (what :meth:`solver.Tracker.track` calls once): the steps to the joints
