@@ -40,7 +40,7 @@ def _gil_state(table, cmd, t, h):
 
 @cfunc(_SIG)
 def _raises(table, cmd, t, h):
-    """A kernel that raises (numba prints the error and the C function answers 0)."""
+    """A kernel that raises (numba reports the error through sys.unraisablehook; the C function answers 0)."""
     if cmd > 0:
         raise ValueError("a kernel raised")
     return 5
@@ -90,6 +90,8 @@ def test_a_tracker_step_through_call_entry_is_the_step_through_ctypes_bit_for_bi
     assert b._fn == 0                                       # a copy looks its entry's address up anew
     dt = 1e-3                                               # a time step: the call's t, which a swap would misplace
     flat = b._flat_state()
+    # (steps 1-3 of ``a`` take the TrackerState path, CMD_PACKED: the encoder-grid watch after a reset
+    # with exact joints; the others CMD_ADVANCE: both of call_entry's call sites)
     for k in range(1, len(q)):
         Xa, info = a.step(q[k], dt=dt)
         b._q_in[...] = q[k]
