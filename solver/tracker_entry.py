@@ -36,8 +36,8 @@ class CEntry:
             map=self._map_pack, stencil=self._stencil, params=self._params, out_real=self._out_real,
             out_int=self._out_int, anytime=self._anytime, io=self._io))
         self._table_address = self._table.ctypes.data
-        self._call = None                       # entry().ctypes, for a stream (made with _fn on the first step)
-        self._fn = 0                            # entry().address: a step's call (entry_call.call_entry)
+        self._call = None                       # entry().ctypes, for a stream, and
+        self._fn = 0                            # entry().address, for a step: both made by _entry() when _fn is 0
 
     def _kernel(self, q, deadline):
         anytime, walk = self._anytime, self.state.walk
@@ -64,7 +64,7 @@ class CEntry:
         tracker's step budget (none without one).  The call releases the GIL: another thread may run
         meanwhile, but not on this tracker (a tracker is one thread's)."""
         self._io[IO_BUDGET] = 0.0 if self.step_budget is None else self.step_budget * cycles_per_second()
-        if self._call is None:
+        if not self._fn:
             self._entry()
         steps = self._call(table.ctypes.data, CMD_TRACK, 0.0, 0.0)
         if self._io[IO_DONE] != 1.0:
@@ -88,9 +88,7 @@ class CEntry:
         self._backup = np.empty(STATE_FLOATS)
         table = self._table.copy()
         set_rows(table, dict(backup=self._backup, real=real, integer=integer, boolean=boolean, slots=slots))
-        if self._call is None:
-            self._entry()
-        return self._fn, table
+        return self._fn or self._entry(), table
 
     @property
     def c_io(self) -> np.ndarray:

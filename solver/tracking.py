@@ -277,7 +277,7 @@ class _TrackerBase:
         self._kernel(q, deadline)
         of, oi = self._out_real, self._out_int
         certain = bool(oi[I_CERTAIN])
-        info = StepInfo.from_result(of, oi, st.since(certain))
+        info = _from_views(self._views, st.since(certain))[1]           # (the tracker's views of of, oi)
         if deadline and not certain and self._out_of_budget():
             info = info._replace(out_of_budget=True)
         self.state = new = st.after(q, dt, of, oi, extra, None if certain else self._walk())

@@ -90,13 +90,12 @@ def test_a_tracker_step_through_call_entry_is_the_step_through_ctypes_bit_for_bi
     assert b._fn == 0                                       # a copy looks its entry's address up anew
     dt = 1e-3                                               # a time step: the call's t, which a swap would misplace
     flat = b._flat_state()
+    b._entry()                                              # its ctypes function
     # (steps 1-3 of ``a`` take the TrackerState path, CMD_PACKED: the encoder-grid watch after a reset
     # with exact joints; the others CMD_ADVANCE: both of call_entry's call sites)
     for k in range(1, len(q)):
         Xa, info = a.step(q[k], dt=dt)
         b._q_in[...] = q[k]
-        if b._call is None:
-            b._entry()
         since = b._call(b._table_address, CMD_ADVANCE, dt, 0.0) - ADVANCE_OFFSET
         b.flat_advanced()
         assert since == info.uncertain_since
